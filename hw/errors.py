@@ -19,3 +19,15 @@ class ProtocolError(HardwareError, ValueError):
 
 class DeviceFaultError(HardwareError):
     """A device reported a fault (the motors have already been commanded to stop)."""
+
+
+class DeviceDisconnectedError(HardwareError, ConnectionError):
+    """The link to a device went away (port unplugged, pty closed)."""
+
+
+class CommandError(HardwareError, ValueError):
+    """A command argument is invalid (non-finite, out of range); the message names it."""
+
+
+class DeviceIOError(HardwareError, OSError):
+    """A bus transfer to a device failed (I2C NACK, serial read error) and retries did not help."""

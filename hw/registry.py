@@ -1,0 +1,224 @@
+"""One registry for the three backends the runtime can drive: ``sim``, ``emulated`` and ``real``.
+
+``get_backend(name, config)`` returns an unopened :class:`hw.interfaces.Backend`; the runtime opens
+and closes it. Swapping the simulated chair for the real one is one setting: the name.
+
+* ``sim`` — the PyBullet digital twin (:func:`sim.backend.make_sim_backend`, imported lazily).
+* ``emulated`` — the *real drivers* talking to protocol emulators: the Roboteq driver over a pty to
+  :class:`hw.roboteq.emulator.RoboteqEmulator`, and SRF08 drivers on an emulated I2C bus
+  (:class:`hw.emulators.srf08.SRF08Bus`). Time is simulated by default (a :class:`hw.clock.ManualClock`
+  that the runtime's sleep advances and the emulators follow), or real with ``realtime = true``.
+* ``real`` — the Roboteq on a serial port and the SRF08 arrays on an I2C bus.
+
+Config keys (all optional unless stated; unknown keys are an error naming the allowed ones):
+
+* sim: as :func:`sim.backend.make_sim_backend`.
+* emulated: ``realtime`` (bool), ``firmware`` (``?FID`` text), ``echo`` (bool), ``rate_hz``
+  (controller loop), ``timeout_s``, ``retries``, ``watchdog_ms``, ``sonars`` (bool, default true),
+  ``sonar_range_m`` (what every emulated sonar hears; default none = no echo), ``sonar_max_range_m``,
+  ``spec`` (platform TOML path).
+* real: ``port`` (required, e.g. ``/dev/ttyACM0``), ``baudrate``, ``timeout_s``, ``retries``,
+  ``watchdog_ms``, ``i2c_bus`` (int; no sonars without it), ``sonar_addresses`` (six 7-bit
+  addresses, left array 1-2-3 then right array 1-2-3; default 0x70..0x75), ``sonar_max_range_m``,
+  ``spec``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from hw.errors import HardwareError
+from hw.interfaces import Backend, Clock, PIDConfig
+
+
+class BackendConfigError(HardwareError, ValueError):
+    """A backend name or config value is invalid."""
+
+
+BACKENDS = ("sim", "emulated", "real")
+SONAR_ARRAY_NAMES = ("sonar_array_left", "sonar_array_right")
+DEFAULT_SONAR_ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
+# Sonars are read one after the other (their beams overlap); with 6 sonars at the default 11 m range
+# setting (65 ms each) a cycle would take 390 ms. Safety looks at obstacles within a few metres, so
+# the range register is set for 2 m: (46 x 43 mm), 11.9 ms per ranging, 71 ms for all six.
+DEFAULT_SONAR_MAX_RANGE_M = 2.0
+
+_EMULATED_KEYS = {
+    "realtime", "firmware", "echo", "rate_hz", "timeout_s", "retries", "watchdog_ms",
+    "sonars", "sonar_range_m", "sonar_max_range_m", "spec",
+}  # fmt: skip
+_REAL_KEYS = {
+    "port", "baudrate", "timeout_s", "retries", "watchdog_ms", "i2c_bus", "sonar_addresses",
+    "sonar_max_range_m", "spec",
+}  # fmt: skip
+
+
+@dataclass
+class ManagedBackend(Backend):
+    """A Backend that also owns helpers to stop after the devices close (emulators, buses)."""
+
+    on_close: list[Callable[[], None]] = field(default_factory=list)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            for fn in reversed(self.on_close):
+                fn()
+
+
+def get_backend(name: str, config: Mapping[str, Any] | None = None) -> Backend:
+    """Build the backend called ``name`` (``sim``, ``emulated`` or ``real``) from ``config``."""
+    cfg = dict(config or {})
+    if name == "sim":
+        from sim.backend import make_sim_backend
+
+        return make_sim_backend(cfg)
+    if name == "emulated":
+        return _emulated(cfg)
+    if name == "real":
+        return _real(cfg)
+    raise BackendConfigError(f"backend name {name!r} is not one of {BACKENDS}")
+
+
+def _check_keys(cfg: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    unknown = set(cfg) - allowed
+    if unknown:
+        raise BackendConfigError(f"{where} backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+
+
+def _number(cfg: Mapping[str, Any], key: str, default: float, where: str, *, positive: bool = True) -> float:
+    v = cfg.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or (positive and v <= 0):
+        raise BackendConfigError(f"{where} backend config: {key}={v!r}: expected a finite number > 0")
+    return float(v)
+
+
+def _int(cfg: Mapping[str, Any], key: str, default: int, where: str) -> int:
+    v = cfg.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise BackendConfigError(f"{where} backend config: {key}={v!r}: expected an integer")
+    return v
+
+
+def _spec(cfg: Mapping[str, Any]) -> Any:
+    from robchair.spec import load_spec
+
+    return load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
+
+
+def design_pid_configs(spec: Any) -> tuple[PIDConfig, PIDConfig]:
+    """The SPEC 5 pole-placement PID of each motor (left = channel 1, right = channel 2)."""
+    from robchair.control import design_pid, identify_from_step_metrics
+
+    out = []
+    for ch in (1, 2):
+        step = spec.step_for_channel(ch)
+        d = design_pid(identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant)
+        out.append(PIDConfig(d.kp, d.ki, d.kd))
+    return out[0], out[1]
+
+
+def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
+    from hw.sonar_array import RangerSonarArray
+    from hw.srf08 import SRF08
+
+    if len(addresses) != 6:
+        raise BackendConfigError(f"sonar_addresses={list(addresses)!r}: expected six addresses (two arrays of three)")
+    arrays = []
+    for k, name in enumerate(SONAR_ARRAY_NAMES):
+        rangers = [
+            SRF08(bus, a, name=f"{name}/sonar{i + 1}", clock=clock, max_range_m=max_range_m)
+            for i, a in enumerate(addresses[3 * k : 3 * k + 3])
+        ]
+        arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+    return tuple(arrays)
+
+
+def _emulated(cfg: dict[str, Any]) -> Backend:
+    from hw.clock import ManualClock, MonotonicClock
+    from hw.roboteq.driver import RoboteqMDC2230
+    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator
+
+    where = "emulated"
+    _check_keys(cfg, _EMULATED_KEYS, where)
+    spec = _spec(cfg)
+    clock: Clock = MonotonicClock() if cfg.get("realtime", False) else ManualClock()
+    emu = RoboteqEmulator(
+        spec,
+        firmware=str(cfg.get("firmware", DEFAULT_FIRMWARE)),
+        echo=bool(cfg.get("echo", True)),
+        clock=clock,
+        rate_hz=_number(cfg, "rate_hz", 1000.0, where),
+    )
+    path = emu.start()
+    on_close: list[Callable[[], None]] = [emu.stop]
+    try:
+        motors = RoboteqMDC2230(
+            path,
+            timeout_s=_number(cfg, "timeout_s", 0.1, where),
+            retries=_int(cfg, "retries", 2, where),
+            watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
+            encoder_ppr=int(spec.encoder_ppr),
+            max_rpm=int(spec.max_motor_rpm),
+            pid=design_pid_configs(spec),
+            clock=clock,
+        )
+        arrays: tuple[Any, ...] = ()
+        extras: dict[str, Any] = {"roboteq_emulator": emu}
+        if cfg.get("sonars", True):
+            from hw.emulators.srf08 import SRF08Bus
+
+            heard = cfg.get("sonar_range_m")
+            r = math.inf if heard is None else _number(cfg, "sonar_range_m", 1.0, where)
+            bus = SRF08Bus(clock, lambda _addr, _t: r, addresses=DEFAULT_SONAR_ADDRESSES)
+            extras["srf08_bus"] = bus
+            arrays = _sonar_arrays(
+                bus, DEFAULT_SONAR_ADDRESSES, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
+            )
+    except BaseException:
+        emu.stop()
+        raise
+    return ManagedBackend(
+        name="emulated", clock=clock, motors=motors, sonar_arrays=arrays, on_close=on_close, extras=extras
+    )
+
+
+def _real(cfg: dict[str, Any]) -> Backend:
+    from hw.clock import MonotonicClock
+    from hw.roboteq.driver import RoboteqMDC2230
+
+    where = "real"
+    _check_keys(cfg, _REAL_KEYS, where)
+    port = cfg.get("port")
+    if not isinstance(port, str) or not port:
+        raise BackendConfigError("real backend config: port is required (the Roboteq's serial device, e.g. /dev/ttyACM0)")
+    spec = _spec(cfg)
+    clock = MonotonicClock()
+    motors = RoboteqMDC2230(
+        port,
+        baudrate=_int(cfg, "baudrate", 115200, where),
+        timeout_s=_number(cfg, "timeout_s", 0.1, where),
+        retries=_int(cfg, "retries", 2, where),
+        watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
+        encoder_ppr=int(spec.encoder_ppr),
+        max_rpm=int(spec.max_motor_rpm),
+        pid=design_pid_configs(spec),
+        clock=clock,
+    )
+    arrays: tuple[Any, ...] = ()
+    on_close: list[Callable[[], None]] = []
+    if cfg.get("i2c_bus") is not None:
+        from hw.srf08 import _open_smbus
+
+        bus = _open_smbus(_int(cfg, "i2c_bus", 1, where))
+        on_close.append(bus.close)
+        addresses = cfg.get("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
+        arrays = _sonar_arrays(
+            bus, addresses, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
+        )
+    return ManagedBackend(name="real", clock=clock, motors=motors, sonar_arrays=arrays, on_close=on_close)

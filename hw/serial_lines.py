@@ -1,0 +1,51 @@
+"""Line-oriented serial links to the Arduino boards (SRF04 echo timer, servo, joystick).
+
+The drivers talk to a *transport*: anything with pyserial's ``write``, ``readline``, ``in_waiting``
+and ``close``. A real port is opened by :func:`open_serial` (pyserial imported only then); tests use
+the emulators next to each driver, which answer the same ASCII line protocols byte for byte.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from hw.errors import DeviceIOError, HardwareError
+
+
+@runtime_checkable
+class LineTransport(Protocol):
+    """The subset of ``serial.Serial`` the line drivers use."""
+
+    @property
+    def in_waiting(self) -> int: ...
+
+    def write(self, data: bytes) -> int | None: ...
+
+    def readline(self) -> bytes: ...
+
+    def close(self) -> None: ...
+
+
+def open_serial(port: str, baudrate: int = 115200, timeout_s: float = 0.05) -> LineTransport:
+    """Open a serial port as a :class:`LineTransport` (8N1; ``readline`` times out after ``timeout_s``)."""
+    try:
+        import serial
+    except ImportError as exc:  # pragma: no cover - a declared dependency
+        raise HardwareError("serial devices need 'pyserial': pip install pyserial") from exc
+    try:
+        port_obj: LineTransport = serial.Serial(port, baudrate=baudrate, timeout=timeout_s)
+    except (OSError, serial.SerialException) as exc:
+        raise DeviceIOError(getattr(exc, "errno", None), f"cannot open serial port {port!r}: {exc}") from exc
+    return port_obj
+
+
+def decode_line(raw: bytes) -> str | None:
+    """ASCII line without its CR/LF, or None when it is not clean printable ASCII (line noise)."""
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError:
+        return None
+    text = text.rstrip("\r\n")
+    if not text.isprintable():
+        return None
+    return text

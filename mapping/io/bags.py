@@ -1,0 +1,236 @@
+"""ROS bags through the ``rosbags`` library: read ``sensor_msgs/PointCloud2`` frames, write messages.
+
+ROS 1 ``.bag`` files (any chunk compression rosbags reads: none, bz2, lz4) use the ROS 1 Noetic type
+store; ROS 2 bags (a folder with ``metadata.yaml``, or a bare ``.db3`` / ``.mcap`` file) use ROS 2
+Humble's. Topic selection: the named topic, or the only PointCloud2 topic when none is named.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mapping.errors import BagTopicError, PointCloudFormatError
+from mapping.io.frame import CloudFrame
+from mapping.pointcloud2 import decode
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+
+
+def is_ros2_bag(path: Path) -> bool:
+    """True for a ROS 2 bag folder (has metadata.yaml) or a bare .db3 / .mcap storage file."""
+    return (path.is_dir() and (path / "metadata.yaml").exists()) or path.suffix in (".db3", ".mcap")
+
+
+def _typestore(ros2: bool) -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+
+
+def _reader_errors() -> tuple[type[BaseException], ...]:
+    from rosbags.rosbag1 import ReaderError as Reader1Error
+    from rosbags.rosbag2 import ReaderError as Reader2Error
+    from rosbags.serde import SerdeError
+
+    # Truncated or corrupt bags also surface as struct/index/value errors from the parsers.
+    return (Reader1Error, Reader2Error, SerdeError, struct.error, IndexError, ValueError, KeyError, EOFError)
+
+
+def _open_reader(path: Path) -> tuple[Any, bool]:
+    from rosbags.rosbag1 import Reader as Reader1
+    from rosbags.rosbag2 import Reader as Reader2
+
+    ros2 = is_ros2_bag(path)
+    try:
+        reader = Reader2(path) if ros2 else Reader1(path)
+        reader.open()
+    except _reader_errors() as exc:
+        raise PointCloudFormatError(f"{path}: cannot open bag ({exc})") from None
+    except Exception as exc:  # sqlite3/mcap errors of corrupt files have no common base class
+        if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError | PermissionError):
+            raise PointCloudFormatError(f"{path}: cannot open bag ({exc})") from None
+        if isinstance(exc, OSError):
+            raise
+        raise PointCloudFormatError(f"{path}: cannot open bag ({type(exc).__name__}: {exc})") from None
+    return reader, ros2
+
+
+def bag_topics(path: Path | str) -> dict[str, str]:
+    """Topic -> message type of every connection in a bag."""
+    path = Path(path)
+    reader, _ = _open_reader(path)
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def select_topic(path: Path | str, topics: dict[str, str], topic: str | None) -> str:
+    """The PointCloud2 topic to read: ``topic`` if given (and present), else the only one.
+
+    Raises:
+        BagTopicError: The topic is absent or not PointCloud2, or there is no / more than one
+            PointCloud2 topic to choose from; the message lists the bag's topics.
+    """
+    clouds = sorted(t for t, ty in topics.items() if ty == POINTCLOUD2)
+    listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
+    if topic is not None:
+        if topic not in topics:
+            raise BagTopicError(f"{path}: bag has no topic {topic!r}; available topics: {listing}")
+        if topics[topic] != POINTCLOUD2:
+            raise BagTopicError(f"{path}: topic {topic!r} is {topics[topic]}, not {POINTCLOUD2}")
+        return topic
+    if not clouds:
+        raise BagTopicError(f"{path}: bag has no {POINTCLOUD2} topic; available topics: {listing}")
+    if len(clouds) > 1:
+        raise BagTopicError(
+            f"{path}: bag has several PointCloud2 topics, choose one with --topic: {', '.join(clouds)}"
+        )
+    return clouds[0]
+
+
+@dataclass
+class BagClouds:
+    """The PointCloud2 frames of one topic of a bag; iterate to decode them one by one.
+
+    Attributes:
+        path: The bag.
+        topic: The topic read.
+        n_frames: Number of messages on the topic (for progress bars).
+    """
+
+    path: Path
+    topic: str
+    n_frames: int
+
+    def __iter__(self) -> Iterator[CloudFrame]:
+        reader, ros2 = _open_reader(self.path)
+        store = _typestore(ros2)
+        try:
+            conns = [c for c in reader.connections if c.topic == self.topic]
+            try:
+                for conn, bag_stamp, raw in reader.messages(connections=conns):
+                    msg = self._deserialize(store, ros2, raw, conn)
+                    points = decode(msg, organized=int(msg.height) > 1)
+                    stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                    yield CloudFrame(
+                        points=points,
+                        stamp_ns=stamp if stamp > 0 else int(bag_stamp),
+                        frame_id=str(msg.header.frame_id),
+                        source=f"{self.path}:{self.topic}",
+                    )
+            except PointCloudFormatError as exc:
+                raise PointCloudFormatError(f"{self.path}: topic {self.topic}: {exc}") from None
+            except (OSError, MemoryError):
+                raise
+            except Exception as exc:  # corrupt storage: rosbags, sqlite3 and mcap share no error base
+                raise PointCloudFormatError(
+                    f"{self.path}: cannot read messages ({type(exc).__name__}: {exc})"
+                ) from None
+        finally:
+            reader.close()
+
+    def _deserialize(self, store: Any, ros2: bool, raw: bytes, conn: Any) -> Any:
+        try:
+            if ros2:
+                return store.deserialize_cdr(raw, conn.msgtype)
+            return store.deserialize_ros1(raw, conn.msgtype)
+        except Exception as exc:  # rosbags raises assorted errors on a short or corrupt payload
+            raise PointCloudFormatError(
+                f"{self.path}: a {conn.msgtype} message on {self.topic} cannot be decoded "
+                f"({type(exc).__name__}: {exc})"
+            ) from None
+
+
+def open_bag_clouds(path: Path | str, topic: str | None = None) -> BagClouds:
+    """Select the PointCloud2 topic of a bag and count its messages (frames decode on iteration)."""
+    path = Path(path)
+    reader, _ = _open_reader(path)
+    try:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        chosen = select_topic(path, topics, topic)
+        n = sum(int(c.msgcount) for c in reader.connections if c.topic == chosen)
+    finally:
+        reader.close()
+    return BagClouds(path, chosen, n)
+
+
+def to_ros_pointcloud2(cloud: Any, *, ros2: bool = True) -> Any:
+    """A rosbags ``sensor_msgs/msg/PointCloud2`` from a :class:`mapping.pointcloud2.PointCloud2Data`."""
+    store = _typestore(ros2)
+    t = store.types
+    stamp = t["builtin_interfaces/msg/Time"](
+        sec=int(cloud.stamp_ns // 1_000_000_000), nanosec=int(cloud.stamp_ns % 1_000_000_000)
+    )
+    if ros2:
+        header = t["std_msgs/msg/Header"](stamp=stamp, frame_id=cloud.frame_id)
+    else:  # the ROS 1 Header also has a sequence number
+        header = t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=cloud.frame_id)
+    fields = [
+        t["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+        for f in cloud.fields
+    ]
+    return t[POINTCLOUD2](
+        header=header,
+        height=cloud.height,
+        width=cloud.width,
+        fields=fields,
+        is_bigendian=bool(cloud.is_bigendian),
+        point_step=cloud.point_step,
+        row_step=cloud.row_step,
+        data=np.asarray(cloud.data, dtype=np.uint8),
+        is_dense=bool(cloud.is_dense),
+    )
+
+
+def write_bag(
+    path: Path | str,
+    messages: list[tuple[str, str, int, Any]],
+    *,
+    ros2: bool = True,
+    storage: str = "sqlite3",
+    compression: str | None = None,
+) -> Path:
+    """Write messages to a new bag.
+
+    Args:
+        path: Target (a folder for ROS 2, a ``.bag`` file for ROS 1); must not exist.
+        messages: (topic, msgtype, stamp_ns, message object of the matching type store) in order.
+        ros2: ROS 2 (Humble types, bag version 8) or ROS 1 (Noetic types).
+        storage: ROS 2 storage plugin, ``sqlite3`` or ``mcap``.
+        compression: ROS 1 chunk compression, ``None``, ``"bz2"`` or ``"lz4"``.
+    """
+    path = Path(path)
+    store = _typestore(ros2)
+    if ros2:
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+
+        plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
+        with Writer2(path, version=8, storage_plugin=plugin) as writer:
+            conns: dict[str, Any] = {}
+            for topic, msgtype, stamp, msg in messages:
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                writer.write(conns[topic], int(stamp), store.serialize_cdr(msg, msgtype))
+    else:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        w1 = Writer1(path)
+        if compression is not None:
+            w1.set_compression(
+                {"bz2": Writer1.CompressionFormat.BZ2, "lz4": Writer1.CompressionFormat.LZ4}[compression]
+            )
+        with w1 as writer:
+            conns = {}
+            for topic, msgtype, stamp, msg in messages:
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                writer.write(conns[topic], int(stamp), store.serialize_ros1(msg, msgtype))
+    return path

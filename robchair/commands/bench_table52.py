@@ -1,0 +1,240 @@
+"""``robchair bench table52``: the thesis's Table 5.2 reproduced with a simulated Kinect v2 HD.
+
+Each of the nine objects (standing person in three poses, bench, plant, closet, chair, seated person
+in two poses; meshes from ``assets/meshes``) stands alone on a floor in a fresh PyBullet world and is
+captured once by the simulated Kinect v2 HD (1920x1080, registered and up-sampled from 512x424,
+noise on, seeded) from 1.0 m height at the distance (1.5 - 2.5 m) where it fits the vertical field of
+view. Only the object's points are kept (segmented by the body each pixel saw), mapped at 5 cm with
+``mapping.vhv.VHVMap`` (tolerance 5 cm), and counted: points, VHV structures, standard voxels and the
+mapping time, next to the thesis's numbers (SPEC section 2).
+
+The same run also times one 512x424 depth frame of the three ways to cast it on one core: the
+Open3D/Embree ray caster, PyBullet's CPU renderer and PyBullet's ``rayTestBatch`` (medians).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+#: Thesis Table 5.2: (object, mesh, points, VHV structures, standard voxels, ms).
+THESIS_ROWS: tuple[tuple[str, str, int, int, int, float], ...] = (
+    ("standing person 1", "person_standing_0.obj", 143154, 140, 659, 31.0507),
+    ("standing person 2", "person_standing_1.obj", 99651, 102, 418, 27.9779),
+    ("standing person 3", "person_standing_2.obj", 142975, 183, 674, 31.2319),
+    ("bench", "bench.obj", 22972, 83, 224, 23.7153),
+    ("plant", "plant.obj", 96993, 703, 1791, 24.6782),
+    ("closet", "closet.obj", 313366, 666, 2261, 40.4457),
+    ("chair", "chair.obj", 36896, 97, 210, 23.4143),
+    ("seated person 1", "person_seated_0.obj", 121481, 203, 622, 29.9869),
+    ("seated person 2", "person_seated_1.obj", 138905, 232, 680, 30.0971),
+)
+
+CAMERA_HEIGHT_M = 1.0
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "table52",
+        help="Table 5.2 in simulation: nine objects, Kinect v2 HD, VHV vs standard voxels at 5 cm",
+    )
+    p.add_argument("--out", type=Path, default=Path("out/bench_table52"), help="output folder (JSON)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the depth noise")
+    p.add_argument("--cell-size", type=float, default=0.05, help="grid cell side (m)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="VHV gap tolerance (m)")
+    p.add_argument("--repeats", type=int, default=5, help="timed repetitions per measurement (median)")
+    p.add_argument("--skip-backends", action="store_true", help="do not time the three depth backends")
+    p.set_defaults(func=_run)
+
+
+def _object_world(mesh_path: Path) -> tuple[int, int, Any]:
+    """A fresh DIRECT world with a floor and the object at the origin (front towards +x)."""
+    import numpy as np
+    import pybullet as p
+
+    from sim.raycast import read_obj_triangles
+
+    client = p.connect(p.DIRECT)
+    floor_c = p.createCollisionShape(p.GEOM_BOX, halfExtents=[10, 10, 0.01], physicsClientId=client)
+    p.createMultiBody(0, floor_c, -1, basePosition=[0, 0, -0.01], physicsClientId=client)
+    col = p.createCollisionShape(
+        p.GEOM_MESH, fileName=str(mesh_path), flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=client
+    )
+    vis = p.createVisualShape(p.GEOM_MESH, fileName=str(mesh_path), physicsClientId=client)
+    body = p.createMultiBody(0, col, vis, basePosition=[0, 0, 0], physicsClientId=client)
+    v, _ = read_obj_triangles(mesh_path)
+    return client, body, (np.min(v, axis=0), np.max(v, axis=0))
+
+
+def _camera_pose(bounds: Any, vfov_deg: float) -> tuple[Any, float]:
+    """Camera 1 m high on the +x side looking back at the object, far enough to see all of it."""
+    import numpy as np
+
+    lo, hi = bounds
+    half = math.tan(math.radians(vfov_deg) / 2) * 0.92
+    need = max((hi[2] - CAMERA_HEIGHT_M) / half, (CAMERA_HEIGHT_M - lo[2]) / half)
+    dist = min(max(need + hi[0], 1.5), 2.5)
+    t = np.eye(4)
+    t[:3, :3] = [[-1, 0, 0], [0, -1, 0], [0, 0, 1]]  # yaw pi: x forward looks along world -x
+    t[:3, 3] = [hi[0] + dist, 0.0, CAMERA_HEIGHT_M]
+    return t, float(dist)
+
+
+def _measure_object(name: str, mesh: Path, args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+    import pybullet as p
+
+    from mapping.grid import GridSpec
+    from mapping.vhv import VHVMap
+    from sim.kinect import KinectSim
+
+    client, body, bounds = _object_world(mesh)
+    try:
+        cam = KinectSim(client, "kinect2-hd", noise=True, rng=np.random.default_rng(args.seed))
+        reg = cam.model.registration
+        assert reg is not None
+        pose, dist = _camera_pose(bounds, reg.vfov_deg)
+        cap = cam.capture_full(pose)
+        world = cam.to_world(cap.frame.points.astype(np.float64), pose)
+        obj = world[cap.body == body]
+        obj = obj[np.all(np.isfinite(obj), axis=1)]
+        spec = GridSpec(cell_size=args.cell_size, size_x=8.0, size_y=8.0, centre=(0.0, 0.0))
+        times = []
+        m = None
+        for _ in range(max(1, args.repeats)):
+            m = VHVMap(spec, tolerance=args.tolerance)
+            t0 = time.perf_counter()
+            m.insert(obj, sensor_origin=tuple(pose[:3, 3]))
+            times.append((time.perf_counter() - t0) * 1e3)
+        assert m is not None
+        return {
+            "object": name,
+            "mesh": mesh.name,
+            "distance_m": round(dist, 3),
+            "points": len(obj),
+            "vhv_structures": int(m.n_structures),
+            "standard_voxels": int(m.n_voxels),
+            "ms": statistics.median(times),
+        }
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def _time_backends(mesh: Path, repeats: int) -> dict[str, float]:
+    """Median ms per 512x424 depth frame: Embree (1 thread), PyBullet TinyRenderer, rayTestBatch (1 thread)."""
+    import numpy as np
+    import pybullet as p
+
+    from sim.kinect import KinectSim, render_pybullet, render_raycast
+    from sim.raycast import MeshMirror
+
+    client, _, bounds = _object_world(mesh)
+    try:
+        k = KinectSim(client, "kinect2", noise=False, mirror=MeshMirror(client, nthreads=1))
+        intr = k.model.intrinsics
+        pose, _ = _camera_pose(bounds, k.model.vfov_deg)
+        far = k.model.max_range_m * 1.5
+        assert k.mirror is not None
+        k.mirror.sync()
+
+        def med(fn: Any, n: int) -> float:
+            fn()
+            ts = []
+            for _ in range(n):
+                t0 = time.perf_counter()
+                fn()
+                ts.append((time.perf_counter() - t0) * 1e3)
+            return statistics.median(ts)
+
+        out = {
+            "raycast_open3d_1thread_ms": med(lambda: render_raycast(k.mirror, pose, intr, far), repeats),
+            "raycast_open3d_1thread_with_sync_ms": med(lambda: (k.mirror._build(), render_raycast(k.mirror, pose, intr, far)), repeats),  # noqa: SLF001 - forced rebuild: the cost when a body moved
+            "pybullet_tinyrenderer_ms": med(lambda: render_pybullet(client, pose, intr, 0.05, far), repeats),
+        }
+        dirs = (intr.rays() @ pose[:3, :3].T).reshape(-1, 3) * far
+        origin = pose[:3, 3]
+        frm = np.broadcast_to(origin, dirs.shape)
+        to = frm + dirs
+
+        def ray_test() -> None:
+            step = 8192
+            for i in range(0, len(dirs), step):
+                p.rayTestBatch(frm[i : i + step].tolist(), to[i : i + step].tolist(), numThreads=1, physicsClientId=client)
+
+        out["pybullet_raytestbatch_1thread_ms"] = med(ray_test, max(1, min(repeats, 2)))
+        return out
+    finally:
+        p.disconnect(physicsClientId=client)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from robchair.errors import RobChairError
+    from robchair.outdir import staged_output_dir
+    from robchair.paths import ASSETS
+
+    if args.cell_size <= 0 or args.tolerance <= 0:
+        raise RobChairError(f"--cell-size {args.cell_size} and --tolerance {args.tolerance} must be > 0")
+    mesh_dir = ASSETS / "meshes"
+    rows = []
+    for name, mesh, t_pts, t_vhv, t_vox, t_ms in THESIS_ROWS:
+        path = mesh_dir / mesh
+        if not path.is_file():
+            raise RobChairError(f"mesh {path} of '{name}' is missing (regenerate with: python -m sim.meshgen)")
+        ours = _measure_object(name, path, args)
+        ours.update(
+            thesis_points=t_pts, thesis_vhv=t_vhv, thesis_voxels=t_vox, thesis_ms=t_ms,
+            ratio=ours["standard_voxels"] / max(ours["vhv_structures"], 1),
+            thesis_ratio=t_vox / t_vhv,
+        )  # fmt: skip
+        rows.append(ours)
+
+    hdr = (
+        f"{'object':<18} {'dist':>5} | {'points':>8} {'thesis':>8} | {'VHV':>5} {'thesis':>6} | "
+        f"{'voxels':>6} {'thesis':>6} | {'vox/VHV':>7} {'thesis':>6} | {'ms':>6} {'thesis':>6}"
+    )
+    print("Table 5.2 in simulation (Kinect v2 HD, 5 cm cells; thesis: real Kinect v2 HD, C++, i7)")
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(
+            f"{r['object']:<18} {r['distance_m']:>5.2f} | {r['points']:>8} {r['thesis_points']:>8} | "
+            f"{r['vhv_structures']:>5} {r['thesis_vhv']:>6} | {r['standard_voxels']:>6} {r['thesis_voxels']:>6} | "
+            f"{r['ratio']:>7.2f} {r['thesis_ratio']:>6.2f} | {r['ms']:>6.1f} {r['thesis_ms']:>6.1f}"
+        )
+    n = len(rows)
+    mean_vhv = sum(r["vhv_structures"] for r in rows) / n
+    mean_vox = sum(r["standard_voxels"] for r in rows) / n
+    summary = {
+        "mean_vhv": mean_vhv,
+        "mean_voxels": mean_vox,
+        "ratio_of_means": mean_vox / mean_vhv,
+        "mean_of_ratios": sum(r["ratio"] for r in rows) / n,
+        "thesis_mean_vhv": 183,
+        "thesis_mean_voxels": 659,
+        "thesis_ratio_of_means": 659 / 183,
+        "vhv_fewer_than_voxels_for_every_object": all(r["vhv_structures"] < r["standard_voxels"] for r in rows),
+    }
+    print("-" * len(hdr))
+    print(
+        f"mean: VHV {mean_vhv:.0f} vs voxels {mean_vox:.0f} -> ratio of means {summary['ratio_of_means']:.2f}x "
+        f"(thesis 183 vs 659 -> 3.60x); mean of per-object ratios {summary['mean_of_ratios']:.2f}x "
+        f"(thesis {sum(r['thesis_ratio'] for r in rows) / n:.2f}x); VHV < voxels for every object: "
+        f"{summary['vhv_fewer_than_voxels_for_every_object']}"
+    )
+    result: dict[str, Any] = {"rows": rows, "summary": summary, "seed": args.seed, "cell_size": args.cell_size}
+    if not args.skip_backends:
+        timing = _time_backends(mesh_dir / "closet.obj", args.repeats)
+        result["depth_backends_512x424"] = timing
+        print("\nOne 512x424 depth frame, one core (median ms):")
+        base = timing["raycast_open3d_1thread_ms"]
+        for key, val in timing.items():
+            print(f"  {key:<40} {val:>8.1f} ms  ({val / base:>5.1f}x the Embree ray cast)")
+    with staged_output_dir(args.out) as out:
+        (out / "table52.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    print(f"\nwrote {Path(args.out) / 'table52.json'}")
+    return 0

@@ -1,0 +1,84 @@
+"""``robchair run``: drive the chair (simulated, emulated or real) with the runtime loop.
+
+    robchair run --backend sim|emulated|real [--config FILE] [--route FILE] [--duration S] [--out DIR]
+
+The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
+keys of :mod:`hw.registry`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
+(:class:`robchair.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route file).
+The command source is the route (``--route`` wins over ``[route]``), else the backend's joystick.
+With ``--out`` the run is written as a ROS 2 bag (``run_bag/``), ``metrics.json`` and ``odometry.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("run", help="run the control loop on the sim, emulated or real chair")
+    p.add_argument("--backend", choices=("sim", "emulated", "real"), default="sim", help="which chair (default sim)")
+    p.add_argument("--config", type=Path, help="TOML config: [sim]/[emulated]/[real], [runtime], [safety], [route]")
+    p.add_argument("--route", type=Path, help="route TOML (waypoints, speed, lookahead_m, goal_tolerance_m)")
+    p.add_argument("--duration", type=float, default=60.0, help="maximum run time in seconds of the backend clock")
+    p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
+    p.add_argument("--out", type=Path, help="output folder: run_bag/, metrics.json, odometry.csv")
+    p.set_defaults(func=_run)
+
+
+def load_run_config(path: Path | None) -> dict[str, Any]:
+    from robchair.errors import ConfigError
+
+    if path is None:
+        return {}
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config {path}: not valid TOML: {exc}") from exc
+    allowed = {"sim", "emulated", "real", "runtime", "safety", "route"}
+    unknown = set(data) - allowed
+    if unknown:
+        raise ConfigError(f"config {path}: unknown tables {sorted(unknown)}; allowed {sorted(allowed)}")
+    return data
+
+
+def _run(args: argparse.Namespace) -> int:
+    from hw.registry import get_backend
+    from robchair.errors import ConfigError
+    from robchair.kinematics import DiffDrive
+    from robchair.runtime import JoystickSource, PurePursuit, Route, RuntimeConfig, run_to_dir
+    from robchair.safety import SafetyLayer, SafetyLimits
+    from robchair.spec import load_spec
+
+    cfg = load_run_config(args.config)
+    backend_cfg = dict(cfg.get(args.backend, {}))
+    if isinstance(backend_cfg.get("sensor"), str) and backend_cfg["sensor"].lower() == "none":
+        backend_cfg["sensor"] = None  # TOML has no null: sensor = "none" means no depth camera
+    spec = load_spec(backend_cfg["spec"]) if backend_cfg.get("spec") else load_spec()
+    rt_cfg = dict(cfg.get("runtime", {}))
+    if args.rate is not None:
+        rt_cfg["rate_hz"] = args.rate
+    try:
+        runtime_config = RuntimeConfig(**rt_cfg)
+    except TypeError as exc:
+        raise ConfigError(f"[runtime]: {exc}") from exc
+    safety = SafetyLayer(SafetyLimits.from_spec(spec, **cfg.get("safety", {})))
+    route = None
+    if args.route is not None:
+        route = Route.load(args.route)
+    elif "route" in cfg:
+        route = Route.from_dict(cfg["route"], f"{args.config} [route]")
+    backend = get_backend(args.backend, backend_cfg)
+    if route is not None:
+        source: Any = PurePursuit(route, DiffDrive(spec))
+    elif backend.joystick is not None:
+        source = JoystickSource(backend.joystick, safety.limits.max_speed, safety.limits.max_yaw_rate)
+    else:
+        backend.close()
+        raise ConfigError("no command source: give --route FILE (or a [route] table), or use a backend with a joystick")
+    result = run_to_dir(backend, source, args.duration, args.out, spec=spec, config=runtime_config, safety=safety)
+    print(json.dumps(result.metrics(), indent=2))
+    return 0 if result.driver_fault is None else 1

@@ -1,0 +1,210 @@
+"""The safety layer between a command source and the motors: limits, stops, and a log of every stop.
+
+Every cycle the runtime hands :meth:`SafetyLayer.filter` the wanted body twist (v m/s, w rad/s) and
+what it knows about the world and itself (:class:`SafetyInputs`). The layer
+
+1. stops (v = w = 0) when any stop condition holds, in this order of precedence:
+   ``driver_fault`` (latched: only :meth:`SafetyLayer.reset` clears it), ``deadline_missed`` (the
+   previous cycle overran its period), ``stale_sensor`` (a sensor gave nothing new for longer than
+   ``stale_after_s``), ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
+   obstacle ahead closer than the stopping distance for the speed the chair would have);
+2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
+   motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
+   change per cycle to the acceleration limits.
+
+Stopping distance grows with speed: ``d_stop(v) = margin + v * reaction_time + v**2 / (2 * brake_decel)``.
+Obstacle distances are measured from the front of the chair (sonar ranges from the sonar face, map
+distances from the footprint's front edge), so ``margin`` is the gap left when stopped.
+
+A stop is logged (``logging.warning``) and recorded in :attr:`SafetyLayer.stops` once when it starts,
+with its reason and a detail text; it is not logged again while the same reason persists.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+
+from robchair.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+class StopReason(enum.StrEnum):
+    DRIVER_FAULT = "driver_fault"
+    DEADLINE_MISSED = "deadline_missed"
+    STALE_SENSOR = "stale_sensor"
+    DEADMAN_RELEASED = "deadman_released"
+    OBSTACLE_SONAR = "obstacle_sonar"
+    OBSTACLE_MAP = "obstacle_map"
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Limits of the safety layer. Speeds default to the platform's maxima (set from the spec).
+
+    Attributes:
+        max_speed: |v| cap, m/s (the platform maximum is 0.62 m/s for 1000 RPM / 29, r = 0.172 m).
+        max_yaw_rate: |w| cap, rad/s.
+        max_accel: |dv/dt| while not stopping, m/s^2 (a comfortable value for a seated person).
+        max_yaw_accel: |dw/dt|, rad/s^2.
+        brake_decel: deceleration assumed when braking, m/s^2 (for the stopping distance).
+        reaction_time_s: delay before braking starts (one loop + controller + plant lag), s.
+        margin_m: gap kept to an obstacle when stopped, m.
+        stale_after_s: a sensor older than this stops the chair, s.
+    """
+
+    max_speed: float = 0.62
+    max_yaw_rate: float = 2.14
+    max_accel: float = 0.5
+    max_yaw_accel: float = 1.5
+    brake_decel: float = 0.8
+    reaction_time_s: float = 0.3
+    margin_m: float = 0.15
+    stale_after_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"safety.{name} = {value!r}: expected a finite number > 0")
+
+    @classmethod
+    def from_spec(cls, spec: object, **overrides: float) -> SafetyLimits:
+        """Speed caps from the platform (``DiffDrive.max_speed``, ``max_yaw_rate``), the rest default."""
+        from robchair.kinematics import DiffDrive
+
+        drive = DiffDrive(spec)  # type: ignore[arg-type]
+        base = {"max_speed": drive.max_speed, "max_yaw_rate": drive.max_yaw_rate}
+        unknown = set(overrides) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"safety: unknown keys {sorted(unknown)}; expected {sorted(cls.__dataclass_fields__)}")
+        base.update({k: float(v) for k, v in overrides.items()})
+        if base["max_speed"] > drive.max_speed or base["max_yaw_rate"] > drive.max_yaw_rate:
+            raise ConfigError(
+                f"safety.max_speed/max_yaw_rate = {base['max_speed']}/{base['max_yaw_rate']}: above the "
+                f"platform maximum {drive.max_speed:.3f} m/s / {drive.max_yaw_rate:.3f} rad/s"
+            )
+        return cls(**base)
+
+    def stopping_distance(self, speed: float) -> float:
+        """Distance needed to stop from ``speed`` m/s plus the margin, m."""
+        v = abs(speed)
+        return self.margin_m + v * self.reaction_time_s + v * v / (2.0 * self.brake_decel)
+
+
+@dataclass(frozen=True)
+class SafetyInputs:
+    """What the runtime knows this cycle. None = no such sensor / no information.
+
+    Attributes:
+        stamp_ns: time of this cycle.
+        sonar_distance_m: nearest obstacle ahead seen by the sonars (fused), from the chair's front.
+        map_distance_m: nearest occupied 2D-map cell in the corridor ahead, from the chair's front.
+        deadline_missed: the previous cycle overran its period.
+        stale_sensors: names of sensors whose newest reading is older than ``stale_after_s``.
+        driver_fault: text of a motor-driver fault, if one happened.
+        deadman: joystick dead-man button state (None when no joystick drives).
+    """
+
+    stamp_ns: int = 0
+    sonar_distance_m: float | None = None
+    map_distance_m: float | None = None
+    deadline_missed: bool = False
+    stale_sensors: tuple[str, ...] = ()
+    driver_fault: str | None = None
+    deadman: bool | None = None
+
+
+@dataclass(frozen=True)
+class StopRecord:
+    stamp_ns: int
+    reason: StopReason
+    detail: str
+
+
+@dataclass(frozen=True)
+class SafetyDecision:
+    v: float
+    w: float
+    stop: StopReason | None = None
+    detail: str = ""
+    limited: bool = False  # the twist was changed by a speed or acceleration limit
+
+
+@dataclass
+class SafetyLayer:
+    """Stateful filter: remembers the last output (for acceleration limits) and the latched fault."""
+
+    limits: SafetyLimits = field(default_factory=SafetyLimits)
+    stops: list[StopRecord] = field(default_factory=list)
+    _v: float = 0.0
+    _w: float = 0.0
+    _fault: str | None = None
+    _active: StopReason | None = None
+
+    def reset(self) -> None:
+        """Forget the latched driver fault and the last output (after the operator cleared a fault)."""
+        self._v = self._w = 0.0
+        self._fault = None
+        self._active = None
+
+    def _stop_reason(self, v_want: float, inputs: SafetyInputs) -> tuple[StopReason, str] | None:
+        if inputs.driver_fault is not None:
+            self._fault = inputs.driver_fault
+        if self._fault is not None:
+            return StopReason.DRIVER_FAULT, self._fault
+        if inputs.deadline_missed:
+            return StopReason.DEADLINE_MISSED, "the previous control cycle overran its period"
+        if inputs.stale_sensors:
+            return StopReason.STALE_SENSOR, f"no fresh data from {', '.join(inputs.stale_sensors)}"
+        if inputs.deadman is False:
+            return StopReason.DEADMAN_RELEASED, "joystick dead-man button released"
+        if v_want > 0.0 or self._v > 0.0:
+            # the faster of the wanted and the current speed decides how far ahead must be clear
+            d_stop = self.limits.stopping_distance(max(v_want, self._v))
+            for reason, dist in (
+                (StopReason.OBSTACLE_SONAR, inputs.sonar_distance_m),
+                (StopReason.OBSTACLE_MAP, inputs.map_distance_m),
+            ):
+                if dist is not None and math.isfinite(dist) and dist < d_stop:
+                    return reason, f"obstacle at {dist:.2f} m ahead < stopping distance {d_stop:.2f} m"
+        return None
+
+    def filter(self, v: float, w: float, inputs: SafetyInputs, dt: float) -> SafetyDecision:
+        """Return the twist to command this cycle (``dt`` = loop period, s)."""
+        if not (math.isfinite(v) and math.isfinite(w)):
+            # a broken command source is a fault of the software driving the chair: stop
+            self._fault = f"non-finite command v={v}, w={w}"
+            stop: tuple[StopReason, str] | None = (StopReason.DRIVER_FAULT, self._fault)
+        else:
+            stop = self._stop_reason(v, inputs)
+        if stop is not None:
+            reason, detail = stop
+            if reason != self._active:
+                self.stops.append(StopRecord(inputs.stamp_ns, reason, detail))
+                log.warning("safety stop: %s (%s)", reason.value, detail)
+            self._active = reason
+            self._v = self._w = 0.0
+            return SafetyDecision(0.0, 0.0, reason, detail)
+        self._active = None
+        lim = self.limits
+        v_out = min(max(v, -lim.max_speed), lim.max_speed)
+        w_out = min(max(w, -lim.max_yaw_rate), lim.max_yaw_rate)
+        # keep both wheels within the platform: |v| / max_speed + |w| / max_yaw_rate <= 1
+        load = abs(v_out) / lim.max_speed + abs(w_out) / lim.max_yaw_rate
+        if load > 1.0:
+            v_out, w_out = v_out / load, w_out / load
+        dv_max, dw_max = lim.max_accel * dt, lim.max_yaw_accel * dt
+        v_out = min(max(v_out, self._v - dv_max), self._v + dv_max)
+        w_out = min(max(w_out, self._w - dw_max), self._w + dw_max)
+        # the acceleration clamp moves v and w separately and can leave the diamond again: the wheel
+        # limit is a hard one, so it wins over the acceleration limit
+        load = abs(v_out) / lim.max_speed + abs(w_out) / lim.max_yaw_rate
+        if load > 1.0:
+            v_out, w_out = v_out / load, w_out / load
+        limited = not (math.isclose(v_out, v, abs_tol=1e-12) and math.isclose(w_out, w, abs_tol=1e-12))
+        self._v, self._w = v_out, w_out
+        return SafetyDecision(v_out, w_out, None, "", limited)

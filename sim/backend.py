@@ -1,0 +1,283 @@
+"""The simulated chair behind the hardware interfaces (DESIGN.md section 3): same Protocols as the drivers.
+
+:class:`SimChair` bundles a :class:`sim.world.World`, the scene, the :class:`sim.robot.SimRobot` and the
+simulated sensors (S2's :mod:`sim.kinect` and :mod:`sim.sonar`). The devices below implement
+:mod:`hw.interfaces` over it, so the runtime cannot tell it from the real chair:
+
+* :class:`SimClock` - simulated time; ``sleep_until_ns`` *advances the physics* to that time (the
+  runtime's loop therefore drives the simulation exactly as it waits for the real chair).
+* :class:`SimMotorController` - closed-loop speed mode over the plant + PID motors, encoder counters,
+  emergency stop (``!EX``: set points forced to 0 until ``!MG``).
+* :class:`SimDepthCamera` - the simulated Kinect at ``kinect_link``'s current world pose.
+* :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
+
+:func:`make_sim_backend` builds all of it from a small config mapping (what ``hw.registry`` passes).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hw.interfaces import (
+    Backend,
+    DepthFrame,
+    Device,
+    MotorFaults,
+    MotorState,
+    PIDConfig,
+    SonarArrayReading,
+)
+from robchair.spec import RobChairSpec, load_spec
+from sim.errors import SimError
+from sim.robot import SimRobot
+from sim.scene import Scene, SceneBodies, build_scene, load_scene
+from sim.world import World
+
+SONAR_MOUNTS = ("sonar_array_left", "sonar_array_right")
+# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, 90 = facing forward;
+# the URDF joint is 0 = forward, so joint angle = servo angle - 90
+SERVO_CENTRE_DEG = 90.0
+SONAR_NOISE_STD_M = 0.005  # before the SRF08's rounding to whole centimetres (its +-1 cm resolution)
+
+
+class SimChair:
+    """World + scene + robot + sensors: the whole simulated chair.
+
+    Args:
+        spec: Platform spec (None: the default).
+        scene: A :class:`sim.scene.Scene`, a scene file path, or None for an empty floor.
+        start: Initial (x, y, yaw).
+        sensor: Kinect model name (``kinect2``, ``kinect2-hd``, ``kinect2-qhd``, ``kinect1``) or None.
+        sonars: Build the two simulated sonar arrays.
+        seed: Seeds every noise generator (camera and sonars get independent child streams).
+        camera_backend: ``"raycast"`` (Open3D/Embree) or ``"pybullet"`` (PyBullet's renderer).
+        noise: Sensor noise on/off.
+        raycast_threads: Embree threads for the shared mirror (0 = all cores).
+    """
+
+    def __init__(self, spec: RobChairSpec | None = None, scene: Scene | str | Path | None = None,
+                 start: tuple[float, float, float] = (0.0, 0.0, 0.0), sensor: str | None = "kinect2",
+                 sonars: bool = True, seed: int = 0, camera_backend: str = "raycast", noise: bool = True,
+                 raycast_threads: int = 0) -> None:
+        self.spec = spec if spec is not None else load_spec()
+        self.world = World()
+        try:
+            self.scene = load_scene(scene) if isinstance(scene, str | Path) else scene
+            self.bodies = build_scene(self.scene, self.world.client) if self.scene is not None else SceneBodies()
+            self.robot = SimRobot(self.world, self.spec, start)
+            ss = np.random.SeedSequence(seed)
+            cam_seed, sonar_seed = ss.spawn(2)
+            self.mirror: Any = None
+            self.kinect: Any = None
+            self.sonars: dict[str, Any] = {}
+            if sensor is not None or sonars:
+                from sim.raycast import MeshMirror
+
+                # the chair never sees itself: its sensors sit outside its body, and leaving it out
+                # avoids rebuilding the ray-casting scene every frame as the chair moves
+                self.mirror = MeshMirror(self.world.client, exclude_bodies=(self.robot.body,),
+                                         nthreads=raycast_threads)
+            if sensor is not None:
+                from sim.kinect import KinectSim
+
+                self.kinect = KinectSim(self.world.client, sensor, backend=camera_backend, noise=noise,
+                                        rng=np.random.default_rng(cam_seed), mirror=self.mirror,
+                                        exclude_bodies=(self.robot.body,))
+            if sonars:
+                self.sonars = _make_sonars(self, np.random.default_rng(sonar_seed), noise)
+        except BaseException:
+            self.world.close()
+            raise
+
+    def step(self, n: int = 1) -> None:
+        """Advance the physics by ``n`` steps, moving the scripted people first."""
+        for _ in range(n):
+            if self.bodies.moving:
+                self.bodies.update(self.world.client, self.world.time)
+            self.world.step(1)
+
+    def kinect_pose(self) -> np.ndarray:
+        """World <- kinect_link (ground truth, from the physics)."""
+        return self.robot.link_transform("kinect_link")
+
+    def close(self) -> None:
+        self.world.close()
+
+
+def _make_sonars(chair: SimChair, rng: np.random.Generator, noise: bool) -> dict[str, Any]:
+    """One simulated SRF08 three-sonar array per sonar mount (S2's :mod:`sim.sonar`), sharing the mirror."""
+    from sim.sonar import SonarArraySim
+
+    out = {}
+    for mount, child in zip(SONAR_MOUNTS, rng.spawn(len(SONAR_MOUNTS))):
+        out[mount] = SonarArraySim(chair.world.client, "srf08", mirror=chair.mirror, rng=child,
+                                   noise_std_m=SONAR_NOISE_STD_M if noise else 0.0, name=mount)
+    return out
+
+
+class SimClock:
+    """Simulated time of a :class:`SimChair`; sleeping advances the physics (whole 240 Hz steps)."""
+
+    def __init__(self, chair: SimChair) -> None:
+        self.chair = chair
+
+    def now_ns(self) -> int:
+        return self.chair.world.now_ns()
+
+    def sleep_until_ns(self, t_ns: int) -> None:
+        """Step the physics until simulated time reaches ``t_ns`` (rounded up to the next step)."""
+        w = self.chair.world
+        target_steps = -(-int(t_ns) * w.physics_hz // 1_000_000_000)  # ceil
+        if target_steps > w.steps:
+            self.chair.step(target_steps - w.steps)
+
+
+class SimMotorController(Device):
+    """:class:`hw.interfaces.MotorController` over the simulated wheel motors (closed-loop speed mode)."""
+
+    name = "sim-motors"
+
+    def __init__(self, chair: SimChair) -> None:
+        self.chair = chair
+        self._estop = False
+
+    def close(self) -> None:
+        if self._is_open:
+            self.chair.robot.set_motor_rpm(0.0, 0.0)
+        super().close()
+
+    def set_speeds_rpm(self, left_rpm: float, right_rpm: float) -> None:
+        self._check_open()
+        if self._estop:
+            left_rpm = right_rpm = 0.0
+        self.chair.robot.set_motor_rpm(left_rpm, right_rpm)
+
+    def read_state(self) -> MotorState:
+        self._check_open()
+        r = self.chair.robot
+        return MotorState(stamp_ns=self.chair.world.now_ns(), encoder_counts=r.encoder_counts(),
+                          speed_rpm=r.wheel_speed_rpm(), faults=MotorFaults(emergency_stop=self._estop))
+
+    def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None:
+        """Replace both channels' PID gains (continuous units, as the control module designs them)."""
+        from robchair.control import DiscretePID
+
+        self._check_open()
+        r = self.chair.robot
+        for motor, cfg in ((r.left, left), (r.right, right)):
+            motor.pid = DiscretePID(cfg.kp, cfg.ki, cfg.kd, r.motor_dt, u_min=-r.spec.max_motor_rpm,
+                                    u_max=r.spec.max_motor_rpm)
+
+    def emergency_stop(self) -> None:
+        self._estop = True
+        self.chair.robot.set_motor_rpm(0.0, 0.0)
+
+    def release_stop(self) -> None:
+        self._estop = False
+
+
+class SimDepthCamera(Device):
+    """:class:`hw.interfaces.DepthCamera`: the simulated Kinect at the chair's ``kinect_link``."""
+
+    def __init__(self, chair: SimChair) -> None:
+        if chair.kinect is None:
+            raise SimError("this simulated chair has no depth camera (sensor=None)")
+        self.chair = chair
+        self.name = f"sim-{chair.kinect.model.name}"
+
+    def read(self) -> DepthFrame:
+        self._check_open()
+        return self.chair.kinect.capture(self.chair.kinect_pose(), stamp_ns=self.chair.world.now_ns())
+
+
+class SimSonarArray(Device):
+    """:class:`hw.interfaces.SonarArray`: three simulated sonars on a servo joint of the chair."""
+
+    def __init__(self, chair: SimChair, mount: str) -> None:
+        if mount not in chair.sonars:
+            raise SimError(f"this simulated chair has no sonar array {mount!r}")
+        self.chair, self.mount = chair, mount
+        self.name = f"sim-{mount}"
+
+    def set_servo_deg(self, angle_deg: float) -> None:
+        """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
+        self._check_open()
+        if not math.isfinite(angle_deg):
+            raise SimError(f"{self.name}: servo angle must be finite, got {angle_deg!r}")
+        self.chair.robot.set_servo_deg(self.mount, angle_deg - SERVO_CENTRE_DEG)
+
+    def servo_deg(self) -> float:
+        return self.chair.robot.servo_deg(self.mount) + SERVO_CENTRE_DEG
+
+    def read(self) -> SonarArrayReading:
+        self._check_open()
+        # the link pose already includes the servo's turn, so the sonar model gets servo angle 0
+        ranges = self.chair.sonars[self.mount].measure(self.chair.robot.link_transform(self.mount), 0.0)
+        return SonarArrayReading(stamp_ns=self.chair.world.now_ns(), ranges_m=ranges,
+                                 servo_angle_deg=self.servo_deg())
+
+
+def backend_from_chair(chair: SimChair) -> Backend:
+    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend`."""
+    return Backend(
+        name="sim",
+        clock=SimClock(chair),
+        motors=SimMotorController(chair),
+        sonar_arrays=tuple(SimSonarArray(chair, m) for m in SONAR_MOUNTS if m in chair.sonars),
+        depth_camera=SimDepthCamera(chair) if chair.kinect is not None else None,
+    )
+
+
+_CONFIG_KEYS = {"scene", "scenario", "sensor", "sonars", "seed", "start", "camera_backend", "noise", "spec"}
+
+
+def make_sim_backend(config: Mapping[str, Any] | None = None) -> Backend:
+    """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of ``hw.registry``).
+
+    Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
+    ``scene`` (name or path), ``sensor`` (Kinect model or None), ``sonars`` (bool), ``seed`` (int),
+    ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
+    (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
+
+    The returned backend has the underlying :class:`SimChair` as ``backend.chair`` (for ground truth).
+    """
+    cfg = dict(config or {})
+    unknown = set(cfg) - _CONFIG_KEYS
+    if unknown:
+        raise SimError(f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}")
+    spec = load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
+    kw: dict[str, Any] = {}
+    if cfg.get("scenario"):
+        from sim.scene import load_scenario
+
+        sc = load_scenario(cfg["scenario"], robot_radius=robot_radius(spec))
+        kw.update(scene=sc.scene, start=sc.start, sensor=sc.sensor, sonars=sc.sonars, seed=sc.seed)
+    if cfg.get("scene"):
+        from robchair.paths import SCENES
+
+        s = Path(cfg["scene"])
+        kw["scene"] = load_scene(s if s.is_file() else SCENES / f"{cfg['scene']}.toml")
+    for k in ("sensor", "sonars", "seed", "camera_backend", "noise"):
+        if k in cfg:
+            kw[k] = cfg[k]
+    if "start" in cfg:
+        st = tuple(float(v) for v in cfg["start"])
+        if len(st) != 3 or not all(math.isfinite(v) for v in st):
+            raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
+        kw["start"] = st
+    chair = SimChair(spec, **kw)
+    backend = backend_from_chair(chair)
+    backend.chair = chair  # type: ignore[attr-defined]
+    return backend
+
+
+def robot_radius(spec: RobChairSpec) -> float:
+    """Radius (m) of the circle about base_link that holds the chair's footprint."""
+    b = spec.body
+    xs = (b.centre_x - b.depth / 2, b.centre_x + b.depth / 2)
+    return float(max(math.hypot(x, b.width / 2) for x in xs))

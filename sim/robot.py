@@ -1,0 +1,251 @@
+"""The simulated RobChair: the URDF body in a :class:`sim.world.World`, motors, encoders, servos.
+
+Motors. PyBullet's joint motors are ideal: a velocity target is reached in one step. The real wheel
+motors are not: Appendix B measured a second-order open-loop step response (t_p ~ 0.4 s, 10-12 %
+overshoot) with the chair on the floor, i.e. with the chair's inertia included. So each wheel runs
+through :class:`robchair.control.DiscretePlant` (the identified plant, exact ZOH discretisation, unit
+DC gain: command RPM in, motor-shaft RPM out) at the controller rate, and in closed-loop speed mode a
+:class:`robchair.control.DiscretePID` (gains by the pole-placement design of SPEC 5) in front of it,
+measuring the wheel's actual joint speed like the Roboteq measures its encoder. The plant's output
+speed is applied as the wheel joint's velocity target with a high force limit, so the wheel follows
+the identified dynamics exactly and PyBullet supplies only the contact with the floor (the alternative,
+applying torque, would need a motor model the thesis does not give).
+
+Encoders count quadrature x4 on the motor shaft (or the wheel, per ``spec.encoder_on``), signed
+32-bit with wrap-around, from the wheel joint's accumulated angle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from robchair.kinematics import DiffDrive, Pose2D, wrap_int32
+from robchair.spec import RobChairSpec
+from sim.errors import SimError, SimulationDivergedError
+from sim.urdf import SERVO_MAX_TORQUE, SERVO_MAX_VELOCITY, WHEEL_JOINTS, apply_contact_dynamics, write_urdf
+from sim.world import World
+
+WHEEL_MAX_FORCE = 2000.0  # N m: high, so the wheel follows the plant's speed (see the module docstring)
+
+
+@dataclass
+class WheelMotor:
+    """One wheel channel: optional discrete PID in front of the identified discrete plant.
+
+    Attributes:
+        channel: Roboteq channel (1 left, 2 right).
+        plant: ``robchair.control.DiscretePlant`` (command RPM -> shaft RPM).
+        pid: ``robchair.control.DiscretePID`` or None for open loop.
+    """
+
+    channel: int
+    plant: Any
+    pid: Any
+    setpoint_rpm: float = 0.0
+    command_rpm: float = 0.0
+    output_rpm: float = 0.0
+    closed_loop: bool = True
+
+    def update(self, measured_rpm: float) -> float:
+        """One controller period: returns the shaft speed (RPM) the plant produces."""
+        if self.closed_loop and self.pid is not None:
+            self.command_rpm = float(self.pid.update(self.setpoint_rpm, measured_rpm))
+        else:
+            self.command_rpm = self.setpoint_rpm
+        self.output_rpm = float(self.plant.step(self.command_rpm))
+        return self.output_rpm
+
+    def reset(self) -> None:
+        self.plant.reset()
+        if self.pid is not None:
+            self.pid.reset()
+        self.setpoint_rpm = self.command_rpm = self.output_rpm = 0.0
+
+
+def make_wheel_motors(spec: RobChairSpec, dt: float, closed_loop: bool = True,
+                      pid_gains: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+                      ) -> tuple[WheelMotor, WheelMotor]:
+    """The two wheel motors: plants identified from the spec's step responses, PIDs by design (SPEC 5)."""
+    from robchair.control import DiscretePID, DiscretePlant, design_pid, identify_from_step_metrics
+
+    motors = []
+    for i, ch in enumerate((1, 2)):
+        step = spec.step_for_channel(ch)
+        plant = identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant
+        if pid_gains is not None:
+            kp, ki, kd = pid_gains[i]
+        else:
+            design = design_pid(plant)
+            kp, ki, kd = design.kp, design.ki, design.kd
+        pid = DiscretePID(kp, ki, kd, dt, u_min=-spec.max_motor_rpm, u_max=spec.max_motor_rpm)
+        motors.append(WheelMotor(ch, DiscretePlant(plant, dt), pid, closed_loop=closed_loop))
+    return motors[0], motors[1]
+
+
+class SimRobot:
+    """RobChair in a world: drive it with motor RPM set points, read encoders, poses and servos.
+
+    Args:
+        world: The physics world.
+        spec: Platform spec.
+        start: Initial (x, y, yaw) of ``base_link`` on the floor.
+        motor_rate_hz: Rate of the motor controller (plant + PID); must divide the physics rate.
+        closed_loop: Closed-loop speed mode (PID) or open loop (the command goes straight to the plant).
+    """
+
+    def __init__(self, world: World, spec: RobChairSpec, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 motor_rate_hz: int | None = None, closed_loop: bool = True) -> None:
+        import pybullet as p
+
+        self.world, self.spec, self.client = world, spec, world.client
+        self.drive = DiffDrive(spec)
+        rate = motor_rate_hz or world.physics_hz
+        if world.physics_hz % rate:
+            raise SimError(f"motor_rate_hz={rate} must divide the physics rate {world.physics_hz}")
+        self.motor_dt = 1.0 / rate
+        self._steps_per_motor = world.physics_hz // rate
+        q = p.getQuaternionFromEuler((0.0, 0.0, start[2]))
+        self.body = p.loadURDF(str(write_urdf(spec)), basePosition=(start[0], start[1], 0.0), baseOrientation=q,
+                               flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=self.client)
+        self.joints: dict[str, int] = {}
+        self.links: dict[str, int] = {}
+        for i in range(p.getNumJoints(self.body, physicsClientId=self.client)):
+            info = p.getJointInfo(self.body, i, physicsClientId=self.client)
+            self.joints[info[1].decode()] = i
+            self.links[info[12].decode()] = i
+        self.wheel_ids = tuple(self.joints[j] for j in WHEEL_JOINTS)
+        apply_contact_dynamics(self.client, self.body, spec)
+        # the base's PyBullet frame is its inertial frame; keep the offset to report base_link itself
+        dyn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)
+        self._inertial_inv = p.invertTransform(dyn[3], dyn[4])
+        # the URDF origin is placed at basePosition by loadURDF; settle onto the floor before use
+        self.servo_joints = {name: self.joints[m.joint.name] for name, m in spec.mounts.items() if m.joint is not None}
+        for jid in self.servo_joints.values():
+            p.setJointMotorControl2(self.body, jid, p.POSITION_CONTROL, targetPosition=0.0, force=SERVO_MAX_TORQUE,
+                                    maxVelocity=SERVO_MAX_VELOCITY, physicsClientId=self.client)
+        self.left, self.right = make_wheel_motors(spec, self.motor_dt, closed_loop)
+        self._apply_wheel_targets(0.0, 0.0)
+        self._step_count = 0
+        world.add_pre_step(self._pre_step)
+
+    # -- motors --------------------------------------------------------------------------------------
+    def set_closed_loop(self, closed: bool) -> None:
+        self.left.closed_loop = self.right.closed_loop = closed
+
+    def set_motor_rpm(self, left_rpm: float, right_rpm: float) -> None:
+        """Motor-shaft speed set points (clipped to +-max_motor_rpm)."""
+        for v, n in ((left_rpm, "left_rpm"), (right_rpm, "right_rpm")):
+            if not math.isfinite(v):
+                raise SimError(f"{n} must be finite, got {v!r}")
+        lim = self.spec.max_motor_rpm
+        self.left.setpoint_rpm = float(np.clip(left_rpm, -lim, lim))
+        self.right.setpoint_rpm = float(np.clip(right_rpm, -lim, lim))
+
+    def wheel_speed_rpm(self) -> tuple[float, float]:
+        """Measured motor-shaft speeds (left, right) from the wheel joints' velocities."""
+        import pybullet as p
+
+        states = p.getJointStates(self.body, self.wheel_ids, physicsClientId=self.client)
+        return (self.drive.wheel_to_rpm(states[0][1]), self.drive.wheel_to_rpm(states[1][1]))
+
+    def _apply_wheel_targets(self, left_rpm: float, right_rpm: float) -> None:
+        import pybullet as p
+
+        p.setJointMotorControlArray(
+            self.body, self.wheel_ids, p.VELOCITY_CONTROL,
+            targetVelocities=[self.drive.rpm_to_wheel(left_rpm), self.drive.rpm_to_wheel(right_rpm)],
+            forces=[WHEEL_MAX_FORCE, WHEEL_MAX_FORCE], physicsClientId=self.client,
+        )
+
+    def _pre_step(self) -> None:
+        if self._step_count % self._steps_per_motor == 0:
+            ml, mr = self.wheel_speed_rpm()
+            self._apply_wheel_targets(self.left.update(ml), self.right.update(mr))
+        self._step_count += 1
+
+    def encoder_counts(self) -> tuple[int, int]:
+        """Signed 32-bit quadrature x4 counters (left, right) from the accumulated wheel angles."""
+        import pybullet as p
+
+        states = p.getJointStates(self.body, self.wheel_ids, physicsClientId=self.client)
+        return tuple(wrap_int32(int(math.floor(self.drive.wheel_angle_to_counts(s[0])))) for s in states)  # type: ignore[return-value]
+
+    # -- poses ---------------------------------------------------------------------------------------
+    def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """World pose (position, quaternion xyzw) of ``base_link``; raises if the physics diverged."""
+        import pybullet as p
+
+        pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
+        pos, orn = p.multiplyTransforms(pos, orn, *self._inertial_inv)
+        if not (np.isfinite(pos).all() and np.isfinite(orn).all()):
+            raise SimulationDivergedError(
+                f"the chair's pose became non-finite at t = {self.world.time:.4f} s (position {pos})")
+        return tuple(pos), tuple(orn)  # type: ignore[return-value]
+
+    def pose2d(self) -> Pose2D:
+        """Ground-truth planar pose (x, y, yaw) of ``base_link``."""
+        import pybullet as p
+
+        pos, orn = self.base_pose()
+        yaw = p.getEulerFromQuaternion(orn)[2]
+        return Pose2D(pos[0], pos[1], yaw)
+
+    def link_pose(self, name: str) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """World pose of a URDF link frame (``kinect_link``, ``sonar_array_left``, ...)."""
+        import pybullet as p
+
+        if name == "base_link":
+            return self.base_pose()
+        if name not in self.links:
+            raise SimError(f"robot has no link {name!r} (links: {', '.join(sorted(self.links))})")
+        st = p.getLinkState(self.body, self.links[name], computeForwardKinematics=True, physicsClientId=self.client)
+        return tuple(st[4]), tuple(st[5])  # type: ignore[return-value]
+
+    def link_transform(self, name: str) -> np.ndarray:
+        """4x4 world <- link transform."""
+        import pybullet as p
+
+        pos, orn = self.link_pose(name)
+        t = np.eye(4)
+        t[:3, :3] = np.asarray(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
+        t[:3, 3] = pos
+        return t
+
+    # -- servos --------------------------------------------------------------------------------------
+    def set_servo_deg(self, mount: str, angle_deg: float) -> None:
+        """Command a sonar-array servo (clipped to its joint limits)."""
+        import pybullet as p
+
+        if mount not in self.servo_joints:
+            raise SimError(f"no servo on {mount!r} (servos: {', '.join(sorted(self.servo_joints))})")
+        if not math.isfinite(angle_deg):
+            raise SimError(f"servo angle for {mount!r} must be finite, got {angle_deg!r}")
+        j = self.spec.mounts[mount].joint
+        assert j is not None
+        target = float(np.clip(math.radians(angle_deg), j.lower, j.upper))
+        p.setJointMotorControl2(self.body, self.servo_joints[mount], p.POSITION_CONTROL, targetPosition=target,
+                                force=SERVO_MAX_TORQUE, maxVelocity=SERVO_MAX_VELOCITY, physicsClientId=self.client)
+
+    def servo_deg(self, mount: str) -> float:
+        """Current servo angle, degrees."""
+        import pybullet as p
+
+        if mount not in self.servo_joints:
+            raise SimError(f"no servo on {mount!r} (servos: {', '.join(sorted(self.servo_joints))})")
+        return math.degrees(p.getJointState(self.body, self.servo_joints[mount], physicsClientId=self.client)[0])
+
+    def contact_normal_forces(self, plane: int) -> dict[str, float]:
+        """Sum of normal contact forces (N) between each robot link and ``plane`` (for load checks)."""
+        import pybullet as p
+
+        names = {v: k for k, v in self.links.items()}
+        names[-1] = "base_link"
+        out: dict[str, float] = {}
+        for c in p.getContactPoints(self.body, plane, physicsClientId=self.client):
+            n = names[c[3]]
+            out[n] = out.get(n, 0.0) + c[9]
+        return out

@@ -1,0 +1,566 @@
+"""Declarative scenes and scenarios (TOML in ``assets/scenes/``), strictly validated, built into PyBullet.
+
+A **scene** file has a ``[scene]`` table and a list of ``[[object]]`` tables::
+
+    [scene]
+    name = "office"
+    description = "..."
+
+    [[object]]
+    name = "north_wall"
+    shape = "box"              # box | cylinder | sphere | capsule | mesh
+    size = [10.0, 0.1, 2.5]    # box: full extents (m)
+    xyz = [0.0, 3.0, 1.25]     # centre of the shape (mesh: its origin), metres
+    yaw = 0.0                  # or rpy = [r, p, y], radians (not both)
+    color = [0.8, 0.8, 0.8]    # RGB or RGBA in [0, 1]
+
+    [[object]]
+    name = "walker"
+    shape = "mesh"
+    mesh = "person_standing_2.obj"     # in assets/meshes/ (or relative to the scene file)
+    xyz = [3.0, 1.0, 0.0]
+    [object.motion]                     # scripted motion of a person: walks the waypoints at speed
+    waypoints = [[3.0, 1.0], [8.0, 1.0]]
+    speed = 1.2
+    loop = true                         # back and forth; false = stop at the last waypoint
+
+``cylinder`` and ``capsule`` take ``radius`` and ``length`` (along the object's z), ``sphere`` takes
+``radius``, ``mesh`` takes ``mesh`` and an optional ``scale``.
+
+A **scenario** file has a ``[scenario]`` table (scene, duration, sensor, seed, start pose) and a
+``[route]`` table (waypoints the chair follows with pure pursuit, cruise speed, look-ahead)::
+
+    [scenario]
+    name = "office_corridor"
+    scene = "office"          # a scene name in the same folder, or a path relative to this file
+    duration = 12.0           # seconds of simulated time
+    sensor = "kinect2"        # kinect2 | kinect2-hd | kinect2-qhd | kinect1
+    sonars = true
+    seed = 0
+    start = [0.0, 0.0, 0.0]   # x, y, yaw of base_link
+    [route]
+    waypoints = [[2.0, 0.0], [4.0, 1.0]]
+    speed = 0.5
+    lookahead = 0.6
+
+Every key is checked: an unknown key, a wrong type, a missing mesh or an impossible pose (non-finite,
+under the floor, overlapping the chair at its start) raises :class:`sim.errors.ScenarioError` naming the
+file, the line of the key (found in the raw text, since ``tomllib`` keeps no positions) and the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from robchair.paths import ASSETS, SCENES
+from sim.errors import ScenarioError
+from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, rot_rpy, sphere
+
+MESHES_DIR = ASSETS / "meshes"
+SHAPES = ("box", "cylinder", "sphere", "capsule", "mesh")
+SENSORS = ("kinect2", "kinect2-hd", "kinect2-qhd", "kinect1")
+
+_SCENE_KEYS = {"name", "description"}
+_OBJECT_KEYS = {"name", "shape", "size", "radius", "length", "mesh", "scale", "xyz", "yaw", "rpy", "color",
+                "motion"}
+_MOTION_KEYS = {"waypoints", "speed", "loop"}
+_SCENARIO_KEYS = {"name", "description", "scene", "duration", "sensor", "sonars", "seed", "start"}
+_ROUTE_KEYS = {"waypoints", "speed", "lookahead"}
+_FLOOR_TOLERANCE = 1e-3  # m: a shape may touch the floor, not go through it
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Scripted walk: along ``waypoints`` (x, y) at ``speed`` m/s, back and forth if ``loop``."""
+
+    waypoints: tuple[tuple[float, float], ...]
+    speed: float
+    loop: bool = True
+
+    def pose_at(self, t: float) -> tuple[float, float, float]:
+        """Position (x, y) and heading (yaw, along the walking direction) at time ``t`` seconds."""
+        pts = np.asarray(self.waypoints, dtype=float)
+        seg = np.diff(pts, axis=0)
+        lengths = np.hypot(seg[:, 0], seg[:, 1])
+        total = float(lengths.sum())
+        s = self.speed * max(t, 0.0)
+        backwards = False
+        if self.loop and total > 0:
+            s = s % (2 * total)
+            if s > total:
+                s, backwards = 2 * total - s, True
+        s = min(s, total)
+        k = int(np.searchsorted(np.cumsum(lengths), s, side="left"))
+        k = min(k, len(lengths) - 1)
+        s0 = float(np.cumsum(lengths)[k] - lengths[k])
+        frac = 0.0 if lengths[k] == 0 else (s - s0) / lengths[k]
+        x, y = pts[k] + frac * seg[k]
+        yaw = math.atan2(seg[k][1], seg[k][0]) + (math.pi if backwards else 0.0)
+        return float(x), float(y), yaw
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One body of a scene. ``size`` is the box extents; ``radius``/``length`` for round shapes."""
+
+    name: str
+    shape: str
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    color: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)
+    size: tuple[float, float, float] | None = None
+    radius: float | None = None
+    length: float | None = None
+    mesh_path: Path | None = None
+    scale: float = 1.0
+    motion: Motion | None = None
+
+    @property
+    def is_dynamic(self) -> bool:
+        return self.motion is not None
+
+    def local_mesh(self) -> Mesh:
+        """The shape as a triangle mesh in its own frame (used for bounds and ground-truth maps)."""
+        if self.shape == "box":
+            assert self.size is not None
+            return box(self.size)
+        if self.shape == "cylinder":
+            assert self.radius is not None and self.length is not None
+            return cylinder(self.radius, self.length, 24)
+        if self.shape == "sphere":
+            assert self.radius is not None
+            return sphere(self.radius, 12, 16)
+        if self.shape == "capsule":
+            assert self.radius is not None and self.length is not None
+            return capsule(self.radius, self.length)
+        assert self.mesh_path is not None
+        m = _read_mesh_cached(self.mesh_path)
+        return Mesh(m.vertices * self.scale, m.faces)
+
+    def world_mesh(self, xyz: tuple[float, float, float] | None = None, yaw: float | None = None) -> Mesh:
+        """The mesh placed at its pose (or at ``xyz``/``yaw`` for a moving object)."""
+        rpy = self.rpy if yaw is None else (self.rpy[0], self.rpy[1], yaw)
+        return self.local_mesh().transformed(rot_rpy(*rpy), self.xyz if xyz is None else xyz)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A named set of objects loaded from ``path``."""
+
+    name: str
+    path: Path
+    objects: tuple[SceneObject, ...]
+    description: str = ""
+
+    def bounds_xy(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) over every object, including the whole walk of moving ones."""
+        lo = np.array([np.inf, np.inf])
+        hi = -lo
+        for obj in self.objects:
+            m = obj.world_mesh()
+            lo = np.minimum(lo, m.vertices[:, :2].min(axis=0))
+            hi = np.maximum(hi, m.vertices[:, :2].max(axis=0))
+            if obj.motion is not None:
+                w = np.asarray(obj.motion.waypoints)
+                lo, hi = np.minimum(lo, w.min(axis=0) - 1), np.maximum(hi, w.max(axis=0) + 1)
+        if not np.isfinite(lo).all():
+            return (-1.0, -1.0, 1.0, 1.0)
+        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+
+@dataclass(frozen=True)
+class Route:
+    waypoints: tuple[tuple[float, float], ...]
+    speed: float = 0.5
+    lookahead: float = 0.6
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """What ``robchair sim`` runs: a scene, the chair's start and route, the sensor, duration and seed."""
+
+    name: str
+    path: Path
+    scene: Scene
+    route: Route
+    duration: float = 10.0
+    sensor: str = "kinect2"
+    sonars: bool = True
+    seed: int = 0
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    description: str = ""
+
+
+# --- validation helpers ---------------------------------------------------------------------------
+
+_mesh_cache: dict[Path, Mesh] = {}
+
+
+def _read_mesh_cached(path: Path) -> Mesh:
+    if path not in _mesh_cache:
+        _mesh_cache[path] = read_obj(path)
+    return _mesh_cache[path]
+
+
+class _Ctx:
+    """Builds error messages with file, key path and the key's line in the raw text."""
+
+    def __init__(self, path: Path, text: str) -> None:
+        self.path = path
+        self.lines = text.splitlines()
+
+    def line_of(self, key: str, occurrence: int = 0) -> int | None:
+        pat = re.compile(rf"^\s*(\[+\s*)?([\w.\"-]*\.)?{re.escape(key)}\s*(=|\]|\.)")
+        seen = 0
+        for n, line in enumerate(self.lines, 1):
+            if pat.search(line):
+                if seen == occurrence:
+                    return n
+                seen += 1
+        return None
+
+    def error(self, where: str, key: str, reason: str, occurrence: int = 0) -> ScenarioError:
+        line = self.line_of(key.split(".")[-1], occurrence)
+        loc = f"{self.path}:{line}" if line is not None else str(self.path)
+        return ScenarioError(f"{loc}: {where}{key}: {reason}")
+
+
+def _check_keys(ctx: _Ctx, table: dict[str, Any], allowed: set[str], where: str, occ: int = 0) -> None:
+    for key in table:
+        if key not in allowed:
+            raise ctx.error(where, key, f"unknown key (allowed: {', '.join(sorted(allowed))})", occ)
+
+
+def _number(ctx: _Ctx, value: Any, where: str, key: str, occ: int = 0, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ctx.error(where, key, f"expected a number, got {value!r}", occ)
+    v = float(value)
+    if not math.isfinite(v):
+        raise ctx.error(where, key, f"must be finite, got {value!r}", occ)
+    if positive and v <= 0:
+        raise ctx.error(where, key, f"must be > 0, got {value!r}", occ)
+    return v
+
+
+def _vector(ctx: _Ctx, value: Any, n: int | tuple[int, ...], where: str, key: str, occ: int = 0,
+            positive: bool = False) -> tuple[float, ...]:
+    ns = (n,) if isinstance(n, int) else n
+    if not isinstance(value, list) or len(value) not in ns:
+        raise ctx.error(where, key, f"expected a list of {' or '.join(map(str, ns))} numbers, got {value!r}", occ)
+    return tuple(_number(ctx, v, where, key, occ, positive) for v in value)
+
+
+def _points(ctx: _Ctx, value: Any, where: str, key: str, occ: int = 0) -> tuple[tuple[float, float], ...]:
+    if not isinstance(value, list) or len(value) < 1:
+        raise ctx.error(where, key, f"expected a list of [x, y] points, got {value!r}", occ)
+    return tuple(tuple(_vector(ctx, p, 2, where, key, occ)) for p in value)  # type: ignore[misc]
+
+
+def _load_toml(path: Path) -> tuple[dict[str, Any], _Ctx]:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML ({exc})") from exc
+    return data, _Ctx(path, text)
+
+
+def _resolve(name: str, base: Path) -> Path:
+    """A scene/scenario reference: an existing path, or a name in ``base`` or :data:`SCENES`."""
+    p = Path(name)
+    for cand in (p, base / p, base / f"{name}.toml", SCENES / f"{name}.toml"):
+        if cand.is_file():
+            return cand
+    return base / f"{name}.toml"
+
+
+# --- loading --------------------------------------------------------------------------------------
+
+
+def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
+    where = f"object[{i}]."
+    if not isinstance(raw, dict):
+        raise ctx.error("", "object", f"entry {i} must be a table")
+    _check_keys(ctx, raw, _OBJECT_KEYS, where, 0)
+    name = raw.get("name", f"object{i}")
+    if not isinstance(name, str) or not name:
+        raise ctx.error(where, "name", f"expected a non-empty string, got {name!r}")
+    shape = raw.get("shape")
+    if shape not in SHAPES:
+        raise ctx.error(where, "shape", f"expected one of {', '.join(SHAPES)}, got {shape!r}", i)
+    where = f"object {name!r}: "
+    occ = _occurrence(ctx, "name", name)
+    need = {"box": {"size"}, "cylinder": {"radius", "length"}, "capsule": {"radius", "length"},
+            "sphere": {"radius"}, "mesh": {"mesh"}}[shape]
+    extra = {"size", "radius", "length", "mesh", "scale"} - need - ({"scale"} if shape == "mesh" else set())
+    for k in need:
+        if k not in raw:
+            raise ctx.error(where, k, f"missing (a {shape} needs {', '.join(sorted(need))})", 0)
+    for k in extra:
+        if k in raw:
+            raise ctx.error(where, k, f"not a parameter of a {shape}", 0)
+    if "xyz" not in raw:
+        raise ctx.error(where, "xyz", "missing (position of the object)")
+    xyz = _vector(ctx, raw["xyz"], 3, where, "xyz", occ)
+    if "yaw" in raw and "rpy" in raw:
+        raise ctx.error(where, "rpy", "give either yaw or rpy, not both")
+    rpy = (0.0, 0.0, _number(ctx, raw["yaw"], where, "yaw")) if "yaw" in raw else (
+        _vector(ctx, raw["rpy"], 3, where, "rpy") if "rpy" in raw else (0.0, 0.0, 0.0))
+    color = (0.7, 0.7, 0.7, 1.0)
+    if "color" in raw:
+        c = _vector(ctx, raw["color"], (3, 4), where, "color")
+        if any(v < 0 or v > 1 for v in c):
+            raise ctx.error(where, "color", f"components must be in [0, 1], got {raw['color']!r}")
+        color = (*c, 1.0) if len(c) == 3 else c  # type: ignore[assignment]
+    kw: dict[str, Any] = {}
+    if shape == "box":
+        kw["size"] = _vector(ctx, raw["size"], 3, where, "size", positive=True)
+    if shape in ("cylinder", "capsule", "sphere"):
+        kw["radius"] = _number(ctx, raw["radius"], where, "radius", positive=True)
+    if shape in ("cylinder", "capsule"):
+        kw["length"] = _number(ctx, raw["length"], where, "length", positive=True)
+    if shape == "mesh":
+        m = raw["mesh"]
+        if not isinstance(m, str):
+            raise ctx.error(where, "mesh", f"expected a file name, got {m!r}")
+        cands = [ctx.path.parent / m, MESHES_DIR / m]
+        found = next((c for c in cands if c.is_file()), None)
+        if found is None:
+            raise ctx.error(where, "mesh", f"mesh file {m!r} not found (looked in {ctx.path.parent} and {MESHES_DIR})")
+        kw["mesh_path"] = found.resolve()
+        if "scale" in raw:
+            kw["scale"] = _number(ctx, raw["scale"], where, "scale", positive=True)
+    motion = None
+    if "motion" in raw:
+        mraw = raw["motion"]
+        if not isinstance(mraw, dict):
+            raise ctx.error(where, "motion", "must be a table")
+        _check_keys(ctx, mraw, _MOTION_KEYS, where + "motion.")
+        if "waypoints" not in mraw or "speed" not in mraw:
+            raise ctx.error(where, "motion", "needs waypoints and speed")
+        wps = _points(ctx, mraw["waypoints"], where + "motion.", "waypoints")
+        loop = mraw.get("loop", True)
+        if not isinstance(loop, bool):
+            raise ctx.error(where + "motion.", "loop", f"expected true or false, got {loop!r}")
+        motion = Motion(wps, _number(ctx, mraw["speed"], where + "motion.", "speed", positive=True), loop)
+    obj = SceneObject(name=name, shape=shape, xyz=xyz, rpy=rpy, color=color, motion=motion, **kw)  # type: ignore[arg-type]
+    zmin = float(obj.world_mesh().vertices[:, 2].min())
+    if zmin < -_FLOOR_TOLERANCE:
+        raise ctx.error(where, "xyz", f"impossible pose: the object reaches {zmin:.3f} m, below the floor (z = 0)",
+                        occ)
+    return obj
+
+
+def _occurrence(ctx: _Ctx, key: str, value: str) -> int:
+    """Index among the ``key = ...`` lines of the one whose value is ``value`` (for line numbers)."""
+    pat = re.compile(rf"^\s*{re.escape(key)}\s*=\s*(.*)$")
+    count = 0
+    for line in ctx.lines:
+        m = pat.match(line)
+        if m:
+            if m.group(1).strip().strip("\"'") == value:
+                return 0 if ctx.line_of(key) is None else count
+            count += 1
+    return 0
+
+
+def load_scene(path: Path | str) -> Scene:
+    """Load and validate a scene file (see the module docstring); raise ScenarioError if invalid."""
+    path = Path(path)
+    data, ctx = _load_toml(path)
+    _check_keys(ctx, data, {"scene", "object"}, "")
+    head = data.get("scene", {})
+    if not isinstance(head, dict):
+        raise ctx.error("", "scene", "must be a table")
+    _check_keys(ctx, head, _SCENE_KEYS, "scene.")
+    raw_objects = data.get("object", [])
+    if not isinstance(raw_objects, list):
+        raise ctx.error("", "object", "must be an array of tables ([[object]])")
+    objects = tuple(_parse_object(ctx, i, o) for i, o in enumerate(raw_objects))
+    names = [o.name for o in objects]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ctx.error("", "name", f"duplicate object names {sorted(dup)}")
+    name = head.get("name", path.stem)
+    if not isinstance(name, str):
+        raise ctx.error("scene.", "name", f"expected a string, got {name!r}")
+    return Scene(name=name, path=path, objects=objects, description=str(head.get("description", "")))
+
+
+def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
+    """Load and validate a scenario file and the scene it names.
+
+    Args:
+        path: the scenario TOML, or a scenario name in :data:`robchair.paths.SCENES`.
+        robot_radius: radius (m) of the circle around the start pose the chair occupies; a static
+            object lower than the chair whose footprint enters it is an impossible start.
+    """
+    path = Path(path)
+    if not path.is_file():
+        path = _resolve(str(path), SCENES)
+    data, ctx = _load_toml(path)
+    _check_keys(ctx, data, {"scenario", "route"}, "")
+    head = data.get("scenario")
+    if not isinstance(head, dict):
+        raise ctx.error("", "scenario", "missing [scenario] table (is this a scene file?)")
+    _check_keys(ctx, head, _SCENARIO_KEYS, "scenario.")
+    route_raw = data.get("route")
+    if not isinstance(route_raw, dict):
+        raise ctx.error("", "route", "missing [route] table with waypoints")
+    _check_keys(ctx, route_raw, _ROUTE_KEYS, "route.")
+    if "scene" not in head or not isinstance(head["scene"], str):
+        raise ctx.error("scenario.", "scene", "missing or not a string (name of a scene file)")
+    scene_path = _resolve(head["scene"], path.parent)
+    if not scene_path.is_file():
+        raise ctx.error("scenario.", "scene", f"scene {head['scene']!r} not found ({scene_path})")
+    scene = load_scene(scene_path)
+    kw: dict[str, Any] = {}
+    if "duration" in head:
+        kw["duration"] = _number(ctx, head["duration"], "scenario.", "duration", positive=True)
+    if "sensor" in head:
+        if head["sensor"] not in SENSORS:
+            raise ctx.error("scenario.", "sensor", f"expected one of {', '.join(SENSORS)}, got {head['sensor']!r}")
+        kw["sensor"] = head["sensor"]
+    if "sonars" in head:
+        if not isinstance(head["sonars"], bool):
+            raise ctx.error("scenario.", "sonars", f"expected true or false, got {head['sonars']!r}")
+        kw["sonars"] = head["sonars"]
+    if "seed" in head:
+        if isinstance(head["seed"], bool) or not isinstance(head["seed"], int) or head["seed"] < 0:
+            raise ctx.error("scenario.", "seed", f"expected a non-negative integer, got {head['seed']!r}")
+        kw["seed"] = head["seed"]
+    start = (0.0, 0.0, 0.0)
+    if "start" in head:
+        start = _vector(ctx, head["start"], 3, "scenario.", "start")  # type: ignore[assignment]
+    if "waypoints" not in route_raw:
+        raise ctx.error("route.", "waypoints", "missing")
+    route_kw: dict[str, Any] = {"waypoints": _points(ctx, route_raw["waypoints"], "route.", "waypoints")}
+    for k in ("speed", "lookahead"):
+        if k in route_raw:
+            route_kw[k] = _number(ctx, route_raw[k], "route.", k, positive=True)
+    _check_start_clear(ctx, scene, start, robot_radius)
+    name = head.get("name", path.stem)
+    return Scenario(name=str(name), path=path, scene=scene, route=Route(**route_kw), start=start,
+                    description=str(head.get("description", "")), **kw)
+
+
+def _check_start_clear(ctx: _Ctx, scene: Scene, start: tuple[float, float, float], radius: float) -> None:
+    """Refuse a start pose whose footprint circle overlaps a static object (or a person's start)."""
+    c = np.array(start[:2])
+    for obj in scene.objects:
+        pos = obj.xyz
+        if obj.motion is not None:
+            x, y, yaw = obj.motion.pose_at(0.0)
+            pos = (x, y, obj.xyz[2])
+        v = obj.world_mesh(xyz=pos).vertices
+        lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+        nearest = np.clip(c, lo, hi)
+        if float(np.hypot(*(nearest - c))) < radius:
+            raise ctx.error("scenario.", "start",
+                            f"impossible pose: the chair at {tuple(start)} (radius {radius:.2f} m) overlaps "
+                            f"object {obj.name!r} of scene {scene.path.name}")
+
+
+def list_scenarios(folder: Path = SCENES) -> list[Path]:
+    """Scenario files (those with a [scenario] table) in ``folder``, sorted by name."""
+    out = []
+    for p in sorted(folder.glob("*.toml")):
+        try:
+            if "scenario" in tomllib.loads(p.read_text()):
+                out.append(p)
+        except (OSError, tomllib.TOMLDecodeError):
+            continue
+    return out
+
+
+def ground_truth_points(scene: Scene, spacing: float, rng: np.random.Generator,
+                        include_dynamic: bool = False) -> npt.NDArray[np.float64]:
+    """Points sampled on every static object's surface (area-weighted, ~one per ``spacing``^2 m^2).
+
+    Used to rasterise the scene's ground-truth occupancy; moving people are left out unless asked.
+    """
+    chunks = []
+    for obj in scene.objects:
+        if obj.is_dynamic and not include_dynamic:
+            continue
+        m = obj.world_mesh()
+        areas = m.triangle_areas()
+        n = np.maximum(1, np.ceil(areas / spacing**2)).astype(np.int64)
+        tri = np.repeat(np.arange(len(m.faces)), n)
+        u, v = rng.random(len(tri)), rng.random(len(tri))
+        flip = u + v > 1
+        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        a, b, c = (m.vertices[m.faces[tri, k]] for k in range(3))
+        chunks.append(a + u[:, None] * (b - a) + v[:, None] * (c - a))
+    return np.concatenate(chunks) if chunks else np.zeros((0, 3))
+
+
+@dataclass
+class SceneBodies:
+    """PyBullet body ids of a built scene, and the moving ones with their scripts."""
+
+    ids: dict[str, int] = field(default_factory=dict)
+    moving: list[tuple[int, SceneObject]] = field(default_factory=list)
+
+    def update(self, client: int, t: float) -> None:
+        """Place every scripted person at its position for time ``t`` (kinematic: mass 0, teleported)."""
+        import pybullet as p
+
+        for body, obj in self.moving:
+            assert obj.motion is not None
+            x, y, yaw = obj.motion.pose_at(t)
+            q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2]))
+            p.resetBasePositionAndOrientation(body, (x, y, obj.xyz[2]), q, physicsClientId=client)
+
+
+def build_scene(scene: Scene, client: int) -> SceneBodies:
+    """Create one static (mass 0) PyBullet body per object; meshes as concave triangle meshes."""
+    import pybullet as p
+
+    out = SceneBodies()
+    for obj in scene.objects:
+        kw: dict[str, Any] = {}
+        if obj.shape == "box":
+            assert obj.size is not None
+            geom, kw = p.GEOM_BOX, {"halfExtents": [s / 2 for s in obj.size]}
+            vkw = kw
+        elif obj.shape == "sphere":
+            geom, kw = p.GEOM_SPHERE, {"radius": obj.radius}
+            vkw = kw
+        elif obj.shape == "cylinder":
+            geom = p.GEOM_CYLINDER
+            kw = {"radius": obj.radius, "height": obj.length}
+            vkw = {"radius": obj.radius, "length": obj.length}
+        elif obj.shape == "capsule":
+            geom = p.GEOM_CAPSULE
+            kw = {"radius": obj.radius, "height": obj.length}
+            vkw = {"radius": obj.radius, "length": obj.length}
+        else:
+            geom = p.GEOM_MESH
+            kw = {"fileName": str(obj.mesh_path), "meshScale": [obj.scale] * 3,
+                  "flags": p.GEOM_FORCE_CONCAVE_TRIMESH}
+            vkw = {"fileName": str(obj.mesh_path), "meshScale": [obj.scale] * 3}
+        col = p.createCollisionShape(geom, physicsClientId=client, **kw)
+        vis = p.createVisualShape(geom, rgbaColor=list(obj.color), physicsClientId=client, **vkw)
+        pos = obj.xyz
+        yaw = obj.rpy[2]
+        if obj.motion is not None:
+            x, y, walk_yaw = obj.motion.pose_at(0.0)
+            pos, yaw = (x, y, obj.xyz[2]), walk_yaw + obj.rpy[2]
+        q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw))
+        body = p.createMultiBody(0.0, col, vis, basePosition=pos, baseOrientation=q, physicsClientId=client)
+        out.ids[obj.name] = body
+        if obj.motion is not None:
+            out.moving.append((body, obj))
+    return out

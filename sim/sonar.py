@@ -1,0 +1,276 @@
+"""Simulated ultrasonic rangers (Devantech SRF08 / SRF04) and three-sonar arrays on a servo.
+
+One sonar is a bundle of rays cast into :class:`sim.raycast.MeshMirror`, shaped by the measured
+detection area of thesis Appendix A (SPEC section 3) through ``mapping.sonar.half_apertures_deg``:
+at range ``d`` the beam covers bearings ``[-right(d), +left(d)]`` around the sonar axis (the beam is
+not symmetric: separate send and receive transducers). The thesis measured the area in the
+horizontal plane only; vertically the beam is taken as symmetric with the mean of the two
+half-apertures, and a hit is inside the beam when ``(bearing / h)^2 + (elevation / v)^2 <= 1`` with
+``h`` the side's half-aperture and ``v`` the vertical one. The regression is fitted up to 1 m; beyond
+that the beam keeps the apertures it has at 1 m (the sensor still echoes up to its range limit; the
+fusion in ``mapping.sonar`` rejects readings over 1 m, the simulation does not pre-empt that).
+
+Echo rule: ultrasound reflects specularly off smooth surfaces, so a ray only produces an echo when
+the surface faces the sonar: the angle between the surface normal and the reversed ray must be below
+``max_incidence_deg`` (default 15 deg). Without this every sonar mounted 30-50 cm above the floor
+would read the floor at the bottom edge of its cone (incidence >= 50 deg there). The reading is the
+*first* echo: the smallest accepted distance, rounded to whole centimetres as the SRF08 reports
+``range_cm``; NaN when there is no echo or the echo is outside [min, max] range (the ROS Range
+convention: such values are not measurements).
+
+Timing: the SRF08 needs 65 ms per ranging at its full range (~15 Hz), the SRF04 about 45 ms (~22 Hz,
+SPEC table). The simulation returns the reading at once; :attr:`SonarModel.ranging_time_s` tells a
+scheduler how often it may ask.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from hw.interfaces import RangeReading, SonarArrayReading
+from sim.errors import SimError
+from sim.raycast import MeshMirror, pose_matrix
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class SonarSimError(SimError, ValueError):
+    """A simulated sonar was configured or queried with invalid values."""
+
+
+@dataclass(frozen=True)
+class SonarModel:
+    """Range limits, resolution and timing of one ultrasonic ranger model."""
+
+    name: str
+    min_range_m: float
+    max_range_m: float
+    resolution_m: float
+    ranging_time_s: float
+    field_of_view_rad: float = math.radians(60.0)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_range_m < self.max_range_m:
+            raise SonarSimError(f"sonar model {self.name!r}: range {self.min_range_m}-{self.max_range_m} m is invalid")
+        if self.resolution_m <= 0 or self.ranging_time_s <= 0:
+            raise SonarSimError(f"sonar model {self.name!r}: resolution and ranging time must be positive")
+
+
+SONAR_MODELS: dict[str, SonarModel] = {
+    "srf08": SonarModel("srf08", 0.03, 6.0, 0.01, 0.065),
+    "srf04": SonarModel("srf04", 0.03, 3.0, 0.01, 0.045),
+}
+
+
+def get_sonar_model(model: str | SonarModel) -> SonarModel:
+    """A :class:`SonarModel` by name (``srf08``, ``srf04``)."""
+    if isinstance(model, SonarModel):
+        return model
+    try:
+        return SONAR_MODELS[model]
+    except KeyError:
+        raise SonarSimError(f"unknown sonar model {model!r}; known: {', '.join(SONAR_MODELS)}") from None
+
+
+def beam_half_apertures_deg(range_m: Any) -> tuple[FloatArray, FloatArray]:
+    """(left, right) half-apertures of the beam at ``range_m`` (Appendix A model, constant beyond 1 m)."""
+    from mapping.sonar import MODEL_MAX_RANGE_CM, half_apertures_deg
+
+    d_cm = np.clip(np.asarray(range_m, dtype=float) * 100.0, 1e-6, MODEL_MAX_RANGE_CM)
+    return half_apertures_deg(d_cm)
+
+
+def _widest_deg() -> tuple[float, float]:
+    from mapping.sonar import WIDE_HALF_APERTURE_DEG, half_apertures_deg
+
+    left, right = half_apertures_deg(np.linspace(1.0, 100.0, 400))
+    return max(float(left.max()), WIDE_HALF_APERTURE_DEG[0]), max(float(right.max()), WIDE_HALF_APERTURE_DEG[1])
+
+
+def beam_rays(spacing_deg: float = 1.0) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Unit ray directions of one sonar (its frame: x forward, y left, z up) covering the widest beam.
+
+    Returns:
+        ``(directions (N, 3), bearing_deg (N,), elevation_deg (N,))``.
+    """
+    if not 0.05 <= spacing_deg <= 10.0:
+        raise SonarSimError(f"ray spacing {spacing_deg} deg: expected 0.05 .. 10")
+    left, right = _widest_deg()
+    vert = 0.5 * (left + right)
+    b = np.arange(-right, left + 1e-9, spacing_deg)
+    e = np.arange(-vert, vert + 1e-9, spacing_deg)
+    bb, ee = np.meshgrid(b, e)
+    h = np.where(bb >= 0, left, right)
+    keep = (bb / h) ** 2 + (ee / vert) ** 2 <= 1.0
+    bb, ee = bb[keep], ee[keep]
+    br, er = np.radians(bb), np.radians(ee)
+    d = np.column_stack([np.cos(er) * np.cos(br), np.cos(er) * np.sin(br), np.sin(er)])
+    return d, bb, ee
+
+
+def _rot_z(deg: float) -> FloatArray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    t = np.eye(4)
+    t[:2, :2] = [[c, -s], [s, c]]
+    return t
+
+
+class _Beam:
+    """Shared ray casting for one or several sonars."""
+
+    def __init__(self, model: SonarModel, spacing_deg: float, max_incidence_deg: float) -> None:
+        if not 0 < max_incidence_deg < 90:
+            raise SonarSimError(f"max_incidence_deg={max_incidence_deg}: expected 0 < angle < 90")
+        self.model = model
+        self.dirs, self.bearing_deg, self.elevation_deg = beam_rays(spacing_deg)
+        self.cos_incidence = math.cos(math.radians(max_incidence_deg))
+        # the bisection behind the model is exact but slow per ray: tabulate it every 2 mm
+        self._table_m = np.linspace(0.002, 1.0, 500)
+        self._table_left, self._table_right = beam_half_apertures_deg(self._table_m)
+
+    def apertures(self, r: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Tabulated (left, right) half-apertures at ranges ``r`` (m), constant beyond 1 m."""
+        return np.interp(r, self._table_m, self._table_left), np.interp(r, self._table_m, self._table_right)
+
+    def first_echo(self, mirror: MeshMirror, poses: list[FloatArray]) -> FloatArray:
+        """Raw first-echo distance (m, unquantised, NaN = none) for each sonar pose."""
+        n = len(self.dirs)
+        origins = np.concatenate([np.broadcast_to(t[:3, 3], (n, 3)) for t in poses])
+        dirs = np.concatenate([self.dirs @ t[:3, :3].T for t in poses])
+        mirror.sync()
+        hits = mirror.cast(origins, dirs, max_range=self.model.max_range_m)
+        r = hits.distance.reshape(len(poses), n)
+        facing = (np.einsum("ij,ij->i", hits.normal, -dirs) >= self.cos_incidence).reshape(len(poses), n)
+        left, right = self.apertures(np.where(np.isfinite(r), r, 1.0))
+        vert = 0.5 * (left + right)
+        h = np.where(self.bearing_deg >= 0, left, right)
+        inside = (self.bearing_deg / h) ** 2 + (self.elevation_deg / vert) ** 2 <= 1.0
+        ok = np.isfinite(r) & facing & inside
+        best = np.where(ok, r, np.inf).min(axis=1)
+        return np.where(np.isfinite(best), best, np.nan)
+
+    def finish(self, raw: FloatArray, noise_std_m: float, rng: np.random.Generator | None) -> FloatArray:
+        """Noise, cm rounding and range limits applied to raw first-echo distances."""
+        m = self.model
+        r = np.asarray(raw, dtype=float)
+        if noise_std_m > 0:
+            if rng is None:
+                raise SonarSimError("sonar noise is on but no numpy Generator was given")
+            r = r + rng.standard_normal(r.shape) * noise_std_m
+        r = np.round(r / m.resolution_m) * m.resolution_m
+        with np.errstate(invalid="ignore"):
+            return np.where((r >= m.min_range_m) & (r <= m.max_range_m), r, np.nan)
+
+
+class SonarSim:
+    """One simulated SRF08/SRF04.
+
+    Args:
+        client: PyBullet physics client id.
+        model: ``"srf08"``, ``"srf04"`` or a :class:`SonarModel`.
+        mirror: a shared :class:`MeshMirror` (made here, excluding ``exclude_bodies``, if None).
+        noise_std_m: Gaussian range noise before rounding (0 = off).
+        rng: Generator (or int seed) for the noise; None means seed 0.
+        ray_spacing_deg: angular spacing of the beam's rays.
+        max_incidence_deg: largest angle between surface normal and ray that still echoes.
+    """
+
+    def __init__(
+        self,
+        client: int,
+        model: str | SonarModel = "srf08",
+        *,
+        mirror: MeshMirror | None = None,
+        exclude_bodies: Any = (),
+        noise_std_m: float = 0.0,
+        rng: np.random.Generator | int | None = None,
+        ray_spacing_deg: float = 1.0,
+        max_incidence_deg: float = 15.0,
+        name: str = "sonar",
+    ) -> None:
+        self.model = get_sonar_model(model)
+        self.mirror = mirror if mirror is not None else MeshMirror(client, exclude_bodies=exclude_bodies)
+        if noise_std_m < 0:
+            raise SonarSimError(f"noise_std_m={noise_std_m}: must be >= 0")
+        self.noise_std_m = float(noise_std_m)
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        self._beam = _Beam(self.model, ray_spacing_deg, max_incidence_deg)
+        self.name = name
+
+    def measure(self, pose: Any, *, rng: np.random.Generator | None = None) -> float:
+        """Range (m, whole cm; NaN = no echo) of the sonar at world ``pose`` (x = its axis)."""
+        raw = self._beam.first_echo(self.mirror, [pose_matrix(pose)])
+        return float(self._beam.finish(raw, self.noise_std_m, rng or self.rng)[0])
+
+    def read(self, pose: Any, stamp_ns: int = 0, *, rng: np.random.Generator | None = None) -> RangeReading:
+        """A :class:`hw.interfaces.RangeReading` at ``pose``."""
+        m = self.model
+        return RangeReading(int(stamp_ns), self.measure(pose, rng=rng), m.min_range_m, m.max_range_m, m.field_of_view_rad)
+
+
+class SonarArraySim:
+    """Three simulated sonars at +outer / 0 / -outer deg (sonars 1, 2, 3 from left to right) on a servo.
+
+    ``array_pose`` is the world pose of the servo's base frame (z = servo axis, x = straight ahead at
+    servo angle 0); the servo turns the three sonars together by ``servo_angle_deg`` about z.
+    ``sonar_offsets_m`` places each sonar in the turned frame (the thesis stacks them on top of each
+    other; the default puts sonar 1 on top, 2 cm apart).
+    """
+
+    def __init__(
+        self,
+        client: int,
+        model: str | SonarModel = "srf08",
+        *,
+        mirror: MeshMirror | None = None,
+        exclude_bodies: Any = (),
+        outer_deg: float = 30.0,
+        sonar_offsets_m: Any = ((0.0, 0.0, 0.02), (0.0, 0.0, 0.0), (0.0, 0.0, -0.02)),
+        noise_std_m: float = 0.0,
+        rng: np.random.Generator | int | None = None,
+        ray_spacing_deg: float = 1.0,
+        max_incidence_deg: float = 15.0,
+        name: str = "sonar_array",
+    ) -> None:
+        self.model = get_sonar_model(model)
+        self.mirror = mirror if mirror is not None else MeshMirror(client, exclude_bodies=exclude_bodies)
+        offs = np.asarray(sonar_offsets_m, dtype=float)
+        if offs.shape != (3, 3):
+            raise SonarSimError(f"sonar_offsets_m of shape {offs.shape}: expected (3, 3)")
+        self.offsets = offs
+        self.yaws_deg = (float(outer_deg), 0.0, -float(outer_deg))
+        if noise_std_m < 0:
+            raise SonarSimError(f"noise_std_m={noise_std_m}: must be >= 0")
+        self.noise_std_m = float(noise_std_m)
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        self._beam = _Beam(self.model, ray_spacing_deg, max_incidence_deg)
+        self.name = name
+
+    def sonar_poses(self, array_pose: Any, servo_angle_deg: float) -> list[FloatArray]:
+        """World poses of sonars 1, 2, 3."""
+        base = pose_matrix(array_pose) @ _rot_z(servo_angle_deg)
+        out = []
+        for off, yaw in zip(self.offsets, self.yaws_deg):
+            t = _rot_z(yaw)
+            t[:3, 3] = off
+            out.append(base @ t)
+        return out
+
+    def measure(
+        self, array_pose: Any, servo_angle_deg: float = 0.0, *, rng: np.random.Generator | None = None
+    ) -> tuple[float, float, float]:
+        """Ranges (m; NaN = no echo) of sonars 1, 2, 3."""
+        raw = self._beam.first_echo(self.mirror, self.sonar_poses(array_pose, servo_angle_deg))
+        r = self._beam.finish(raw, self.noise_std_m, rng or self.rng)
+        return (float(r[0]), float(r[1]), float(r[2]))
+
+    def read(
+        self, array_pose: Any, servo_angle_deg: float = 0.0, stamp_ns: int = 0, *, rng: np.random.Generator | None = None
+    ) -> SonarArrayReading:
+        """A :class:`hw.interfaces.SonarArrayReading`."""
+        return SonarArrayReading(int(stamp_ns), self.measure(array_pose, servo_angle_deg, rng=rng), float(servo_angle_deg))

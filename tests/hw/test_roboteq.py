@@ -1,0 +1,327 @@
+"""The real Roboteq driver, unchanged, against the emulator over a pseudo-terminal.
+
+Motor time is simulated (a ManualClock the test advances), so seconds of driving take milliseconds;
+reply deadlines are real time and kept short.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hw.errors import (
+    CommandError,
+    DeviceClosedError,
+    DeviceDisconnectedError,
+    DeviceFaultError,
+    DeviceTimeoutError,
+    ProtocolError,
+)
+from hw.interfaces import MotorController, MotorFaults, PIDConfig
+from hw.roboteq import codec
+from hw.roboteq.driver import RoboteqMDC2230
+from hw.clock import ManualClock
+from hw.roboteq.emulator import RoboteqEmulator
+from robchair import control
+from robchair.kinematics import DiffDrive, Odometry
+from robchair.spec import load_spec
+
+TIMEOUT_S = 0.05  # reply deadline used in these tests (the pty answers in about a millisecond)
+
+
+@pytest.fixture
+def clock() -> ManualClock:
+    return ManualClock()
+
+
+@pytest.fixture
+def emu(clock: ManualClock):
+    with RoboteqEmulator(clock=clock) as e:
+        yield e
+
+
+@pytest.fixture
+def drv(emu: RoboteqEmulator, clock: ManualClock):
+    d = RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, retries=2, clock=clock)
+    d.open()
+    yield d
+    d.close()
+
+
+def drive_for(drv: RoboteqMDC2230, clock: ManualClock, left: float, right: float, seconds: float, hz=20.0):
+    """Send the speeds every cycle (as the runtime does, keeping the watchdog fed) for ``seconds``."""
+    for _ in range(round(seconds * hz)):
+        drv.set_speeds_rpm(left, right)
+        clock.advance(1.0 / hz)
+
+
+def assert_stopped(emu: RoboteqEmulator) -> None:
+    """The emulated controller was told to stop: zero set points and the emergency stop latched."""
+    assert emu.setpoints_rpm == (0.0, 0.0)
+    assert emu.estop
+    texts = [t for _, t in emu.received]
+    assert "!EX" in texts
+
+
+def test_driver_satisfies_the_motor_controller_protocol(drv: RoboteqMDC2230) -> None:
+    assert isinstance(drv, MotorController)
+
+
+def test_open_probes_firmware_and_configures_closed_loop_speed_mode(drv: RoboteqMDC2230, emu) -> None:
+    assert drv.firmware is not None and (drv.firmware.major, drv.firmware.minor) == (1, 3)
+    assert drv.read_config("MMOD") == (1, 1)
+    assert drv.read_config("EPPR") == (1000, 1000)
+    assert drv.read_config("MXRPM") == (1000, 1000)
+    assert drv.read_config("RWD") == (1000,)
+    sent = [t for _, t in emu.received]
+    assert sent[0] == "?FID"
+    assert "^MMOD 1 1" in sent and "^MMOD 2 1" in sent and "^RWD 1000" in sent
+
+
+@pytest.mark.parametrize(("firmware", "mult"), [("Roboteq v1.3 MDC2230 07/24/2013", 10), ("Roboteq v2.0 MDC2230 01/01/2020", 10**6)])
+def test_pid_gains_round_trip_in_the_firmware_units_of_each_major_version(firmware: str, mult: int, clock) -> None:
+    left, right = PIDConfig(1.4, 3.7, 0.3), PIDConfig(1.1, 3.2, 0.2)
+    with RoboteqEmulator(clock=clock, firmware=firmware) as emu:
+        with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, pid=(left, right)) as drv:
+            assert drv.read_config("KP") == (round(1.4 * mult), round(1.1 * mult))
+            assert drv.read_config("KI") == (round(3.7 * mult), round(3.2 * mult))
+            assert drv.read_config("KD") == (round(0.3 * mult), round(0.2 * mult))
+        # the emulator runs its PID with the decoded gains
+        assert emu.config("KP", 1) == round(1.4 * mult)
+
+
+def test_a_gain_that_does_not_fit_firmware_1x_is_refused_before_anything_is_written(drv, emu) -> None:
+    n = len(emu.received)
+    with pytest.raises(CommandError, match=r"kp=30.0 .*0\.\.255"):
+        drv.configure_pid(PIDConfig(30.0, 1.0, 0.0), PIDConfig(1.0, 1.0, 0.0))
+    assert len(emu.received) == n
+
+
+def test_echo_off_is_handled_as_well_as_echo_on(clock) -> None:
+    with RoboteqEmulator(clock=clock, echo=False) as emu:
+        with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, clock=clock) as drv:
+            assert drv.read_config("MMOD") == (1, 1)
+            drive_for(drv, clock, 200, 200, 1.0)
+            assert drv.read_state().encoder_counts[0] > 0
+
+
+def test_watchdog_of_zero_is_refused() -> None:
+    with pytest.raises(CommandError, match="watchdog"):
+        RoboteqMDC2230("/dev/null", watchdog_ms=0)
+
+
+def test_using_the_driver_before_open_raises_device_closed(emu) -> None:
+    d = RoboteqMDC2230(emu.device_path)
+    with pytest.raises(DeviceClosedError, match="closed"):
+        d.set_speeds_rpm(0, 0)
+
+
+def test_unreachable_port_raises_disconnected_naming_the_port() -> None:
+    with pytest.raises(DeviceDisconnectedError, match="/dev/does-not-exist"):
+        RoboteqMDC2230("/dev/does-not-exist").open()
+
+
+def test_commanded_speeds_produce_counts_that_odometry_turns_into_the_commanded_motion(drv, emu, clock) -> None:
+    spec = load_spec()
+    dd = DiffDrive(spec)
+    v, w = 0.3, 0.25
+    left, right = dd.motor_rpm(v, w)
+    odo = Odometry(spec)
+    odo.update(*drv.read_state().encoder_counts)
+    drive_for(drv, clock, left, right, 3.0)  # let the PID settle (closed-loop poles at -3.3 rad/s x2, -33)
+    s0 = drv.read_state()
+    p0 = odo.update(*s0.encoder_counts)
+    window = 2.0
+    drive_for(drv, clock, left, right, window)
+    s1 = drv.read_state()
+    p1 = odo.update(*s1.encoder_counts)
+    # measured twist over the window, from odometry alone
+    dtheta = p1.theta - p0.theta
+    chord = math.hypot(p1.x - p0.x, p1.y - p0.y)
+    arc = chord / (math.sin(dtheta / 2) / (dtheta / 2))  # arc length from the chord of a circular arc
+    assert arc / window == pytest.approx(v, rel=0.01)
+    assert dtheta / window == pytest.approx(w, rel=0.01)
+    assert s1.speed_rpm == pytest.approx((left, right), abs=1.0)  # ?S rounds to whole RPM
+
+
+def test_straight_run_distance_matches_the_closed_loop_lag_of_the_quantised_pid(drv, emu, clock) -> None:
+    """x(t) of a speed step through the closed loop T(s) is v (t - T_lag), T_lag = -T'(0) for T(0) = 1."""
+    spec = load_spec()
+    dd = DiffDrive(spec)
+    v = 0.4
+    rpm, _ = dd.motor_rpm(v, 0.0)
+    odo = Odometry(spec)
+    odo.update(*drv.read_state().encoder_counts)
+    duration = 6.0
+    drive_for(drv, clock, rpm, rpm, duration)
+    pose = odo.update(*drv.read_state().encoder_counts)
+    lags = []
+    for ch in (1, 2):
+        step = spec.step_for_channel(ch)
+        plant = control.identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant
+        q = control.roboteq_gains(control.design_pid(plant), 1).quantised
+        num, den = q.closed_loop_tf().num[0][0], q.closed_loop_tf().den[0][0]
+        # T = N/D, T(0) = 1  ->  -T'(0) = (D'(0) - N'(0)) / D(0)
+        lags.append((den[-2] - num[-2]) / den[-1])
+    expected = v * (duration - sum(lags) / 2)
+    assert pose.x == pytest.approx(expected, abs=0.01)
+    # the two motors differ (SPEC 5), so their wheels lag by different distances: the heading
+    # ends at (d_right - d_left) / b = v (lag_left - lag_right) / b
+    assert pose.theta == pytest.approx(v * (lags[0] - lags[1]) / spec.wheel_separation, abs=2e-3)
+
+
+def test_encoder_counters_wrap_as_signed_32_bit_and_odometry_follows(drv, emu, clock) -> None:
+    emu.set_encoder_counts(2**31 - 100, -(2**31) + 100)
+    spec = load_spec()
+    odo = Odometry(spec)
+    odo.update(*drv.read_state().encoder_counts)
+    drive_for(drv, clock, 300, -300, 1.0)
+    c = drv.read_state().encoder_counts
+    assert c[0] < 0 < c[1]  # both wrapped
+    pose = odo.update(*c)
+    assert pose.theta < 0  # turning right, as commanded, not a jump of 2**32 counts
+
+
+def test_one_dropped_reply_is_retried_and_the_command_goes_through(drv, emu, clock) -> None:
+    emu.inject(drop=1)
+    drv.set_speeds_rpm(100, 100)
+    assert drv.n_retries == 1
+    assert emu.setpoints_rpm == (100.0, 100.0)
+    assert not emu.estop
+
+
+def test_replies_dropped_beyond_the_retries_time_out_after_stopping_the_motors(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    emu.inject(drop=3)
+    with pytest.raises(DeviceTimeoutError, match=r"\?C.*3 tries"):
+        drv.read_state()
+    assert_stopped(emu)
+    assert drv.stop_reason is not None
+    with pytest.raises(DeviceFaultError, match="release_stop"):
+        drv.set_speeds_rpm(100, 100)
+    drv.release_stop()
+    drv.set_speeds_rpm(100, 100)
+    assert emu.setpoints_rpm == (100.0, 100.0)
+
+
+def test_one_garbled_line_is_retried(drv, emu) -> None:
+    emu.inject(garble=1)
+    assert drv.read_config("MMOD") == (1, 1)
+    assert drv.n_retries == 1
+
+
+def test_garbled_beyond_the_retries_raises_protocol_error_after_stopping(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    emu.inject(garble=3)
+    with pytest.raises(ProtocolError, match="garbled"):
+        drv.read_state()
+    assert_stopped(emu)
+
+
+def test_a_reply_within_the_deadline_is_accepted(drv, emu) -> None:
+    emu.inject(delay_n=1, delay_s=TIMEOUT_S / 5)
+    assert drv.read_config("RWD") == (1000,)
+    assert drv.n_retries == 0
+
+
+def test_delays_past_the_deadline_on_every_try_time_out_after_stopping(drv, emu, clock) -> None:
+    drive_for(drv, clock, -200, 200, 0.5)
+    emu.inject(delay_n=3, delay_s=TIMEOUT_S * 5)  # the first late answer comes after the last try gave up
+    with pytest.raises(DeviceTimeoutError, match="no answer"):
+        drv.read_state()
+    assert_stopped(emu)
+
+
+def test_late_answers_of_failed_tries_are_not_taken_for_later_answers(drv, emu) -> None:
+    emu.inject(delay_n=1, delay_s=TIMEOUT_S * 1.5)
+    assert drv.read_config("EPPR") == (1000, 1000)  # first try late, second answers
+    assert drv.read_config("MXRPM") == (1000, 1000)  # the late EPPR line is not mistaken for this
+
+
+def test_an_unplugged_port_raises_disconnected_and_the_watchdog_stops_the_motors(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    emu.disconnect()
+    with pytest.raises(DeviceDisconnectedError, match="failed"):
+        drv.set_speeds_rpm(300, 300)
+    assert drv.stop_reason is not None
+    # nothing reaches the controller any more; its own watchdog must stop the motors
+    clock.advance(1.1)
+    assert emu.setpoints_rpm == (0.0, 0.0)
+    assert emu.watchdog_trips == 1
+
+
+def test_a_fault_flag_stops_the_motors_and_raises_with_the_flag_names(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    emu.raise_fault(MotorFaults(overheat=True, undervoltage=True))
+    with pytest.raises(DeviceFaultError, match=r"overheat.*undervoltage"):
+        drv.read_state()
+    assert_stopped(emu)
+
+
+def test_non_finite_or_too_fast_speed_stops_then_raises(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    with pytest.raises(CommandError, match="right_rpm=nan"):
+        drv.set_speeds_rpm(100, float("nan"))
+    assert_stopped(emu)
+    drv.release_stop()
+    with pytest.raises(CommandError, match="left_rpm=1500"):
+        drv.set_speeds_rpm(1500, 0)
+
+
+def test_watchdog_stops_the_motors_when_only_queries_arrive(drv, emu, clock) -> None:
+    drv.set_speeds_rpm(400, 400)
+    for _ in range(9):  # 0.9 s of queries: below the 1 s watchdog, the set points stay
+        clock.advance(0.1)
+        drv.read_state()
+    assert emu.setpoints_rpm == (400.0, 400.0)
+    for _ in range(3):  # queries do not refresh the watchdog: past 1 s it trips
+        clock.advance(0.1)
+        drv.read_state()
+    assert emu.setpoints_rpm == (0.0, 0.0)
+    assert emu.watchdog_trips == 1
+    assert [s.reason for s in emu.stops] == ["watchdog"]
+    clock.advance(3.0)
+    assert max(abs(s) for s in drv.read_state().speed_rpm) < 5.0  # the motors have run down
+
+
+def test_emergency_stop_and_release(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    drv.emergency_stop()
+    assert emu.setpoints_rpm == (0.0, 0.0) and emu.estop
+    drv.release_stop()
+    assert not emu.estop
+    drv.set_speeds_rpm(50, 50)
+    assert emu.setpoints_rpm == (50.0, 50.0)
+
+
+def test_status_and_motor_flags_are_decoded(drv, emu) -> None:
+    assert drv.read_status().names() == ["serial_mode"]
+    emu.set_motor_flags(2, codec.MotorFlags(loop_error=True, amps_limit=True))
+    fm_left, fm_right = drv.read_motor_flags()
+    assert fm_left.names() == []
+    assert fm_right.names() == ["amps_limit", "loop_error"] and fm_right.any_fault
+
+
+def test_voltages_and_amps_are_scaled_to_volts_and_amps(drv, emu) -> None:
+    internal, battery, five = drv.read_voltages()
+    assert battery == pytest.approx(emu.battery_v)
+    assert five == pytest.approx(4.98)
+    assert drv.read_amps() == (0.0, 0.0)
+
+
+def test_emulator_answers_unknown_or_malformed_commands_with_minus(emu) -> None:
+    import os
+
+    import serial
+
+    with serial.Serial(emu.device_path, timeout=0.5) as port:
+        port.write(b"?NOPE\r!S 3 10\r^RWD 70000\r")
+        data = b""
+        while data.count(b"\r") < 6:
+            chunk = port.read(64)
+            assert chunk, f"emulator stopped answering after {data!r}"
+            data += chunk
+    lines, _ = codec.split_lines(data)
+    assert lines == ["?NOPE", "-", "!S 3 10", "-", "^RWD 70000", "-"]
+    assert os.path.exists(emu.device_path)

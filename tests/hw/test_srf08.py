@@ -1,0 +1,254 @@
+"""SRF08 driver against the SRF08 I2C-bus emulator, and the three-sonar array built on it."""
+
+from __future__ import annotations
+
+import errno
+import logging
+import math
+
+import pytest
+
+from hw.clock import ManualClock
+from hw.emulators.srf08 import BusyMode, SRF08Bus
+from hw.errors import CommandError, DeviceClosedError, DeviceIOError, DeviceTimeoutError
+from hw.interfaces import Ranger, SonarArray
+from hw.sonar_array import RangerSonarArray
+from hw.srf08 import SRF08, change_address, range_for_register, range_register_for, scan
+
+
+class Scene:
+    """Scripted ranges per address (metres); NaN = nothing in front."""
+
+    def __init__(self, **by_addr: float) -> None:
+        self.ranges = {int(k[1:], 16): v for k, v in by_addr.items()}
+        self.calls: list[tuple[int, int]] = []
+
+    def __call__(self, address: int, stamp_ns: int) -> float:
+        self.calls.append((address, stamp_ns))
+        return self.ranges.get(address, math.nan)
+
+
+def make(busy_mode=BusyMode.FF, **ranges):
+    clock = ManualClock()
+    scene = Scene(**ranges)
+    bus = SRF08Bus(clock, scene, addresses=sorted(scene.ranges) or [0x70], busy_mode=busy_mode)
+    return clock, scene, bus
+
+
+def test_driver_reads_centimetre_ranges_from_the_emulator():
+    clock, _, bus = make(x70=0.5, x71=1.234, x72=math.nan)
+    with (
+        SRF08(bus, 0x70, clock=clock) as a,
+        SRF08(bus, 0x71, clock=clock) as b,
+        SRF08(bus, 0x72, clock=clock) as c,
+    ):
+        assert isinstance(a, Ranger)
+        assert a.read().range_m == 0.50
+        assert b.read().range_m == 1.23  # the device rounds to whole centimetres
+        r = c.read()
+        assert math.isnan(r.range_m)  # echo 0 = no echo
+        assert r.min_range_m == 0.03 and r.max_range_m == 6.0
+
+
+@pytest.mark.parametrize("mode", [BusyMode.FF, BusyMode.NACK])
+def test_polling_waits_out_the_65_ms_ranging_in_both_busy_styles(mode):
+    clock, _, bus = make(busy_mode=mode, x70=0.8)
+    with SRF08(bus, 0x70, clock=clock, wait="poll", poll_interval_s=0.005) as s:
+        t0 = clock.now_ns()
+        assert s.read().range_m == 0.80
+        # 65 ms ranging, 5 ms polls: ready at the 13th poll, i.e. exactly 65 ms later
+        assert clock.now_ns() - t0 == 65_000_000
+        assert s.busy_polls == 13
+
+
+def test_sleep_mode_waits_the_ranging_time_and_then_needs_no_busy_poll():
+    clock, _, bus = make(busy_mode=BusyMode.NACK, x70=0.8)
+    with SRF08(bus, 0x70, clock=clock, wait="sleep") as s:
+        t0 = clock.now_ns()
+        assert s.read().range_m == 0.80
+        assert clock.now_ns() - t0 == 65_000_000
+        assert s.busy_polls == 0
+
+
+def test_a_lower_range_register_shortens_ranging_and_cuts_far_echoes():
+    assert range_for_register(24) == pytest.approx(1.075)  # datasheet: 24 gives about 1 m
+    assert range_for_register(255) == pytest.approx(11.008)
+    assert range_register_for(1.0) == 23  # 23 * 43 + 43 = 1032 mm is the smallest covering 1 m
+    clock, scene, bus = make(x70=1.2)
+    with SRF08(bus, 0x70, clock=clock, max_range_m=1.0) as s:
+        assert bus.devices[0x70].range_register == 23
+        t0 = clock.now_ns()
+        assert math.isnan(s.read().range_m)  # 1.2 m is beyond 1.032 m: not heard
+        assert clock.now_ns() - t0 == 10_000_000  # 65 ms * 24/256 = 6.09 ms -> ready at the 2nd 5 ms poll
+        scene.ranges[0x70] = 0.9
+        assert s.read().range_m == 0.90
+
+
+def test_gain_is_written_to_register_one_and_validated():
+    clock, _, bus = make(x70=0.5)
+    with SRF08(bus, 0x70, clock=clock, gain=10) as s:
+        assert bus.devices[0x70].gain == 10
+        s.set_gain(0)
+        assert bus.devices[0x70].gain == 0
+        with pytest.raises(CommandError, match="gain=32"):
+            s.set_gain(32)
+    with pytest.raises(CommandError, match="gain=-1"):
+        SRF08(bus, 0x70, gain=-1)
+
+
+def test_microsecond_and_inch_commands_use_the_datasheet_units():
+    clock, _, bus = make(x70=0.5)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        s.start_ranging(0x52)
+        assert s.read_range_cm() == round(2 * 0.5 / 343.0 * 1e6)  # 2915 us of flight
+        s.start_ranging(0x50)
+        assert s.read_range_cm() == 20  # 0.5 m / 25.4 mm = 19.7 in
+
+
+def test_several_echoes_fill_registers_four_onwards():
+    clock = ManualClock()
+    bus = SRF08Bus(clock, lambda a, t: [2.0, 0.4, 1.1], addresses=[0x70])
+    with SRF08(bus, 0x70, clock=clock) as s:
+        assert s.read().range_m == 0.40
+        assert bus.read_i2c_block_data(0x70, 4, 4) == [0, 110, 0, 200]
+
+
+def test_a_transient_io_error_is_retried_and_a_persistent_one_raises():
+    clock, _, bus = make(x70=0.5)
+    with SRF08(bus, 0x70, clock=clock, retries=2) as s:
+        bus.inject_io_error(0x70, count=2)
+        assert s.read().range_m == 0.50
+        bus.inject_io_error(0x70)
+        with pytest.raises(DeviceIOError, match="srf08@0x70") as ei:
+            s.read()
+        assert ei.value.errno == errno.EIO
+
+
+def test_a_missing_device_times_out_on_open():
+    clock, _, bus = make(x70=0.5)
+    s = SRF08(bus, 0x7E, clock=clock, timeout_s=0.05)
+    with pytest.raises(DeviceTimeoutError, match="still busy"):
+        s.open()
+    assert not s.is_open
+
+
+def test_a_stuck_sonar_keeps_reporting_the_same_value():
+    clock, scene, bus = make(x70=0.5)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        bus.stick(0x70, 42)
+        scene.ranges[0x70] = 0.9
+        assert s.read().range_m == 0.42
+        bus.clear_faults(0x70)
+        assert s.read().range_m == 0.90
+
+
+def test_using_a_closed_driver_raises():
+    clock, _, bus = make(x70=0.5)
+    s = SRF08(bus, 0x70, clock=clock)
+    with pytest.raises(DeviceClosedError, match="srf08@0x70"):
+        s.read()
+
+
+def test_addresses_outside_0x70_0x7f_are_refused():
+    _, _, bus = make(x70=0.5)
+    with pytest.raises(CommandError, match=r"0x70\.\.0x7F"):
+        SRF08(bus, 0xE0)
+
+
+def test_general_call_starts_every_sonar_at_once():
+    clock, scene, bus = make(x70=0.3, x71=0.6)
+    bus.write_byte_data(0x00, 0, 0x51)
+    assert [a for a, _ in scene.calls] == [0x70, 0x71]
+    assert bus.read_byte_data(0x70, 0) == 0xFF  # both busy
+    clock.advance(0.065)
+    assert bus.read_i2c_block_data(0x71, 2, 2) == [0, 60]
+
+
+# --- address change -----------------------------------------------------------------------------------
+
+
+def test_address_change_refuses_without_confirmation_and_validates():
+    _, _, bus = make(x70=0.5, x71=0.5)
+    with pytest.raises(CommandError, match="confirm=True"):
+        change_address(bus, 0x70, 0x7A)
+    with pytest.raises(CommandError, match="new=0xF0"):
+        change_address(bus, 0x70, 0xF0, confirm=True)
+    with pytest.raises(CommandError, match="already answers"):
+        change_address(bus, 0x70, 0x71, confirm=True)
+    with pytest.raises(DeviceIOError, match="old=0x7B"):
+        change_address(bus, 0x7B, 0x7C, confirm=True)
+    assert sorted(bus.devices) == [0x70, 0x71]
+
+
+def test_address_change_sends_the_four_byte_sequence_and_moves_the_device():
+    _, _, bus = make(x70=0.5)
+    writes: list[tuple[int, int, int]] = []
+    original = bus.write_byte_data
+
+    def spy(addr, reg, value, force=None):
+        writes.append((addr, reg, value))
+        original(addr, reg, value)
+
+    bus.write_byte_data = spy  # type: ignore[method-assign]
+    change_address(bus, 0x70, 0x79, confirm=True)
+    assert writes == [(0x70, 0, 0xA0), (0x70, 0, 0xAA), (0x70, 0, 0xA5), (0x70, 0, 0xF2)]
+    assert scan(bus) == {0x79: 11}
+
+
+def test_an_interrupted_address_sequence_changes_nothing():
+    clock, _, bus = make(x70=0.5)
+    for v in (0xA0, 0xAA, 0x51, 0xA5, 0xF2):  # a ranging command in the middle breaks it
+        clock.advance(0.1)
+        bus.write_byte_data(0x70, 0, v)
+    assert list(bus.devices) == [0x70]
+
+
+# --- two arrays of three ---------------------------------------------------------------------------------
+
+
+def test_an_io_error_on_one_sonar_leaves_the_other_five_reading(caplog):
+    ranges = {f"x{0x70 + k:02x}": 0.30 + 0.1 * k for k in range(6)}
+    clock, _, bus = make(busy_mode=BusyMode.NACK, **ranges)
+    arrays = [
+        RangerSonarArray(
+            [SRF08(bus, 0x70 + 3 * a + k, clock=clock) for k in range(3)], name=f"array{a}", clock=clock
+        )
+        for a in range(2)
+    ]
+    assert all(isinstance(arr, SonarArray) for arr in arrays)
+    for arr in arrays:
+        arr.open()
+    bus.inject_io_error(0x74)  # middle sonar of the second array dies
+    with caplog.at_level(logging.INFO, logger="hw.sonar_array"):
+        left, right = arrays[0].read(), arrays[1].read()
+    assert left.ranges_m == pytest.approx((0.30, 0.40, 0.50))
+    assert right.ranges_m[0] == pytest.approx(0.60) and right.ranges_m[2] == pytest.approx(0.80)
+    assert math.isnan(right.ranges_m[1])
+    assert arrays[1].error_counts == [0, 1, 0] and arrays[0].error_counts == [0, 0, 0]
+    assert "sonar 2" in caplog.text and "0x74" in caplog.text
+    for _ in range(4):
+        arrays[1].read()
+    assert arrays[1].dead == (False, True, False)
+    bus.clear_faults(0x74)
+    assert arrays[1].read().ranges_m[1] == pytest.approx(0.70)
+    assert arrays[1].dead == (False, False, False)
+    assert arrays[1].error_counts == [0, 5, 0]
+    for arr in arrays:
+        arr.close()
+
+
+def test_the_array_needs_three_rangers_and_a_servo_to_turn():
+    clock, _, bus = make(x70=0.5, x71=0.5, x72=0.5)
+    with pytest.raises(CommandError, match="exactly 3"):
+        RangerSonarArray([SRF08(bus, 0x70, clock=clock)])
+    with RangerSonarArray([SRF08(bus, 0x70 + k, clock=clock) for k in range(3)], clock=clock) as arr:
+        assert arr.read().servo_angle_deg == 90.0
+        with pytest.raises(CommandError, match="no servo"):
+            arr.set_servo_deg(45.0)
+
+
+@pytest.mark.hardware
+def test_real_srf08_on_i2c_bus_1_answers_a_ranging():
+    with SRF08(1, 0x70) as s:
+        r = s.read()
+        assert math.isnan(r.range_m) or 0.0 < r.range_m < 11.0

@@ -1,0 +1,163 @@
+"""Tests of the platform spec loader (assets/robchair.toml -> RobChairSpec)."""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from robchair.errors import ConfigError, RobChairError
+from robchair.spec import DEFAULT_SPEC_PATH, load_spec, spec_from_dict
+
+
+@pytest.fixture(scope="module")
+def raw() -> dict:
+    with DEFAULT_SPEC_PATH.open("rb") as fh:
+        return tomllib.load(fh)
+
+
+def test_default_spec_carries_table_9_1():
+    s = load_spec()
+    assert (s.body.height, s.body.width, s.body.depth) == (1.632, 0.64, 0.84)
+    assert s.wheel_radius == 0.172
+    assert s.max_motor_rpm == 1000.0
+    assert s.gear_ratio == 29.0
+    assert s.encoder_ppr == 1000
+    assert s.wheel_separation == 0.58
+    assert s.encoder_on == "motor"
+
+
+def test_encoder_on_motor_gives_116000_counts_per_wheel_revolution_and_wheel_gives_4000(raw):
+    assert load_spec().counts_per_wheel_rev == 1000 * 4 * 29
+    d = copy.deepcopy(raw)
+    d["drive"]["encoder_on"] = "wheel"
+    assert spec_from_dict(d).counts_per_wheel_rev == 4000
+
+
+def test_measured_step_responses_are_those_of_spec_section_5():
+    s = load_spec()
+    m1, m2 = s.step_for_channel(1), s.step_for_channel(2)
+    assert (m1.t_r, m1.t_p, m1.M_p) == (0.1365, 0.3975, 0.10)
+    assert (m2.t_r, m2.t_p, m2.M_p) == (0.1524, 0.3590, 0.12)
+    with pytest.raises(ConfigError, match="channel 3"):
+        s.step_for_channel(3)
+
+
+def test_geometry_is_self_consistent():
+    s = load_spec()
+    # wheels plus tyre width fill the overall width; casters are in front and inside the footprint
+    assert math.isclose(s.wheel_separation + s.drive.wheel_width, s.body.width)
+    front = s.body.centre_x + s.body.depth / 2
+    for c in s.casters:
+        assert 0 < c.x < front and abs(c.y) + c.width / 2 <= s.body.width / 2
+    assert {c.name for c in s.casters} == {"caster_left", "caster_right"}
+    assert math.isclose(s.total_mass, s.body.mass + 2 * s.drive.wheel_mass + sum(c.mass for c in s.casters))
+
+
+def test_kinect_sits_high_at_the_back_and_looks_forward_and_down():
+    m = load_spec().mounts["kinect_link"]
+    assert m.parent == "base_link"
+    assert m.xyz[0] < 0 and m.xyz[2] > 1.4
+    optical_axis = m.rotation() @ np.array([1.0, 0.0, 0.0])
+    assert optical_axis[0] > 0.9 and optical_axis[2] < -0.1
+
+
+def test_sonar_arrays_sit_at_the_front_corners_and_pan_about_z():
+    s = load_spec()
+    left, right = s.mounts["sonar_array_left"], s.mounts["sonar_array_right"]
+    assert left.xyz[0] > 0.4 and left.xyz[1] > 0 and right.xyz[1] < 0
+    assert left.joint is not None and left.joint.axis == (0.0, 0.0, 1.0)
+    # turning the servo by +90 deg points the array's x axis to the left (y) of base_link
+    x_axis = left.transform(math.pi / 2) @ np.array([1.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(x_axis[:3], [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_mount_without_joint_refuses_a_joint_angle():
+    with pytest.raises(ConfigError, match="no joint"):
+        load_spec().mounts["kinect_link"].transform(0.1)
+
+
+def test_spec_is_frozen():
+    s = load_spec()
+    with pytest.raises(AttributeError):
+        s.drive.wheel_radius = 1.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        s.mounts["x"] = s.mounts["kinect_link"]  # type: ignore[index]
+
+
+def test_negative_wheel_radius_is_refused_naming_field_and_value(raw):
+    d = copy.deepcopy(raw)
+    d["drive"]["wheel_radius"] = -0.172
+    with pytest.raises(ConfigError, match=r"drive\.wheel_radius = -0\.172: expected a positive number"):
+        spec_from_dict(d)
+
+
+def test_missing_field_is_refused(raw):
+    d = copy.deepcopy(raw)
+    del d["drive"]["gear_ratio"]
+    with pytest.raises(ConfigError, match=r"drive\.gear_ratio: missing field"):
+        spec_from_dict(d)
+    d = copy.deepcopy(raw)
+    del d["mounts"]["kinect_link"]
+    with pytest.raises(ConfigError, match=r"mounts\.kinect_link: missing"):
+        spec_from_dict(d)
+
+
+def test_unknown_key_is_refused(raw):
+    d = copy.deepcopy(raw)
+    d["drive"]["wheel_radus"] = 0.2
+    with pytest.raises(ConfigError, match=r"drive\.wheel_radus: unknown key"):
+        spec_from_dict(d)
+
+
+@pytest.mark.parametrize(
+    ("table", "key", "value", "message"),
+    [
+        ("drive", "encoder_on", "axle", r"encoder_on = 'axle': expected one of"),
+        ("drive", "encoder_ppr", 1000.5, r"encoder_ppr = 1000\.5: expected a positive integer"),
+        ("body", "mass", float("nan"), r"body\.mass = nan: expected a finite number"),
+        ("body", "height", "tall", r"body\.height = 'tall'"),
+    ],
+)
+def test_invalid_values_are_refused(raw, table, key, value, message):
+    d = copy.deepcopy(raw)
+    d[table][key] = value
+    with pytest.raises(ConfigError, match=message):
+        spec_from_dict(d)
+
+
+def test_overshoot_outside_zero_one_is_refused(raw):
+    d = copy.deepcopy(raw)
+    d["motor_steps"][0]["M_p"] = 10
+    with pytest.raises(ConfigError, match=r"motor_steps\[0\]\.M_p = 10\.0: expected an overshoot fraction"):
+        spec_from_dict(d)
+
+
+def test_bad_vector_and_joint_limits_are_refused(raw):
+    d = copy.deepcopy(raw)
+    d["mounts"]["kinect_link"]["xyz"] = [0.0, 1.0]
+    with pytest.raises(ConfigError, match=r"mounts\.kinect_link\.xyz = \[0\.0, 1\.0\]: expected three"):
+        spec_from_dict(d)
+    d = copy.deepcopy(raw)
+    d["mounts"]["sonar_array_left"]["joint"]["lower"] = 2.0
+    with pytest.raises(ConfigError, match=r"joint: lower = 2\.0 must be below upper"):
+        spec_from_dict(d)
+
+
+def test_missing_file_and_bad_toml_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_spec(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[drive\nwheel_radius = 1\n")
+    with pytest.raises(RobChairError, match="not valid TOML"):
+        load_spec(bad)
+
+
+def test_spec_file_round_trips_through_its_own_text(tmp_path):
+    text = DEFAULT_SPEC_PATH.read_text()
+    p = tmp_path / "copy.toml"
+    p.write_text(text)
+    assert load_spec(p) == load_spec()

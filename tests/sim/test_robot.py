@@ -1,0 +1,151 @@
+"""Simulated motors follow the identified plant; encoders, servos, divergence and the sim backend."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from robchair.control import identify_from_step_metrics
+from robchair.kinematics import Odometry
+from robchair.spec import load_spec
+from sim.errors import SimError, SimulationDivergedError
+
+pytest.importorskip("pybullet")
+
+
+def _peak(t, y, final):
+    k = int(np.argmax(y))
+    return t[k], y[k] / final - 1.0
+
+
+@pytest.fixture()
+def world_robot():
+    from sim.robot import SimRobot
+    from sim.world import World
+
+    spec = load_spec()
+    world = World()
+    robot = SimRobot(world, spec, closed_loop=False)
+    world.step(60)
+    yield world, robot, spec
+    world.close()
+
+
+def test_open_loop_speed_step_shows_the_identified_peak_time_and_overshoot(world_robot):
+    world, robot, spec = world_robot
+    u = 0.1 * spec.max_motor_rpm  # the thesis's 10 % step, chair on the floor
+    robot.set_motor_rpm(u, u)
+    n = 2 * world.physics_hz
+    ys = np.empty((n, 2))
+    for k in range(n):
+        world.step(1)
+        ys[k] = robot.wheel_speed_rpm()
+    t = (np.arange(n) + 1) * world.dt
+    for col, ch in enumerate((1, 2)):
+        step = spec.step_for_channel(ch)
+        ident = identify_from_step_metrics(step.t_r, step.t_p, step.M_p)
+        t_p, m_p = _peak(t, ys[:, col], u)
+        # measured on the wheel joint in PyBullet, against the identified (continuous) plant
+        assert t_p == pytest.approx(ident.plant.peak_time, rel=0.10)
+        assert m_p == pytest.approx(ident.plant.overshoot, rel=0.10)
+        assert ys[-1, col] == pytest.approx(u, rel=0.02)
+
+
+def test_closed_loop_reaches_the_set_point_without_steady_state_error(world_robot):
+    world, robot, spec = world_robot
+    robot.set_closed_loop(True)
+    robot.set_motor_rpm(300.0, -200.0)
+    world.step(4 * world.physics_hz)
+    left, right = robot.wheel_speed_rpm()
+    assert left == pytest.approx(300.0, abs=3.0)
+    assert right == pytest.approx(-200.0, abs=3.0)
+
+
+def test_encoders_count_quadrature_x4_on_the_motor_shaft(world_robot):
+    world, robot, spec = world_robot
+    c0 = robot.encoder_counts()
+    import pybullet as p
+
+    a0 = [s[0] for s in p.getJointStates(robot.body, robot.wheel_ids, physicsClientId=world.client)]
+    robot.set_motor_rpm(200.0, 100.0)
+    world.step(240)
+    c1 = robot.encoder_counts()
+    a1 = [s[0] for s in p.getJointStates(robot.body, robot.wheel_ids, physicsClientId=world.client)]
+    per_rad = spec.encoder_ppr * 4 * spec.gear_ratio / (2 * math.pi)  # 116 000 counts per wheel turn
+    for k in range(2):
+        assert c1[k] - c0[k] == pytest.approx((a1[k] - a0[k]) * per_rad, abs=1.5)
+
+
+def test_odometry_from_simulated_encoders_tracks_the_ground_truth(world_robot):
+    world, robot, spec = world_robot
+    robot.set_closed_loop(True)
+    odo = Odometry(spec)
+    odo.update(*robot.encoder_counts())
+    start = robot.pose2d()
+    robot.set_motor_rpm(*robot.drive.motor_rpm(0.4, 0.3))
+    for _ in range(4 * 60):
+        world.step(4)
+        odo.update(*robot.encoder_counts())
+    gt = robot.pose2d()
+    assert math.hypot(odo.pose.x - (gt.x - start.x), odo.pose.y - (gt.y - start.y)) < 0.05
+    assert abs(odo.pose.theta - (gt.theta - start.theta)) < 0.05
+
+
+def test_servo_turns_the_sonar_array_and_respects_its_limits(world_robot):
+    world, robot, spec = world_robot
+    robot.set_servo_deg("sonar_array_left", 40.0)
+    world.step(120)
+    assert robot.servo_deg("sonar_array_left") == pytest.approx(40.0, abs=0.5)
+    robot.set_servo_deg("sonar_array_left", 170.0)  # beyond the joint's +90 deg
+    world.step(240)
+    assert robot.servo_deg("sonar_array_left") == pytest.approx(90.0, abs=0.5)
+    with pytest.raises(SimError, match="no servo on 'kinect_link'"):
+        robot.set_servo_deg("kinect_link", 0.0)
+
+
+def test_non_finite_pose_raises_simulation_diverged(world_robot):
+    world, robot, spec = world_robot
+    import pybullet as p
+
+    p.resetBasePositionAndOrientation(robot.body, (float("nan"), 0.0, 0.0), (0, 0, 0, 1),
+                                      physicsClientId=world.client)
+    with pytest.raises(SimulationDivergedError, match="non-finite"):
+        robot.base_pose()
+
+
+def test_non_finite_motor_command_is_refused(world_robot):
+    _, robot, _ = world_robot
+    with pytest.raises(SimError, match="left_rpm must be finite"):
+        robot.set_motor_rpm(float("nan"), 0.0)
+
+
+def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the_physics():
+    from hw.interfaces import Clock, DepthCamera, MotorController, SonarArray
+    from hw.errors import DeviceClosedError
+    from sim.backend import make_sim_backend
+
+    backend = make_sim_backend({"sensor": None, "sonars": False, "seed": 1})
+    try:
+        assert isinstance(backend.clock, Clock) and isinstance(backend.motors, MotorController)
+        with pytest.raises(DeviceClosedError):
+            backend.motors.read_state()
+        with backend:
+            backend.motors.set_speeds_rpm(300.0, 300.0)
+            t0 = backend.clock.now_ns()
+            backend.clock.sleep_until_ns(t0 + 2_000_000_000)
+            assert backend.clock.now_ns() == t0 + 2_000_000_000
+            st = backend.motors.read_state()
+            assert st.speed_rpm[0] == pytest.approx(300.0, rel=0.05)
+            assert st.encoder_counts[0] > 0
+            backend.motors.emergency_stop()
+            backend.motors.set_speeds_rpm(300.0, 300.0)  # ignored while stopped
+            backend.clock.sleep_until_ns(backend.clock.now_ns() + 2_000_000_000)
+            assert abs(backend.motors.read_state().speed_rpm[0]) < 5.0
+            assert backend.motors.read_state().faults.emergency_stop
+    finally:
+        backend.chair.close()
+    with pytest.raises(SimError, match="unknown key"):
+        make_sim_backend({"colour": "red"})
+    del DepthCamera, SonarArray

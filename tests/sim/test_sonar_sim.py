@@ -1,0 +1,143 @@
+"""Simulated sonars: analytic ranges to walls, the floor ignored, range limits, arrays on a servo."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.raycast import MeshMirror
+from sim.sonar import SonarArraySim, SonarSim, SonarSimError, beam_rays
+
+p = pytest.importorskip("pybullet")
+
+LEVEL = (0.0, 0.0, 0.0, 1.0)
+
+
+@pytest.fixture
+def client():
+    c = p.connect(p.DIRECT)
+    yield c
+    p.disconnect(physicsClientId=c)
+
+
+def box(c, half, pos, yaw=0.0):
+    col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
+    return p.createMultiBody(0, col, -1, basePosition=pos, baseOrientation=p.getQuaternionFromEuler([0, 0, yaw]),
+                             physicsClientId=c)  # fmt: skip
+
+
+def floor(c):
+    return box(c, [20, 20, 0.01], [0, 0, -0.01])
+
+
+def wall(c, d, yaw=0.0):
+    n = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    return box(c, [0.05, 4, 2], (np.array([d, 0.0, 1.0]) + 0.05 * n).tolist(), yaw)
+
+
+@pytest.mark.parametrize("d", [0.25, 0.87, 1.5, 2.43])
+def test_sonar_reads_the_perpendicular_distance_to_a_wall(client, d):
+    floor(client)
+    wall(client, d)
+    assert SonarSim(client, "srf08").measure(([0, 0, 0.4], LEVEL)) == pytest.approx(d, abs=1e-9)
+
+
+def test_a_wall_turned_within_the_beam_reads_its_perpendicular_distance(client):
+    # the echo comes back along the wall's normal, which is 20 deg off the sonar axis but in the beam
+    wall(client, 1.2, yaw=math.radians(20))
+    assert SonarSim(client).measure(([0, 0, 0.4], LEVEL)) == pytest.approx(round(1.2 * math.cos(math.radians(20)), 2))
+
+
+def test_a_wall_turned_beyond_the_beam_gives_no_echo(client):
+    wall(client, 1.2, yaw=math.radians(60))
+    assert math.isnan(SonarSim(client).measure(([0, 0, 0.4], LEVEL)))
+
+
+def test_sonar_ignores_the_floor(client):
+    floor(client)
+    s = SonarSim(client, "srf08")
+    for h in (0.3, 0.4, 0.5):
+        assert math.isnan(s.measure(([0, 0, h], LEVEL)))
+    # the rule is what removes it: accepting grazing echoes makes the floor show up
+    grazing = SonarSim(client, "srf08", max_incidence_deg=89.0, mirror=s.mirror)
+    r = grazing.measure(([0, 0, 0.4], LEVEL))
+    assert math.isfinite(r) and r > 0.4
+
+
+def test_reading_is_rounded_to_whole_centimetres(client):
+    wall(client, 1.234)
+    assert SonarSim(client).measure(([0, 0, 0.4], LEVEL)) == pytest.approx(1.23)
+    assert SonarSim(client).read(([0, 0, 0.4], LEVEL), stamp_ns=5).range_m == pytest.approx(1.23)
+
+
+def test_range_limits_of_srf08_and_srf04(client):
+    wall(client, 3.5)
+    pose = ([0, 0, 0.4], LEVEL)
+    assert SonarSim(client, "srf08").measure(pose) == pytest.approx(3.5)
+    assert math.isnan(SonarSim(client, "srf04").measure(pose))
+    r = SonarSim(client, "srf04").read(pose, stamp_ns=7)
+    assert (r.stamp_ns, r.min_range_m, r.max_range_m) == (7, 0.03, 3.0)
+
+
+def test_an_echo_closer_than_the_minimum_range_is_nan(client):
+    wall(client, 0.02)
+    assert math.isnan(SonarSim(client).measure(([0, 0, 0.4], LEVEL)))
+
+
+def test_array_outer_sonars_look_30_degrees_to_each_side_and_turn_with_the_servo(client):
+    # a thin pole at bearing +45 deg, 0.8 m away: sonar 1 (+30 deg) and maybe 2 see it, sonar 3 cannot
+    col = p.createCollisionShape(p.GEOM_CYLINDER, radius=0.05, height=2.0, physicsClientId=client)
+    b = math.radians(45)
+    p.createMultiBody(0, col, -1, basePosition=[0.8 * math.cos(b), 0.8 * math.sin(b), 1.0], physicsClientId=client)
+    a = SonarArraySim(client, "srf08", sonar_offsets_m=np.zeros((3, 3)))
+    r1, r2, r3 = a.measure(([0, 0, 0.4], LEVEL), servo_angle_deg=0.0)
+    assert r1 == pytest.approx(0.75, abs=0.011)  # 0.8 - radius, cylinder tessellation within 1 cm
+    assert math.isnan(r3)
+    # servo at +75 deg: sonar 3 now points at +45 deg, sonar 1 at +105 deg (60 deg off the pole)
+    r1, _, r3 = a.measure(([0, 0, 0.4], LEVEL), servo_angle_deg=75.0)
+    assert r3 == pytest.approx(0.75, abs=0.011)
+    assert math.isnan(r1)
+    reading = a.read(([0, 0, 0.4], LEVEL), servo_angle_deg=75.0, stamp_ns=3)
+    assert reading.servo_angle_deg == 75.0 and reading.stamp_ns == 3
+
+
+def test_sonars_of_an_array_sit_where_the_offsets_put_them(client):
+    wall(client, 1.0)
+    a = SonarArraySim(client, sonar_offsets_m=[[0.1, 0, 0], [0.2, 0, 0], [0.0, 0, 0]], max_incidence_deg=15.0)
+    poses = a.sonar_poses(([0, 0, 0.4], LEVEL), 0.0)
+    assert poses[0][:3, 3] == pytest.approx([0.1, 0, 0.4])
+    assert poses[0][:3, 0] == pytest.approx([math.cos(math.radians(30)), math.sin(math.radians(30)), 0])
+    assert a.measure(([0, 0, 0.4], LEVEL))[1] == pytest.approx(0.8)
+
+
+def test_sonar_noise_is_seeded(client):
+    wall(client, 1.5)
+    pose = ([0, 0, 0.4], LEVEL)
+    m = MeshMirror(client)
+
+    def run(seed):
+        s = SonarSim(client, noise_std_m=0.02, rng=seed, mirror=m)
+        return [s.measure(pose) for _ in range(20)]
+
+    a, b = run(1), run(1)
+    assert a == b
+    assert len(set(a)) > 1
+    assert all(abs(round(x * 100) - x * 100) < 1e-9 for x in a)
+
+
+def test_beam_is_asymmetric_as_the_appendix_a_model():
+    _, bearing, elevation = beam_rays(1.0)
+    assert bearing.max() > 30 and bearing.min() < -30
+    assert bearing.max() != pytest.approx(-bearing.min(), abs=0.5)
+    assert abs(elevation).max() < 45
+
+
+def test_bad_sonar_configuration_is_refused(client):
+    with pytest.raises(SonarSimError, match="unknown sonar model 'srf10'"):
+        SonarSim(client, "srf10")
+    with pytest.raises(SonarSimError, match="max_incidence_deg=95"):
+        SonarSim(client, max_incidence_deg=95)
+    with pytest.raises(SonarSimError, match=r"sonar_offsets_m of shape \(2, 3\)"):
+        SonarArraySim(client, sonar_offsets_m=np.zeros((2, 3)))
