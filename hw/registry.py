@@ -20,6 +20,7 @@ Config keys (all optional unless stated; unknown keys are an error naming the al
 * real: ``port`` (required, e.g. ``/dev/ttyACM0``), ``baudrate``, ``timeout_s``, ``retries``,
   ``watchdog_ms``, ``i2c_bus`` (int; no sonars without it), ``sonar_addresses`` (six 7-bit
   addresses, left array 1-2-3 then right array 1-2-3; default 0x70..0x75), ``sonar_max_range_m``,
+  ``joystick_port`` (serial device of the Arduino joystick, :class:`hw.joystick.SerialJoystick`),
   ``spec``.
 """
 
@@ -52,7 +53,7 @@ _EMULATED_KEYS = {
 }  # fmt: skip
 _REAL_KEYS = {
     "port", "baudrate", "timeout_s", "retries", "watchdog_ms", "i2c_bus", "sonar_addresses",
-    "sonar_max_range_m", "spec",
+    "sonar_max_range_m", "joystick_port", "spec",
 }  # fmt: skip
 
 
@@ -88,7 +89,9 @@ def get_backend(name: str, config: Mapping[str, Any] | None = None) -> Backend:
 def _check_keys(cfg: Mapping[str, Any], allowed: set[str], where: str) -> None:
     unknown = set(cfg) - allowed
     if unknown:
-        raise BackendConfigError(f"{where} backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+        raise BackendConfigError(
+            f"{where} backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}"
+        )
 
 
 def _number(cfg: Mapping[str, Any], key: str, default: float, where: str, *, positive: bool = True) -> float:
@@ -128,7 +131,9 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
     from hw.srf08 import SRF08
 
     if len(addresses) != 6:
-        raise BackendConfigError(f"sonar_addresses={list(addresses)!r}: expected six addresses (two arrays of three)")
+        raise BackendConfigError(
+            f"sonar_addresses={list(addresses)!r}: expected six addresses (two arrays of three)"
+        )
     arrays = []
     for k, name in enumerate(SONAR_ARRAY_NAMES):
         rangers = [
@@ -178,7 +183,10 @@ def _emulated(cfg: dict[str, Any]) -> Backend:
             bus = SRF08Bus(clock, lambda _addr, _t: r, addresses=DEFAULT_SONAR_ADDRESSES)
             extras["srf08_bus"] = bus
             arrays = _sonar_arrays(
-                bus, DEFAULT_SONAR_ADDRESSES, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
+                bus,
+                DEFAULT_SONAR_ADDRESSES,
+                clock,
+                _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where),
             )
     except BaseException:
         emu.stop()
@@ -196,7 +204,9 @@ def _real(cfg: dict[str, Any]) -> Backend:
     _check_keys(cfg, _REAL_KEYS, where)
     port = cfg.get("port")
     if not isinstance(port, str) or not port:
-        raise BackendConfigError("real backend config: port is required (the Roboteq's serial device, e.g. /dev/ttyACM0)")
+        raise BackendConfigError(
+            "real backend config: port is required (the Roboteq's serial device, e.g. /dev/ttyACM0)"
+        )
     spec = _spec(cfg)
     clock = MonotonicClock()
     motors = RoboteqMDC2230(
@@ -221,4 +231,14 @@ def _real(cfg: dict[str, Any]) -> Backend:
         arrays = _sonar_arrays(
             bus, addresses, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
         )
-    return ManagedBackend(name="real", clock=clock, motors=motors, sonar_arrays=arrays, on_close=on_close)
+    joystick = None
+    if cfg.get("joystick_port") is not None:
+        from hw.joystick import SerialJoystick
+        from hw.serial_lines import open_serial
+
+        transport = open_serial(str(cfg["joystick_port"]))
+        on_close.append(transport.close)
+        joystick = SerialJoystick(transport, clock=clock)
+    return ManagedBackend(
+        name="real", clock=clock, motors=motors, sonar_arrays=arrays, joystick=joystick, on_close=on_close
+    )

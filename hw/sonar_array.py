@@ -5,7 +5,9 @@ after the other, never together: their beams overlap by design, so one sonar wou
 ping. A sonar that fails (I/O error, timeout, protocol error) gives NaN for that reading while the
 others go on; each failure is logged and counted in :attr:`RangerSonarArray.error_counts`, and a
 sonar that has failed ``max_consecutive_errors`` reads in a row is reported at WARNING level once
-per run of failures so a dead sonar is visible without flooding the log.
+per run of failures so a dead sonar is visible without flooding the log. A dead sonar is then only
+retried on every ``retry_dead_every``-th read (NaN in between, counted in :attr:`skipped_counts`):
+a missing SRF08 costs a whole busy-poll timeout per attempt, which would stall the control loop.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ class RangerSonarArray(Device):
         clock: stamps the readings.
         fixed_angle_deg: servo angle reported when there is no servo.
         max_consecutive_errors: failures in a row after which a sonar is reported as dead.
+        retry_dead_every: a dead sonar is tried again on every this-many-th read (1 = always).
     """
 
     def __init__(
@@ -43,7 +46,13 @@ class RangerSonarArray(Device):
         clock: Clock | None = None,
         fixed_angle_deg: float = 90.0,
         max_consecutive_errors: int = 5,
+        retry_dead_every: int = 10,
     ) -> None:
+        if max_consecutive_errors < 1 or retry_dead_every < 1:
+            raise CommandError(
+                f"{name}: max_consecutive_errors={max_consecutive_errors!r} and "
+                f"retry_dead_every={retry_dead_every!r} must be >= 1"
+            )
         if len(rangers) != 3:
             raise CommandError(f"{name}: rangers must be exactly 3 (left, middle, right), got {len(rangers)}")
         self.rangers = tuple(rangers)
@@ -55,6 +64,9 @@ class RangerSonarArray(Device):
         self.error_counts = [0, 0, 0]
         self.consecutive_errors = [0, 0, 0]
         self.last_errors: list[BaseException | None] = [None, None, None]
+        self.retry_dead_every = retry_dead_every
+        self.skipped_counts = [0, 0, 0]
+        self._skips_left = [0, 0, 0]
 
     def open(self) -> None:
         if self._is_open:
@@ -93,6 +105,11 @@ class RangerSonarArray(Device):
         stamp = self._clock.now_ns()
         ranges: list[float] = []
         for k, ranger in enumerate(self.rangers):
+            if self._skips_left[k] > 0:  # dead: rest it instead of paying another timeout
+                self._skips_left[k] -= 1
+                self.skipped_counts[k] += 1
+                ranges.append(math.nan)
+                continue
             try:
                 r = float(ranger.read().range_m)
             except (HardwareError, OSError) as exc:
@@ -115,7 +132,11 @@ class RangerSonarArray(Device):
                     self.error_counts[k],
                     exc,
                 )
+                if self.consecutive_errors[k] >= self.max_consecutive_errors:
+                    self._skips_left[k] = self.retry_dead_every - 1
             else:
+                if self.consecutive_errors[k] >= self.max_consecutive_errors:
+                    log.warning("%s: sonar %d is back", self.name, k + 1)
                 self.consecutive_errors[k] = 0
             ranges.append(r)
         angle = self.servo.angle_deg() if self.servo is not None else self.fixed_angle_deg

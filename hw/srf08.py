@@ -84,7 +84,8 @@ def ranging_time_for_register(reg: int) -> float:
     return FULL_RANGING_TIME_S * (reg + 1) / 256.0
 
 
-def _open_smbus(bus_number: int) -> Any:
+def open_bus(bus_number: int) -> Any:
+    """Open ``smbus2.SMBus(bus_number)`` (imported here); OSError becomes DeviceIOError naming the bus."""
     try:
         import smbus2
     except ImportError as exc:  # pragma: no cover - a declared dependency
@@ -93,6 +94,9 @@ def _open_smbus(bus_number: int) -> Any:
         return smbus2.SMBus(bus_number)
     except OSError as exc:
         raise DeviceIOError(exc.errno, f"cannot open I2C bus {bus_number}: {exc.strerror}") from exc
+
+
+_open_smbus = open_bus  # older name, still used by hw.registry / robchair.commands.hw
 
 
 class SRF08(Device):
@@ -148,13 +152,14 @@ class SRF08(Device):
         self.retries = retries
         self.software_revision: int | None = None
         self.busy_polls = 0  # polls that found the device busy, over the device's life
+        self._uncollected = False  # a ranging was started and its result not read yet
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
     def open(self) -> None:
         if self._is_open:
             return
-        self._bus = _open_smbus(self._bus_arg) if self._owns_bus else self._bus_arg
+        self._bus = open_bus(self._bus_arg) if self._owns_bus else self._bus_arg
         self._is_open = True
         try:
             # a ranging left over from before us would make the first reads busy: wait it out
@@ -201,10 +206,17 @@ class SRF08(Device):
     # --- ranging -----------------------------------------------------------------------------------------
 
     def start_ranging(self, command: int = CMD_RANGE_CM) -> int:
-        """Send a ranging command; returns the time stamp (ns) of the ping."""
+        """Send a ranging command; returns the time stamp (ns) of the ping.
+
+        If an earlier ranging was never collected (a timeout, or no ``read_range_cm``), the device may
+        still be busy and would silently drop the command (or NACK it): wait until it is idle first.
+        """
         self._check_open()
+        if self._uncollected:
+            self._wait_ready(self._clock.now_ns(), settle=False)
         stamp = self._clock.now_ns()
         self._write(REG_COMMAND, command)
+        self._uncollected = True
         return stamp
 
     def read_range_cm(self) -> int:
@@ -213,6 +225,7 @@ class SRF08(Device):
         self._wait_ready(self._clock.now_ns())
         hi, lo = self._transfer(lambda: self._bus.read_i2c_block_data(self.address, REG_ECHO1, 2))
         value = (int(hi) << 8) | int(lo)
+        self._uncollected = False
         if value == 0xFFFF:
             # SDA floating high: the device went busy again or dropped off between poll and read
             raise DeviceIOError(
@@ -251,13 +264,14 @@ class SRF08(Device):
     def _write(self, register: int, value: int) -> None:
         self._transfer(lambda: self._bus.write_byte_data(self.address, register, value))
 
-    def _wait_ready(self, start_ns: int) -> int:
+    def _wait_ready(self, start_ns: int, settle: bool = True) -> int:
         """Poll register 0 until the device answers something other than 0xFF; returns that value.
 
         A NACK-type ``OSError`` counts as busy. Other OSErrors are I/O faults: they are retried
-        ``retries`` times in a row and then raised as DeviceIOError.
+        ``retries`` times in a row and then raised as DeviceIOError. With ``wait="sleep"`` and
+        ``settle``, the modelled ranging time is slept first.
         """
-        if self.wait == "sleep":
+        if self.wait == "sleep" and settle:
             self._clock.sleep_until_ns(start_ns + round(self.ranging_time_s * 1e9))
         deadline = start_ns + round(self.timeout_s * 1e9)
         io_failures = 0
@@ -279,7 +293,8 @@ class SRF08(Device):
             if now >= deadline:
                 raise DeviceTimeoutError(
                     f"{self.name}: still busy {self.timeout_s * 1e3:.0f} ms after the ranging started"
-                    " (0xFF or no acknowledge on register 0)"
+                    " (register 0 reads 0xFF or is not acknowledged): device absent, wrong address,"
+                    " or not finishing its ranging"
                 )
             self._clock.sleep_until_ns(min(now + round(self.poll_interval_s * 1e9), deadline))
 

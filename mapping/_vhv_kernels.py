@@ -101,13 +101,30 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
 
 
 @numba.jit(**_JIT)
-def extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol, cap):  # type: ignore[no-untyped-def]
-    """Merge consecutive non-empty bins of each cell into structures (gap <= tol joins)."""
-    out_key = np.empty(cap, np.int64)
-    out_b = np.empty(cap, np.float64)
-    out_t = np.empty(cap, np.float64)
-    n_out = 0
+def extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
+    """Merge consecutive non-empty bins of each cell into structures (gap <= tol joins).
+
+    Two passes over the dense table (count, then fill) so that the output is allocated at its exact
+    size: the table is small next to the points, the structures smaller still.
+    """
     n_cells = mins.shape[0] // nb
+    n_out = 0
+    for c in range(n_cells):
+        base = c * nb
+        have = False
+        last_top = 0.0
+        for b in range(nb):
+            lo = np.float64(mins[base + b])
+            if lo == np.inf:
+                continue
+            if not (have and lo - last_top <= tol):
+                n_out += 1
+            have = True
+            last_top = np.float64(maxs[base + b])
+    out_key = np.empty(n_out, np.int64)
+    out_b = np.empty(n_out, np.float64)
+    out_t = np.empty(n_out, np.float64)
+    n_out = 0
     for c in range(n_cells):
         base = c * nb
         open_ = False
@@ -125,7 +142,7 @@ def extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol, cap):  # type: ignore[no-u
                 out_t[n_out] = hi
                 n_out += 1
                 open_ = True
-    return out_key[:n_out], out_b[:n_out], out_t[:n_out]
+    return out_key, out_b, out_t
 
 
 @numba.jit(**_JIT)

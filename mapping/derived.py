@@ -121,7 +121,9 @@ def _sensor_uvh(m: VHVMap, sensor_origin: ArrayLike | None) -> NDArray[np.float6
     return m.spec.to_grid_frame(o)
 
 
-def _crossings(start: float, ends: NDArray[np.float64], ics: float) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+def _crossings(
+    start: float, ends: NDArray[np.float64], ics: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Ray ids and parameters ``s`` in (0, 1) where segments start -> ends cross grid lines of one axis."""
     k0 = math.floor(start * ics)
     k1 = np.floor(ends * ics).astype(np.int64)
@@ -196,15 +198,17 @@ def _union_intervals(
     key: NDArray[np.int64], bottom: NDArray[np.float64], top: NDArray[np.float64]
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
     """Union of overlapping/touching intervals per key (input sorted by key then bottom)."""
-    from mapping.vhv import _merge_numpy
+    from mapping import _vhv_kernels as K
 
     e = np.empty(0)
-    # A gap <= 0 joins, i.e. overlapping or touching intervals; the merge is exact for any tolerance.
-    k, b, t = _merge_numpy(np.empty(0, np.int64), e, e, key, bottom, top, 0.0)
+    # A gap <= 0 joins, i.e. overlapping or touching intervals.
+    k, b, t = K.merge_structures(np.empty(0, np.int64), e, e, key, bottom, top, 0.0)
     return k, b, t
 
 
-def occupancy_probability(m: VHVMap, free: Structures | None = None, sensor_origin: ArrayLike | None = None) -> NDArray[np.float64]:
+def occupancy_probability(
+    m: VHVMap, free: Structures | None = None, sensor_origin: ArrayLike | None = None
+) -> NDArray[np.float64]:
     """Per-cell occupancy probability ``occupied / (occupied + free)`` extents along the kept axis.
 
     Occupied extent is the summed height of the cell's structures, each at least ``cell_size`` thick

@@ -115,7 +115,9 @@ class GridSpec:
                 f"{nx * ny} cells; expected at most {_MAX_CELLS}"
             )
         if abs(cu) / self.cell_size > 2**40 or abs(cv) / self.cell_size > 2**40:
-            raise GridSpecError(f"GridSpec.centre={self.centre!r}: too far from the origin for this cell_size")
+            raise GridSpecError(
+                f"GridSpec.centre={self.centre!r}: too far from the origin for this cell_size"
+            )
 
     # ------------------------------------------------------------------ geometry
     @property

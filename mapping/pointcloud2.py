@@ -174,8 +174,8 @@ def decode(msg: Any, *, organized: bool = False, dtype: Any = None) -> np.ndarra
         wide = any(k.itemsize > 4 or (k.kind in "iu" and k.itemsize >= 4) for k in kinds)
         dtype = np.float64 if wide else np.float32
     out = np.empty((*arr.shape, 3), dtype=dtype)
-    for k, c in enumerate(("x", "y", "z")):
-        out[..., k] = arr[c]
+    for col, c in enumerate(("x", "y", "z")):
+        out[..., col] = arr[c]
     return out if organized else out.reshape(-1, 3)
 
 

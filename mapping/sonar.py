@@ -379,12 +379,9 @@ def fuse_array(
         alpha, theta = tables.lookup(zone, d)
         if theta > 0.0:
             return FusionResult(zone, d, alpha, theta, key, rej, mis, consistent=True)
-    beams = sonar_intervals_deg(d * 100.0, tables.outer_deg)[agreeing]
-    inter_lo, inter_hi = float(beams[:, 0].max()), float(beams[:, 1].min())
-    if inter_hi > inter_lo:
-        alpha, theta = inter_lo, inter_hi - inter_lo
-    else:
-        alpha, theta = _hull(beams)
+    # no usable zone interval: keep the obstacle anywhere the agreeing sonars could have seen it
+    # (for {1, 3} that may be two targets, one in each outer beam, so not their intersection)
+    alpha, theta = _hull(sonar_intervals_deg(d * 100.0, tables.outer_deg)[agreeing])
     return FusionResult(zone, d, alpha, theta, key, rej, mis, consistent=False)
 
 

@@ -106,15 +106,11 @@ class Structures:
         return cls(np.empty(0, np.int32), np.empty(0, np.int32), z, z.copy(), z.copy())
 
     @classmethod
-    def from_bounds(
-        cls, i: ArrayLike, j: ArrayLike, bottom: ArrayLike, top: ArrayLike
-    ) -> Structures:
+    def from_bounds(cls, i: ArrayLike, j: ArrayLike, bottom: ArrayLike, top: ArrayLike) -> Structures:
         """Build from cell indices and bounds (computes ``middle``; does not sort)."""
         b = np.asarray(bottom, dtype=np.float64)
         t = np.asarray(top, dtype=np.float64)
-        return cls(
-            np.asarray(i, dtype=np.int32), np.asarray(j, dtype=np.int32), b, (t + b) / 2.0, t
-        )
+        return cls(np.asarray(i, dtype=np.int32), np.asarray(j, dtype=np.int32), b, (t + b) / 2.0, t)
 
     def equals(self, other: Structures) -> bool:
         """True when both hold exactly the same structures in the same order."""
@@ -195,7 +191,7 @@ class VHVMap:
         The structures are sorted and merged with the map's tolerance, so any input order is accepted.
         """
         m = cls(spec, tolerance)
-        nx, ny = spec.shape
+        ny = spec.shape[1]
         i = np.asarray(structures.i, np.int64)
         j = np.asarray(structures.j, np.int64)
         if len(i) and not bool(np.all(spec.contains_index(i, j))):
@@ -241,7 +237,9 @@ class VHVMap:
         if sensor_origin is not None:
             o = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
             if o.shape != (3,) or not bool(np.all(np.isfinite(o))):
-                raise MappingError(f"VHVMap.insert sensor_origin={sensor_origin!r}: expected finite (x, y, z)")
+                raise MappingError(
+                    f"VHVMap.insert sensor_origin={sensor_origin!r}: expected finite (x, y, z)"
+                )
             origin = (float(o[0]), float(o[1]), float(o[2]))
         pts = as_points(points)
         n_in = int(pts.shape[0])
@@ -433,18 +431,24 @@ def _build_compiled(
     nb = math.floor(h1 * iw) + m - b0 + 1
     ni, nj = i1 - i0 + 1, j1 - j0 + 1
     dense = ni * nj * nb
-    if method == "auto" and dense * 2 * pts.dtype.itemsize > _dense_budget_bytes(pts):
-        key, bot, top, n_kept = _sort_path(pts, spec, tol, n)
-        n_nonfinite = n - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
-        return key, bot, top, n_nonfinite, n - n_nonfinite - n_kept, "sort"
+    entry = 2 * pts.dtype.itemsize
+    budget = _dense_budget_bytes(pts)
+    if dense * entry > budget:
+        if method == "auto" or ni * nj * entry > budget:
+            key, bot, top, n_kept = _sort_path(pts, spec, tol, n)
+            n_nonfinite = n - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
+            return key, bot, top, n_nonfinite, n - n_nonfinite - n_kept, "sort"
+        # "bins" asked for explicitly: keep the table within budget by narrowing the height window;
+        # points above it overflow to the exact sort path.
+        nb = max(1, budget // (ni * nj * entry))
+        dense = ni * nj * nb
     mins = np.full(dense, np.inf, dtype=pts.dtype)
     maxs = np.full(dense, -np.inf, dtype=pts.dtype)
     overflow = np.empty(max(4096, n // 64), np.int64)
     n_nonfinite, n_outside, n_over = K.bin_minmax(
         pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mins, maxs, overflow
     )
-    n_binned = n - int(n_nonfinite) - int(n_outside) - int(n_over)
-    key, bot, top = K.extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol, max(min(dense, n_binned), 1))
+    key, bot, top = K.extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol)
     del mins, maxs
     if n_over:
         if n_over <= overflow.shape[0]:
@@ -508,12 +512,11 @@ def _build_numpy(
     if h.shape[0] == 0:
         return np.empty(0, np.int64), e, e.copy(), n_nonfinite, n_outside
     iw = 1.0 / (tol * _BIN_SHRINK)
-    b = np.floor(h.astype(np.float64) * iw).astype(np.int64)
-    b0 = int(b.min())
-    nb = int(b.max()) - b0 + 1
+    hb = np.floor(h.astype(np.float64) * iw)
     i0, j0 = int(i.min()), int(j.min())
     nj = int(j.max()) - j0 + 1
-    dense = (int(i.max()) - i0 + 1) * nj * nb
+    b_lo, b_hi = float(hb.min()), float(hb.max())
+    dense = (int(i.max()) - i0 + 1) * nj * (b_hi - b_lo + 1)
     if dense * 16 > max(8 * pts.nbytes, 1 << 24):
         # Far too sparse for a dense table: sort (the thesis's pipeline, vectorised).
         key = i * ny + j
@@ -524,7 +527,10 @@ def _build_numpy(
         s = np.flatnonzero(start)
         ends = np.r_[s[1:], hs.shape[0]] - 1
         return key[s], hs[s], hs[ends], n_nonfinite, n_outside
-    idx = ((i - i0) * nj + (j - j0)) * nb + (b - b0)
+    b0 = int(b_lo)
+    nb = int(b_hi) - b0 + 1
+    dense = int(dense)
+    idx = ((i - i0) * nj + (j - j0)) * nb + (hb.astype(np.int64) - b0)
     hv = h.astype(np.float64)
     mins = np.full(dense, np.inf)
     maxs = np.full(dense, -np.inf)

@@ -212,7 +212,9 @@ class Odometry:
             self.drive.counts_to_distance(dr_counts),
             self.drive.b,
         )
-        self.distance += 0.5 * (self.drive.counts_to_distance(dl_counts) + self.drive.counts_to_distance(dr_counts))
+        self.distance += 0.5 * (
+            self.drive.counts_to_distance(dl_counts) + self.drive.counts_to_distance(dr_counts)
+        )
         return self._pose
 
 

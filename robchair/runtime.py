@@ -238,7 +238,7 @@ class Corridor:
         return cls(b.centre_x + 0.5 * b.depth, 0.5 * b.width + lateral_margin)
 
     def distance_ahead(self, xy: np.ndarray) -> float | None:
-        """Distance from the front edge to the nearest point (N, 2) inside the corridor ahead; None if none."""
+        """Distance from the front edge to the nearest point (N, 2) in the corridor ahead (None: none)."""
         if xy.size == 0:
             return None
         inside = (np.abs(xy[:, 1]) <= self.half_width) & (xy[:, 0] > 0.0)
@@ -280,7 +280,9 @@ class LocalMapper:
 
         self.spec = spec
         self.corridor = corridor
-        self.grid = GridSpec(cell_size=cell_size, size_x=extent_m, size_y=extent_m, centre=(extent_m / 2, 0.0))
+        self.grid = GridSpec(
+            cell_size=cell_size, size_x=extent_m, size_y=extent_m, centre=(extent_m / 2, 0.0)
+        )
         self.z_min = z_min
         self.z_max = float(spec.body.height)
         self.stride = stride
@@ -330,7 +332,9 @@ class BagRecorder:
         self._odom = self.writer.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=self.ts)
         self._tf = self.writer.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=self.ts)
         self._sonar = {
-            (name, k): self.writer.add_connection(f"/sonar/{name}/{k + 1}", "sensor_msgs/msg/Range", typestore=self.ts)
+            (name, k): self.writer.add_connection(
+                f"/sonar/{name}/{k + 1}", "sensor_msgs/msg/Range", typestore=self.ts
+            )
             for name in sonar_names
             for k in range(3)
         }
@@ -338,7 +342,9 @@ class BagRecorder:
     def _header(self, stamp_ns: int, frame: str) -> Any:
         T = self.ts.types
         return T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000),
+            stamp=T["builtin_interfaces/msg/Time"](
+                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
+            ),
             frame_id=frame,
         )
 
@@ -346,9 +352,13 @@ class BagRecorder:
         self.writer.write(conn, stamp_ns, self.ts.serialize_cdr(msg, typename))
         self.counts[conn.topic] = self.counts.get(conn.topic, 0) + 1
 
-    def record(self, stamp_ns: int, pose: Pose2D, v: float, w: float, sonars: Sequence[tuple[str, SonarArrayReading]]) -> None:
+    def record(
+        self, stamp_ns: int, pose: Pose2D, v: float, w: float, sonars: Sequence[tuple[str, SonarArrayReading]]
+    ) -> None:
         T = self.ts.types
-        q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose.theta / 2), w=math.cos(pose.theta / 2))
+        q = T["geometry_msgs/msg/Quaternion"](
+            x=0.0, y=0.0, z=math.sin(pose.theta / 2), w=math.cos(pose.theta / 2)
+        )
         pos = T["geometry_msgs/msg/Point"](x=pose.x, y=pose.y, z=0.0)
         vec = T["geometry_msgs/msg/Vector3"]
         odom = T["nav_msgs/msg/Odometry"](
@@ -358,7 +368,9 @@ class BagRecorder:
                 pose=T["geometry_msgs/msg/Pose"](position=pos, orientation=q), covariance=np.zeros(36)
             ),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                twist=T["geometry_msgs/msg/Twist"](linear=vec(x=v, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=w)),
+                twist=T["geometry_msgs/msg/Twist"](
+                    linear=vec(x=v, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=w)
+                ),
                 covariance=np.zeros(36),
             ),
         )
@@ -366,9 +378,13 @@ class BagRecorder:
         tf = T["geometry_msgs/msg/TransformStamped"](
             header=self._header(stamp_ns, "odom"),
             child_frame_id="base_link",
-            transform=T["geometry_msgs/msg/Transform"](translation=vec(x=pose.x, y=pose.y, z=0.0), rotation=q),
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=vec(x=pose.x, y=pose.y, z=0.0), rotation=q
+            ),
         )
-        self._write(self._tf, stamp_ns, T["tf2_msgs/msg/TFMessage"](transforms=[tf]), "tf2_msgs/msg/TFMessage")
+        self._write(
+            self._tf, stamp_ns, T["tf2_msgs/msg/TFMessage"](transforms=[tf]), "tf2_msgs/msg/TFMessage"
+        )
         rng = T["sensor_msgs/msg/Range"]
         for name, reading in sonars:
             for k, r in enumerate(reading.ranges_m):
@@ -560,7 +576,9 @@ class Runtime:
                 except HardwareError as exc:
                     log.info("depth camera: %s", exc)
             dists = [d for d in (sonar_dist, self._map_distance) if d is not None]
-            obs = Observation(now, pose, state, tuple(r for _, r in sonar_readings), min(dists) if dists else None)
+            obs = Observation(
+                now, pose, state, tuple(r for _, r in sonar_readings), min(dists) if dists else None
+            )
             cmd = self.source.command(obs)
             inputs = SafetyInputs(
                 stamp_ns=now,
@@ -615,7 +633,10 @@ class Runtime:
         res.distance_m = self.odometry.distance
         if isinstance(self.source, PurePursuit):
             res.route_completed = self.source.done
-        res.stops = [{"t_s": (s.stamp_ns - t0) / 1e9, "reason": s.reason.value, "detail": s.detail} for s in self.safety.stops]
+        res.stops = [
+            {"t_s": (s.stamp_ns - t0) / 1e9, "reason": s.reason.value, "detail": s.detail}
+            for s in self.safety.stops
+        ]
         return res
 
 
@@ -640,7 +661,10 @@ def run_to_dir(backend: Backend, source: CommandSource, duration_s: float, out_d
         if out_dir is None:
             return go(None)
         with staged_output_dir(out_dir) as stage:
-            names = [getattr(a, "name", f"sonar_array_{i}").removeprefix("sim-") for i, a in enumerate(backend.sonar_arrays)]
+            names = [
+                getattr(a, "name", f"sonar_array_{i}").removeprefix("sim-")
+                for i, a in enumerate(backend.sonar_arrays)
+            ]
             result = go(BagRecorder(stage / "run_bag", names))
             metrics = result.metrics()
             (stage / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))

@@ -80,7 +80,9 @@ class SafetyLimits:
         base = {"max_speed": drive.max_speed, "max_yaw_rate": drive.max_yaw_rate}
         unknown = set(overrides) - set(cls.__dataclass_fields__)
         if unknown:
-            raise ConfigError(f"safety: unknown keys {sorted(unknown)}; expected {sorted(cls.__dataclass_fields__)}")
+            raise ConfigError(
+                f"safety: unknown keys {sorted(unknown)}; expected {sorted(cls.__dataclass_fields__)}"
+            )
         base.update({k: float(v) for k, v in overrides.items()})
         if base["max_speed"] > drive.max_speed or base["max_yaw_rate"] > drive.max_yaw_rate:
             raise ConfigError(

@@ -337,7 +337,9 @@ def _parse_mount(t: Any, where: str) -> Mount:
             lower=lower,
             upper=upper,
         )
-    return Mount(parent=_str(t, where, "parent"), xyz=_vec3(t, where, "xyz"), rpy=_vec3(t, where, "rpy"), joint=joint)
+    return Mount(
+        parent=_str(t, where, "parent"), xyz=_vec3(t, where, "xyz"), rpy=_vec3(t, where, "rpy"), joint=joint
+    )
 
 
 def _parse_step(t: Any, where: str) -> StepResponse:
@@ -432,9 +434,7 @@ def _str(t: Mapping[str, Any], where: str, key: str) -> str:
     return v
 
 
-def _vec3(
-    t: Mapping[str, Any], where: str, key: str, default: Any = _MISSING
-) -> tuple[float, float, float]:
+def _vec3(t: Mapping[str, Any], where: str, key: str, default: Any = _MISSING) -> tuple[float, float, float]:
     if key not in t and default is not _MISSING:
         return tuple(default)  # type: ignore[return-value]
     v = _req(t, where, key)

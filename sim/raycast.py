@@ -129,10 +129,22 @@ def box_mesh(extents: Any) -> tuple[FloatArray, IntArray]:
     hx, hy, hz = (0.5 * float(e) for e in extents)
     v = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     f = np.array(
-        [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]],
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ],
         dtype=np.int64,
-    )  # fmt: skip
+    )
     return v, f
 
 
@@ -154,7 +166,8 @@ def _revolve(profile_rz: FloatArray, segments: int) -> tuple[FloatArray, IntArra
         faces.append(np.column_stack([a, d, c]))
     f = np.concatenate(faces).astype(np.int64)
     # caps: fan from the first/last ring centre when its radius is not zero
-    extra_v, extra_f = [], []
+    extra_v: list[list[float]] = []
+    extra_f: list[IntArray] = []
     n = len(v)
     for idx, sign in ((0, -1), (k - 1, 1)):
         r, z = profile_rz[idx]
@@ -163,7 +176,9 @@ def _revolve(profile_rz: FloatArray, segments: int) -> tuple[FloatArray, IntArra
             extra_v.append([0.0, 0.0, z])
             a = idx * segments + np.arange(segments)
             b = idx * segments + (np.arange(segments) + 1) % segments
-            tri = np.column_stack([np.full(segments, centre), b, a] if sign < 0 else [np.full(segments, centre), a, b])
+            tri = np.column_stack(
+                [np.full(segments, centre), b, a] if sign < 0 else [np.full(segments, centre), a, b]
+            )
             extra_f.append(tri)
     if extra_v:
         v = np.concatenate([v, np.array(extra_v)])
@@ -185,7 +200,9 @@ def sphere_mesh(radius: float, rings: int = 24, segments: int = 48) -> tuple[Flo
     return _revolve(prof, segments)
 
 
-def capsule_mesh(radius: float, length: float, rings: int = 12, segments: int = 48) -> tuple[FloatArray, IntArray]:
+def capsule_mesh(
+    radius: float, length: float, rings: int = 12, segments: int = 48
+) -> tuple[FloatArray, IntArray]:
     """Capsule along z: a cylinder of ``length`` plus two hemispherical caps."""
     th = np.linspace(math.pi, math.pi / 2, rings + 1)
     lower = np.column_stack([radius * np.sin(th), -0.5 * length + radius * np.cos(th)])
@@ -195,7 +212,9 @@ def capsule_mesh(radius: float, length: float, rings: int = 12, segments: int = 
     return _revolve(prof, segments)
 
 
-def plane_mesh(normal: Any = (0.0, 0.0, 1.0), half_size: float = PLANE_HALF_SIZE_M) -> tuple[FloatArray, IntArray]:
+def plane_mesh(
+    normal: Any = (0.0, 0.0, 1.0), half_size: float = PLANE_HALF_SIZE_M
+) -> tuple[FloatArray, IntArray]:
     """A square quad through the origin, perpendicular to ``normal``."""
     n = np.asarray(normal, dtype=float)
     if np.linalg.norm(n) < 1e-9:
@@ -354,7 +373,9 @@ class MeshMirror:
             v, f = plane_mesh(normal)
         elif gtype == _GEOM_MESH:
             if fname and Path(fname).is_file():
-                v, f = read_obj_triangles(fname) if fname.lower().endswith(".obj") else self._read_other(fname)
+                v, f = (
+                    read_obj_triangles(fname) if fname.lower().endswith(".obj") else self._read_other(fname)
+                )
                 v = v * np.asarray(dims, dtype=float)
             else:
                 hull = self._collision_hull(body, link)
@@ -392,7 +413,7 @@ class MeshMirror:
         p = self._pb()
         try:
             n, verts = p.getMeshData(body, link, physicsClientId=self.client)
-        except Exception:  # noqa: BLE001 - pybullet raises a bare error for shapes without mesh data
+        except Exception:  # pybullet raises a bare error for shapes without mesh data
             return None
         if n < 4:
             return None
@@ -443,7 +464,10 @@ class MeshMirror:
             for link in sorted(per_link):
                 lg = per_link[link]
                 lg.faces = np.concatenate(
-                    [pt.faces + off for pt, off in zip(lg.parts, np.cumsum([0] + [len(q.vertices) for q in lg.parts]))]
+                    [
+                        pt.faces + off
+                        for pt, off in zip(lg.parts, np.cumsum([0] + [len(q.vertices) for q in lg.parts]))
+                    ]
                 )
                 self._links.append(lg)
         self.keys = np.array([[lg.body, lg.link] for lg in self._links], dtype=np.int64).reshape(-1, 2)
@@ -501,13 +525,17 @@ class MeshMirror:
 
     # ---- queries ----------------------------------------------------------------------------
 
-    def cast(self, origins: Any, directions: Any, max_range: float = math.inf) -> RayHits:
+    def cast(
+        self, origins: Any, directions: Any, max_range: float = math.inf, *, normals: bool = True
+    ) -> RayHits:
         """Cast rays; return the first hit of each.
 
         Args:
             origins: (N, 3) or (3,) world ray origins (broadcast against ``directions``).
             directions: (..., 3) world directions; distances come out in units of their length.
             max_range: hits farther than this (in the same units) count as misses.
+            normals: compute the hit normals (skip them to save time when not needed; they are
+                then NaN).
 
         Returns:
             :class:`RayHits` with arrays shaped like ``directions`` without its last axis.
@@ -515,30 +543,44 @@ class MeshMirror:
         Raises:
             MeshMirrorError: shapes do not fit or values are not finite.
         """
-        d = np.asarray(directions, dtype=np.float64)
+        d = np.asarray(directions)
         if d.shape[-1:] != (3,):
             raise MeshMirrorError(f"directions of shape {d.shape}: expected (..., 3)")
         shape = d.shape[:-1]
-        d = d.reshape(-1, 3)
-        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), shape + (3,)).reshape(-1, 3)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(d))):
+        n_rays = int(np.prod(shape))
+        rays = np.empty((n_rays, 6), dtype=np.float32)  # Embree works in float32 anyway
+        o = np.asarray(origins, dtype=np.float64)
+        if o.shape[-1:] != (3,):
+            raise MeshMirrorError(f"origins of shape {o.shape}: expected (3,) or (..., 3)")
+        try:
+            rays[:, :3] = o.reshape(-1, 3) if o.ndim > 1 else o
+        except ValueError:
+            raise MeshMirrorError(
+                f"origins of shape {o.shape} do not match directions of shape {d.shape}"
+            ) from None
+        rays[:, 3:] = d.reshape(-1, 3)
+        if not np.all(np.isfinite(rays)):
             raise MeshMirrorError("ray origins and directions must be finite")
         if self._scene is None:
             self.sync()
         o3d = self._o3d
-        rays = np.ascontiguousarray(np.concatenate([o, d], axis=1), dtype=np.float32)
-        res = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=self.nthreads)
-        t = res["t_hit"].numpy().astype(np.float64)
-        gid = res["geometry_ids"].numpy().astype(np.int64)
-        miss = ~np.isfinite(t) | (gid == self._scene.INVALID_ID) | (t > max_range)
-        t[miss] = np.inf
-        g = np.where(miss, NO_HIT, gid).astype(np.int32)
-        n = res["primitive_normals"].numpy().astype(np.float64)
-        # face the normal towards the ray origin (meshes may be wound either way)
-        flip = np.einsum("ij,ij->i", n, d) > 0
-        n[flip] *= -1
-        n[miss] = np.nan
-        return RayHits(t.reshape(shape), g.reshape(shape), n.reshape(shape + (3,)))
+        res = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        t = res["t_hit"].numpy()
+        gid = res["geometry_ids"].numpy()
+        miss = (gid == self._scene.INVALID_ID) | ~(t <= max_range)
+        dist = t.astype(np.float64)
+        dist[miss] = np.inf
+        g = gid.astype(np.int32)
+        g[miss] = NO_HIT
+        if normals:
+            nrm = res["primitive_normals"].numpy().astype(np.float64)
+            # face the normal towards the ray origin (meshes may be wound either way)
+            flip = np.einsum("ij,ij->i", nrm, rays[:, 3:]) > 0
+            nrm[flip] *= -1
+            nrm[miss] = np.nan
+        else:
+            nrm = np.full((n_rays, 3), np.nan)
+        return RayHits(dist.reshape(shape), g.reshape(shape), nrm.reshape((*shape, 3)))
 
     def body_of(self, geometry: Any) -> npt.NDArray[np.int64]:
         """Body unique id for each geometry index (-1 stays -1)."""

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -311,7 +312,7 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
     paths: dict[str, list[Any]] = {"t": [], "odometry": [], "ground_truth": []}
     frame_stats = {"kinect_frames": 0, "sonar_readings": 0, "points_in": 0, "points_dropped_nonfinite": 0,
                    "points_outside_grid": 0, "sonar_points": 0, "sonar_fusions_with_obstacle": 0}
-    mapper = _Mapper(maps, rec, frame_stats)
+    mapper = _Mapper(maps, frame_stats)
     sonar_ranges: list[tuple[int, str, tuple[float, float, float]]] = []
     error: BaseException | None = None
     v_cmd = w_cmd = 0.0
@@ -323,6 +324,7 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
                    bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} sim s "
                               "[{elapsed} wall, {rate_fmt}{postfix}]")
     loop0 = time.perf_counter()
+    setup_wall = loop0 - wall0
     try:
         for step in range(n_steps + 1):
             stamp = world.now_ns()
@@ -344,8 +346,10 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
                 frame = cam.capture(t_world_cam_gt, stamp_ns=stamp)
                 pose = odom.pose
                 t_odom = planar_transform(pose.x, pose.y, pose.theta) @ t_base_cam @ t_cam_out
-                mapper.submit(frame, t_odom, t_world_cam_gt @ t_cam_out,
-                              rec is not None and step % (hz // BAG_CLOUD_HZ) == 0)
+                mapper.submit(frame, t_odom, t_world_cam_gt @ t_cam_out)
+                if rec is not None and step % (hz // BAG_CLOUD_HZ) == 0:  # sqlite: this thread only
+                    rec.cloud("/kinect/points", stamp, frame.frame_id,
+                              frame.points[::BAG_CLOUD_STRIDE, ::BAG_CLOUD_STRIDE])
             if backend.sonar_arrays and step % every["sonar"] == 0:
                 pose = odom.pose
                 for arr in backend.sonar_arrays:
@@ -394,6 +398,7 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
     metrics = _metrics(scenario, spec, sensor, seed, duration, sim_time, loop_wall,
                        time.perf_counter() - wall0, mapper.map_ms, frame_stats, arr_paths, maps, odom, follower, error)
     metrics["camera_backend"] = camera_backend
+    metrics["wall_time_s"]["setup"] = setup_wall
     res = RunResult(None, metrics, maps, arr_paths, error)
     res.sonar_ranges = sonar_ranges  # type: ignore[attr-defined]
     if rec is not None:
@@ -410,16 +415,16 @@ class _Mapper:
     the next physics steps and sensor reads on the second core. At most ``max_pending`` frames wait.
     """
 
-    def __init__(self, maps: dict[str, Any], rec: Any, stats: dict[str, int], max_pending: int = 3) -> None:
+    def __init__(self, maps: dict[str, Any], stats: dict[str, int], max_pending: int = 3) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
-        self.maps, self.rec, self.stats = maps, rec, stats
+        self.maps, self.stats = maps, stats
         self.map_ms: list[float] = []
         self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vhv-mapper")
         self.pending: list[Any] = []
         self.max_pending = max_pending
 
-    def _job(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray, record: bool) -> None:
+    def _job(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray) -> None:
         pts = frame.points
         s = self.maps["odometry"].insert(transform_points(t_odom, pts), sensor_origin=t_odom[:3, 3])
         self.maps["ground_truth"].insert(transform_points(t_gt, pts), sensor_origin=t_gt[:3, 3])
@@ -429,11 +434,8 @@ class _Mapper:
         st["points_in"] += s.points_in
         st["points_dropped_nonfinite"] += s.points_dropped_nonfinite
         st["points_outside_grid"] += s.points_outside_grid
-        if record:
-            self.rec.cloud("/kinect/points", frame.stamp_ns, frame.frame_id,
-                           pts[::BAG_CLOUD_STRIDE, ::BAG_CLOUD_STRIDE])
 
-    def submit(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray, record: bool) -> None:
+    def submit(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray) -> None:
         still = []
         for f in self.pending:
             if f.done():
@@ -443,7 +445,7 @@ class _Mapper:
         self.pending = still
         while len(self.pending) >= self.max_pending:
             self.pending.pop(0).result()
-        self.pending.append(self.pool.submit(self._job, frame, t_odom, t_gt, record))
+        self.pending.append(self.pool.submit(self._job, frame, t_odom, t_gt))
 
     def close(self) -> None:
         try:
@@ -493,6 +495,7 @@ def _metrics(scenario: Scenario, spec: RobChairSpec, sensor: str, seed: int, dur
         "frames": {k: int(v) for k, v in stats.items()},
         "mapping_ms_per_frame_median": float(np.median(ms)),
         "mapping_ms_per_frame_p90": float(np.percentile(ms, 90)),
+        "mapping_ms_total": float(np.sum(map_ms)) if map_ms else 0.0,
         "wall_time_s": {"loop": loop_wall, "total_simulation": total_wall},
         "real_time_factor": sim_time / loop_wall if loop_wall > 0 else None,
         "route": {"goal_reached": follower.done, "distance_travelled_m": travelled},
@@ -519,10 +522,20 @@ def _metrics(scenario: Scenario, spec: RobChairSpec, sensor: str, seed: int, dur
     }
 
 
+_truth_cache: dict[tuple[Any, ...], np.ndarray] = {}
+
+
 def scene_occupancy(scenario: Scenario, grid: Any, band: tuple[float, float]) -> np.ndarray:
-    """Ground-truth 2D occupancy of the static scene: surface samples in the height band, rasterised."""
+    """Ground-truth 2D occupancy of the static scene: surface samples in the height band, rasterised.
+
+    About four samples per cell side (spacing cell/2 over each surface, area-weighted), so even a 5 cm
+    table leg marks its cell; cached per (scene file, grid, band).
+    """
+    key = (str(scenario.scene.path), scenario.scene.objects, grid, band)
+    if key in _truth_cache:
+        return _truth_cache[key].copy()
     rng = np.random.default_rng(0)  # fixed: the truth must not depend on the run's seed
-    pts = ground_truth_points(scenario.scene, grid.cell_size / 4, rng)
+    pts = ground_truth_points(scenario.scene, grid.cell_size / 2, rng)
     occ = np.zeros(grid.shape, dtype=bool)
     if len(pts) == 0:
         return occ
@@ -530,7 +543,8 @@ def scene_occupancy(scenario: Scenario, grid: Any, band: tuple[float, float]) ->
     i, j = grid.world_to_index(pts[:, 0], pts[:, 1])
     ok = (i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])
     occ[i[ok], j[ok]] = True
-    return occ
+    _truth_cache[key] = occ
+    return occ.copy()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -551,10 +565,14 @@ def _write_outputs(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
         arrays[f"path_{name}"] = p
     np.savez_compressed(out / "maps.npz", **arrays)
     files = ["metrics.json", "maps.npz"]
-    exports = _export_maps(res, out)
+    t0 = time.perf_counter()
+    exports = _export_maps(res, out, spec.body.height)
+    res.metrics["wall_time_s"]["map_exports"] = time.perf_counter() - t0
     files += exports
     if pictures:
+        t0 = time.perf_counter()
         files += write_pictures(res, scenario, spec, out)
+        res.metrics["wall_time_s"]["pictures"] = time.perf_counter() - t0
     if "bag" in res.metrics:
         files.append("bag")
     res.metrics["files"] = sorted(files)
@@ -567,23 +585,24 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def _export_maps(res: RunResult, out: Path) -> list[str]:
+def _export_maps(res: RunResult, out: Path, spec_height: float) -> list[str]:
     """M2's map exports (occupancy PGM/YAML, meshes, marker bag) of the odometry map, when available."""
     try:
         from mapping.export import write_map_outputs  # type: ignore[attr-defined]
     except ImportError:
         log.info("mapping.export.write_map_outputs not available: maps.npz only")
         return []
-    written = []
-    for name in ("odometry", "ground_truth"):
-        d = out / f"map_{name}"
-        try:
-            write_map_outputs(res.maps[name], d)
-        except ImportError as exc:  # a mapping module it needs is not built yet; keep the run
-            log.warning("map exports skipped (%s): maps.npz holds the maps", exc)
-            return written
-        written.append(d.name)
-    return written
+    d = out / "map_odometry"
+    d.mkdir()
+    try:
+        write_map_outputs(res.maps["odometry"], d, band=(OCC_BAND[0], spec_height),
+                          build_ms=res.metrics["mapping_ms_total"],
+                          parameters={"scenario": res.metrics["scenario"], "pose_source": "odometry"})
+    except ImportError as exc:  # a mapping module it needs is not built yet; keep the run
+        log.warning("map exports skipped (%s): maps.npz holds the maps", exc)
+        shutil.rmtree(d, ignore_errors=True)
+        return []
+    return [d.name]
 
 
 def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: Path) -> list[str]:

@@ -56,7 +56,9 @@ class SonarModel:
 
     def __post_init__(self) -> None:
         if not 0 < self.min_range_m < self.max_range_m:
-            raise SonarSimError(f"sonar model {self.name!r}: range {self.min_range_m}-{self.max_range_m} m is invalid")
+            raise SonarSimError(
+                f"sonar model {self.name!r}: range {self.min_range_m}-{self.max_range_m} m is invalid"
+            )
         if self.resolution_m <= 0 or self.ranging_time_s <= 0:
             raise SonarSimError(f"sonar model {self.name!r}: resolution and ranging time must be positive")
 
@@ -89,7 +91,9 @@ def _widest_deg() -> tuple[float, float]:
     from mapping.sonar import WIDE_HALF_APERTURE_DEG, half_apertures_deg
 
     left, right = half_apertures_deg(np.linspace(1.0, 100.0, 400))
-    return max(float(left.max()), WIDE_HALF_APERTURE_DEG[0]), max(float(right.max()), WIDE_HALF_APERTURE_DEG[1])
+    return max(float(left.max()), WIDE_HALF_APERTURE_DEG[0]), max(
+        float(right.max()), WIDE_HALF_APERTURE_DEG[1]
+    )
 
 
 def beam_rays(spacing_deg: float = 1.0) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -198,7 +202,9 @@ class SonarSim:
         if noise_std_m < 0:
             raise SonarSimError(f"noise_std_m={noise_std_m}: must be >= 0")
         self.noise_std_m = float(noise_std_m)
-        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        self.rng = (
+            rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        )
         self._beam = _Beam(self.model, ray_spacing_deg, max_incidence_deg)
         self.name = name
 
@@ -210,7 +216,9 @@ class SonarSim:
     def read(self, pose: Any, stamp_ns: int = 0, *, rng: np.random.Generator | None = None) -> RangeReading:
         """A :class:`hw.interfaces.RangeReading` at ``pose``."""
         m = self.model
-        return RangeReading(int(stamp_ns), self.measure(pose, rng=rng), m.min_range_m, m.max_range_m, m.field_of_view_rad)
+        return RangeReading(
+            int(stamp_ns), self.measure(pose, rng=rng), m.min_range_m, m.max_range_m, m.field_of_view_rad
+        )
 
 
 class SonarArraySim:
@@ -247,7 +255,9 @@ class SonarArraySim:
         if noise_std_m < 0:
             raise SonarSimError(f"noise_std_m={noise_std_m}: must be >= 0")
         self.noise_std_m = float(noise_std_m)
-        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        self.rng = (
+            rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        )
         self._beam = _Beam(self.model, ray_spacing_deg, max_incidence_deg)
         self.name = name
 
@@ -270,7 +280,14 @@ class SonarArraySim:
         return (float(r[0]), float(r[1]), float(r[2]))
 
     def read(
-        self, array_pose: Any, servo_angle_deg: float = 0.0, stamp_ns: int = 0, *, rng: np.random.Generator | None = None
+        self,
+        array_pose: Any,
+        servo_angle_deg: float = 0.0,
+        stamp_ns: int = 0,
+        *,
+        rng: np.random.Generator | None = None,
     ) -> SonarArrayReading:
         """A :class:`hw.interfaces.SonarArrayReading`."""
-        return SonarArrayReading(int(stamp_ns), self.measure(array_pose, servo_angle_deg, rng=rng), float(servo_angle_deg))
+        return SonarArrayReading(
+            int(stamp_ns), self.measure(array_pose, servo_angle_deg, rng=rng), float(servo_angle_deg)
+        )

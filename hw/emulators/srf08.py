@@ -36,6 +36,7 @@ effect on echo detection (the gain register is stored and read back only by test
 
 from __future__ import annotations
 
+import bisect
 import enum
 import errno
 import math
@@ -276,3 +277,37 @@ class SRF08Bus:
 
     def close(self) -> None:
         self.closed = True
+
+
+class ScriptedRanges:
+    """A ``ranges`` callable from a script: piecewise-constant ranges per address over time.
+
+    Args:
+        keyframes: ``[(t_s, {address: range_m, ...}), ...]`` with increasing times (seconds of the
+            bus clock). From each keyframe on, its ranges hold until the next keyframe; an address a
+            keyframe does not name hears nothing (NaN) during it, as does every address before the
+            first keyframe.
+    """
+
+    def __init__(self, keyframes: Sequence[tuple[float, dict[int, float]]]) -> None:
+        times: list[int] = []
+        for k, (t_s, ranges) in enumerate(keyframes):
+            if not math.isfinite(t_s):
+                raise HardwareError(f"keyframes[{k}]: t_s={t_s!r} is not finite")
+            t_ns = round(t_s * 1e9)
+            if times and t_ns <= times[-1]:
+                raise HardwareError(f"keyframes[{k}]: t_s={t_s!r} does not come after the previous keyframe")
+            for a, r in ranges.items():
+                if a not in SRF08_ADDRESSES:
+                    raise HardwareError(f"keyframes[{k}]: address=0x{a:02X} is not an SRF08 address")
+                if not (math.isnan(r) or r > 0.0):
+                    raise HardwareError(f"keyframes[{k}]: range {r!r} m for 0x{a:02X} must be > 0 or NaN")
+            times.append(t_ns)
+        self._times = times
+        self._frames = [dict(r) for _, r in keyframes]
+
+    def __call__(self, address: int, stamp_ns: int) -> float:
+        idx = bisect.bisect_right(self._times, stamp_ns) - 1
+        if idx < 0:
+            return math.nan
+        return self._frames[idx].get(address, math.nan)

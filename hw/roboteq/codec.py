@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, fields
+from typing import Any
 
 from hw.errors import ProtocolError
 from hw.interfaces import MotorFaults
@@ -220,8 +221,12 @@ def _decode_bits(cls: type, word: int, what: str) -> object:
     return cls(**{n: bool(word >> i & 1) for i, n in enumerate(names)})
 
 
-def _encode_bits(flags: object) -> int:
-    return sum(1 << i for i, f in enumerate(fields(flags)) if getattr(flags, f.name))  # type: ignore[arg-type]
+def _encode_bits(flags: Any) -> int:
+    word = 0
+    for i, f in enumerate(fields(flags)):
+        if getattr(flags, f.name):
+            word |= 1 << i
+    return word
 
 
 def decode_fault_flags(word: int) -> MotorFaults:

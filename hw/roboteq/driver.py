@@ -90,7 +90,8 @@ class RoboteqMDC2230(Device):
     ) -> None:
         if not isinstance(watchdog_ms, int) or not 1 <= watchdog_ms <= 65000:
             raise CommandError(
-                f"watchdog_ms={watchdog_ms!r}: the serial watchdog must stay armed (1..65000 ms; 0 is refused)"
+                f"watchdog_ms={watchdog_ms!r}: the serial watchdog must stay armed "
+                "(1..65000 ms; 0 is refused)"
             )
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             raise CommandError(f"timeout_s={timeout_s!r} must be a positive number of seconds")
@@ -181,7 +182,7 @@ class RoboteqMDC2230(Device):
         if self._owns_port and self._port is not None:
             try:
                 self._port.close()
-            except Exception as exc:  # noqa: BLE001 - a dead port must not block close()
+            except Exception as exc:
                 log.debug("closing Roboteq port: %s", exc)
         self._port = None
 
@@ -265,7 +266,9 @@ class RoboteqMDC2230(Device):
             raise DeviceClosedError(f"{self.name}: firmware unknown until open() has probed ?FID")
         major = self.firmware.major
         if major not in FIRMWARE_MULTIPLIER:
-            raise CommandError(f"firmware {self.firmware.text!r}: no known gain encoding for major version {major}")
+            raise CommandError(
+                f"firmware {self.firmware.text!r}: no known gain encoding for major version {major}"
+            )
         mult, (lo, hi) = FIRMWARE_MULTIPLIER[major], FIRMWARE_RANGE[major]
         out = []
         for label, g in (("kp", cfg.kp), ("ki", cfg.ki), ("kd", cfg.kd)):
@@ -322,7 +325,9 @@ class RoboteqMDC2230(Device):
             return outcome
         kinds = {p.split(":")[0] for p in problems}
         err_cls: type[HardwareError] = DeviceTimeoutError if kinds == {"timeout"} else ProtocolError
-        self._fail(err_cls(f"Roboteq gave no valid answer to {cmd.text!r} in {len(problems)} tries: {problems}"))
+        self._fail(
+            err_cls(f"Roboteq gave no valid answer to {cmd.text!r} in {len(problems)} tries: {problems}")
+        )
 
     def _await_reply(self, cmd: codec.Command) -> codec.Reply | str:
         """Read lines until the reply to ``cmd``; a str describes why this attempt failed."""
@@ -389,7 +394,7 @@ class RoboteqMDC2230(Device):
                 acks += sum(1 for line in lines if line.strip() == "+")
             self.stop_acknowledged = acks == len(cmds)
             return True
-        except Exception as exc:  # noqa: BLE001 - the port may be gone; the error that follows says so
+        except Exception as exc:
             log.error("Roboteq: could not send the stop commands: %s", exc)
             return False
 

@@ -66,7 +66,9 @@ class _Channel:
 
 
 @functools.lru_cache(maxsize=16)
-def _plant_and_default_gains(t_r: float, t_p: float, M_p: float, firmware_major: int) -> tuple[Any, tuple[int, int, int]]:
+def _plant_and_default_gains(
+    t_r: float, t_p: float, M_p: float, firmware_major: int
+) -> tuple[Any, tuple[int, int, int]]:
     """Identified plant and the firmware gains of the SPEC 5 design (cached: the design is slow)."""
     from robchair import control as c
 
@@ -152,7 +154,8 @@ class RoboteqEmulator:
         return ch
 
     def _rebuild_pid(self, ch: _Channel) -> None:
-        kp, ki, kd = self._control.gains_from_roboteq(*ch.gains_fw, firmware_major=self.firmware.major)
+        g_p, g_i, g_d = ch.gains_fw
+        kp, ki, kd = self._control.gains_from_roboteq(g_p, g_i, g_d, firmware_major=self.firmware.major)
         mx = float(ch.config["MXRPM"])
         ch.pid = self._control.DiscretePID(kp, ki, kd, self.dt, u_min=-mx, u_max=mx)
 

@@ -25,7 +25,7 @@ def _mark_origin_and_sensor(ax: Any, sensor_uv: tuple[float, float] | None) -> N
     ax.plot([0.0], [0.0], marker="+", color="tab:blue", markersize=12, mew=2, label="world origin")
     if sensor_uv is not None:
         ax.plot([sensor_uv[0]], [sensor_uv[1]], marker="^", color="tab:red", markersize=9, label="sensor")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.1), fontsize=8, ncol=2, frameon=False)
 
 
 def occupancy_png(
@@ -109,7 +109,7 @@ def boxes_3d_png(
     max_boxes: int = 1500,
     title: str = "variable-height voxels",
 ) -> tuple[Path, int]:
-    """Draw the VHV boxes (K, 2, 3) in 3D, coloured by height; at most ``max_boxes`` evenly chosen.
+    """Draw the VHV boxes (K, 2, 3) in 3D, coloured by height; at most ``max_boxes`` (the tallest).
 
     Returns:
         The path and how many boxes were drawn.
@@ -122,7 +122,9 @@ def boxes_3d_png(
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 2, 3)
     k = b.shape[0]
     if k > max_boxes:
-        b = b[np.unique(np.linspace(0, k - 1, max_boxes).round().astype(np.intp))]
+        # The tallest boxes carry the obstacles; thin floor slabs are what a capped view can drop.
+        tallest = np.argsort(-(b[:, 1, 2] - b[:, 0, 2]), kind="stable")[:max_boxes]
+        b = b[np.sort(tallest)]
     fig = plt.figure(figsize=(8, 7), dpi=110)
     ax = fig.add_subplot(projection="3d")
     if b.shape[0]:
@@ -134,16 +136,17 @@ def boxes_3d_png(
             Poly3DCollection(faces, facecolors=cols, edgecolors=(0, 0, 0, 0.25), linewidths=0.2)
         )
         lo, hi = b[:, 0].min(axis=0), b[:, 1].max(axis=0)
-        span = float(max(hi - lo)) or 1.0
-        mid = (lo + hi) / 2
-        ax.set_xlim(mid[0] - span / 2, mid[0] + span / 2)
-        ax.set_ylim(mid[1] - span / 2, mid[1] + span / 2)
-        ax.set_zlim(max(lo[2], mid[2] - span / 2), max(lo[2], mid[2] - span / 2) + span)
+        span = np.maximum(hi - lo, 1e-3)
+        ax.set_xlim(lo[0], lo[0] + span[0])
+        ax.set_ylim(lo[1], lo[1] + span[1])
+        ax.set_zlim(lo[2], lo[2] + span[2])
+        ax.set_box_aspect(tuple(span / span.max()))  # metres look like metres on every axis
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     shown = b.shape[0]
-    ax.set_title(f"{title}: {shown} of {k} boxes drawn" if shown < k else f"{title}: {k} boxes", fontsize=10)
+    label = f"the {shown} tallest of {k} boxes drawn" if shown < k else f"{k} boxes"
+    ax.set_title(f"{title}: {label}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

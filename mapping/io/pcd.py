@@ -10,6 +10,7 @@ uncompressed size) then an LZF stream whose content is field after field (all x,
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -217,7 +218,35 @@ def _packed_dtype(header: PcdHeader) -> np.dtype:
     return np.dtype({"names": names, "formats": formats})
 
 
+def _decode_ascii_fast(header: PcdHeader, body: bytes) -> np.ndarray | None:
+    """One point per line parsed by numpy's C reader; None when the strict token path must decide."""
+    if any(header.sizes[k] == 8 and header.types[k] != "F" for k in range(len(header.fields))):
+        return None  # 64-bit integers do not survive a float64 detour
+    per_point = sum(header.counts)
+    try:
+        table = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        return None
+    if table.shape != (header.points, per_point) and not (header.points == 0 and table.size == 0):
+        return None
+    out = np.zeros(header.points, dtype=_packed_dtype(header))
+    col = 0
+    for k, name in enumerate(header.fields):
+        count = header.counts[k]
+        if name != "_":
+            block = table[:, col : col + count]
+            dt = header.field_dtype(k)
+            if dt.kind in "iu" and not np.array_equal(block, np.round(block)):
+                return None
+            out[name] = block[:, 0] if count == 1 else block
+        col += count
+    return out
+
+
 def _decode_ascii(path: Path | str, header: PcdHeader, body: bytes) -> np.ndarray:
+    fast = _decode_ascii_fast(header, body)
+    if fast is not None:
+        return fast
     tokens = np.array(body.split())
     per_point = sum(header.counts)
     expected = per_point * header.points
@@ -326,12 +355,6 @@ def read_pcd(path: Path | str, *, organized: bool = False) -> np.ndarray:
     return read_pcd_cloud(path).xyz(organized=organized)
 
 
-def _fmt_for(dt: np.dtype) -> str:
-    if dt.kind == "f":
-        return "%.9g" if dt.itemsize == 4 else "%.17g"
-    return "%d"
-
-
 def write_pcd(
     path: Path | str,
     points: np.ndarray,
@@ -400,12 +423,12 @@ def write_pcd(
         fh.write(header)
         if encoding == "ascii":
             if n:
-                text_cols = []
-                for c in cols2d:
-                    fmt = _fmt_for(c.dtype)
-                    text_cols.append(np.char.mod(fmt, c).astype(object))
-                table = np.concatenate(text_cols, axis=1)
-                fh.write(("\n".join(" ".join(row) for row in table) + "\n").encode("ascii"))
+                # numpy's str() of a float is the shortest text that reads back to the same value.
+                text = np.concatenate([c.astype(str) for c in cols2d], axis=1)
+                lines = text[:, 0]
+                for k in range(1, text.shape[1]):
+                    lines = np.char.add(np.char.add(lines, " "), text[:, k])
+                fh.write(("\n".join(lines.tolist()) + "\n").encode("ascii"))
         elif encoding == "binary":
             dt = np.dtype([(nm, c.dtype, (c.shape[1],)) for nm, c in zip(names, cols2d)])
             rec = np.empty(n, dtype=dt)

@@ -5,7 +5,8 @@
                                                   a Roboteq on a pty; prints the device path
 
 ``hw check`` only reads: it probes ``?FID`` and queries; it writes no configuration, and the only
-runtime commands it sends are the zero speeds of the driver's close(). Point it at the emulator's path to see what a real controller would report.
+runtime commands it sends are the zero speeds of the driver's close(). Point it at the emulator's
+path to see what a real controller would report.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from typing import Any, TextIO
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("hw", help="hardware self-test and protocol emulators")
     sub = p.add_subparsers(dest="hw_command", metavar="HW_COMMAND")
-    c = sub.add_parser("check", help="self-test: firmware id, encoder counts, voltages, sonar addresses and ranges")
+    c = sub.add_parser(
+        "check", help="self-test: firmware id, encoder counts, voltages, sonar addresses and ranges"
+    )
     c.add_argument("--port", required=True, help="Roboteq serial device (/dev/ttyACM0, or an emulator's pty)")
     c.add_argument("--baudrate", type=int, default=115200)
     c.add_argument("--i2c", type=int, metavar="BUS", help="I2C bus number of the SRF08 sonars (e.g. 1)")
@@ -33,13 +36,15 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=lambda _a: (p.print_help(), 2)[1])
 
 
-def hw_check(motors: Any, bus: Any = None, out: TextIO = sys.stdout) -> int:
+def hw_check(motors: Any, bus: Any = None, out: TextIO | None = None, clock: Any = None) -> int:
     """Print what an opened Roboteq driver (and an I2C bus, optional) report; returns the exit code.
 
-    Exit code 0 when everything answered and no fault flag is set, 1 otherwise.
+    Exit code 0 when everything answered and no fault flag is set, 1 otherwise. ``clock`` times the
+    SRF08 rangings (default: the machine's monotonic clock).
     """
     from hw.errors import HardwareError
 
+    out = out if out is not None else sys.stdout
     ok = True
     print(f"roboteq: firmware {motors.firmware.text!r} (major {motors.firmware.major})", file=out)
     for name in ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "RWD"):
@@ -53,7 +58,10 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO = sys.stdout) -> int:
         print(f"roboteq: encoder counts {state.encoder_counts[0]} {state.encoder_counts[1]}", file=out)
         print(f"roboteq: speeds {state.speed_rpm[0]:.0f} {state.speed_rpm[1]:.0f} RPM", file=out)
         internal, battery, five = motors.read_voltages()
-        print(f"roboteq: voltages internal {internal:.1f} V, battery {battery:.1f} V, 5V out {five:.2f} V", file=out)
+        print(
+            f"roboteq: voltages internal {internal:.1f} V, battery {battery:.1f} V, 5V out {five:.2f} V",
+            file=out,
+        )
         a1, a2 = motors.read_amps()
         print(f"roboteq: motor amps {a1:.1f} {a2:.1f} A", file=out)
         print(f"roboteq: status flags {motors.read_status().names()}", file=out)
@@ -72,7 +80,7 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO = sys.stdout) -> int:
             ok = False
         for addr, rev in found.items():
             try:
-                with SRF08(bus, addr) as s:
+                with SRF08(bus, addr, clock=clock) as s:
                     r = s.read()
                 rng = "no echo" if r.range_m != r.range_m else f"{r.range_m:.2f} m"
                 print(f"sonar 0x{addr:02X}: revision {rev}, range {rng}", file=out)

@@ -130,6 +130,11 @@ def _grid_from_extent(frames: list[Any], args: argparse.Namespace) -> tuple[Any,
         p = np.asarray(f.points).reshape(-1, 3)
         p = p[np.isfinite(p).all(axis=1)]
         chunks.append(p[:, [cu, cv]].astype(np.float64))
+    # The sensor belongs inside the grid too: free space is traced from it.
+    origins = [args.sensor_origin] if args.sensor_origin is not None else [f.sensor_origin for f in frames]
+    known = [o for o in origins if o is not None]
+    if chunks and any(c.shape[0] for c in chunks) and known:
+        chunks.append(np.asarray(known, dtype=np.float64)[:, [cu, cv]])
     uv = np.concatenate(chunks) if chunks else np.zeros((0, 2))
     if uv.shape[0] == 0:
         n = math.ceil(1.0 / cell)
@@ -164,6 +169,17 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
+def _warm_up(spec: Any, tolerance: float, dtype: Any) -> None:
+    """Load the compiled kernels for this dtype on a throwaway map, so build times exclude JIT loading."""
+    import numpy as np
+
+    from mapping.vhv import VHVMap
+
+    u, v = spec.index_to_world([0, 0], [0, 0])
+    pts = spec.to_world_frame(np.array([[u[0], v[0], 0.0], [u[1], v[1], 1.0]])).astype(dtype)
+    VHVMap(spec, tolerance=tolerance).insert(pts)
+
+
 def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str, Any]:
     """Read one source and build its map; returns the map and what the table row needs."""
     from tqdm import tqdm
@@ -194,8 +210,12 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
     sensor_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
     frame_id, stamp_ns = "", 0
     sensor_origin_used = sensor_origin
+    warmed: set[str] = set()
     for frame in tqdm(frames if frames is not None else iter(source), **bar_kw):
         origin = sensor_origin if sensor_origin is not None else frame.sensor_origin
+        if str(frame.points.dtype) not in warmed:
+            _warm_up(spec, args.tolerance, frame.points.dtype)
+            warmed.add(str(frame.points.dtype))
         stats = m.insert(frame.points, sensor_origin=origin)
         build_ms += stats.build_ms
         sensor_origin_used = origin

@@ -20,10 +20,16 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("run", help="run the control loop on the sim, emulated or real chair")
-    p.add_argument("--backend", choices=("sim", "emulated", "real"), default="sim", help="which chair (default sim)")
-    p.add_argument("--config", type=Path, help="TOML config: [sim]/[emulated]/[real], [runtime], [safety], [route]")
+    p.add_argument(
+        "--backend", choices=("sim", "emulated", "real"), default="sim", help="which chair (default sim)"
+    )
+    p.add_argument(
+        "--config", type=Path, help="TOML config: [sim]/[emulated]/[real], [runtime], [safety], [route]"
+    )
     p.add_argument("--route", type=Path, help="route TOML (waypoints, speed, lookahead_m, goal_tolerance_m)")
-    p.add_argument("--duration", type=float, default=60.0, help="maximum run time in seconds of the backend clock")
+    p.add_argument(
+        "--duration", type=float, default=60.0, help="maximum run time in seconds of the backend clock"
+    )
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
     p.add_argument("--out", type=Path, help="output folder: run_bag/, metrics.json, odometry.csv")
     p.set_defaults(func=_run)
@@ -78,7 +84,11 @@ def _run(args: argparse.Namespace) -> int:
         source = JoystickSource(backend.joystick, safety.limits.max_speed, safety.limits.max_yaw_rate)
     else:
         backend.close()
-        raise ConfigError("no command source: give --route FILE (or a [route] table), or use a backend with a joystick")
-    result = run_to_dir(backend, source, args.duration, args.out, spec=spec, config=runtime_config, safety=safety)
+        raise ConfigError(
+            "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
+        )
+    result = run_to_dir(
+        backend, source, args.duration, args.out, spec=spec, config=runtime_config, safety=safety
+    )
     print(json.dumps(result.metrics(), indent=2))
     return 0 if result.driver_fault is None else 1

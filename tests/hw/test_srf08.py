@@ -7,10 +7,12 @@ import logging
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hw.clock import ManualClock
 from hw.emulators.srf08 import BusyMode, SRF08Bus
-from hw.errors import CommandError, DeviceClosedError, DeviceIOError, DeviceTimeoutError
+from hw.errors import CommandError, DeviceClosedError, DeviceIOError, DeviceTimeoutError, HardwareError
 from hw.interfaces import Ranger, SonarArray
 from hw.sonar_array import RangerSonarArray
 from hw.srf08 import SRF08, change_address, range_for_register, range_register_for, scan
@@ -68,6 +70,14 @@ def test_sleep_mode_waits_the_ranging_time_and_then_needs_no_busy_poll():
         assert s.read().range_m == 0.80
         assert clock.now_ns() - t0 == 65_000_000
         assert s.busy_polls == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(r_cm=st.integers(1, 1100), mode=st.sampled_from([BusyMode.FF, BusyMode.NACK]))
+def test_any_range_within_the_setting_reads_back_to_the_centimetre(r_cm, mode):
+    clock, _, bus = make(busy_mode=mode, x70=r_cm / 100.0)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        assert s.read().range_m == r_cm / 100.0
 
 
 def test_a_lower_range_register_shortens_ranging_and_cuts_far_echoes():
@@ -130,6 +140,19 @@ def test_a_missing_device_times_out_on_open():
     with pytest.raises(DeviceTimeoutError, match="still busy"):
         s.open()
     assert not s.is_open
+
+
+@pytest.mark.parametrize("mode", [BusyMode.FF, BusyMode.NACK])
+def test_a_new_ranging_waits_for_an_uncollected_one_instead_of_being_lost(mode):
+    clock, scene, bus = make(busy_mode=mode, x70=0.5)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        s.start_ranging()  # result never collected
+        scene.ranges[0x70] = 0.9
+        t0 = clock.now_ns()
+        s.start_ranging()  # in FF mode a write now would be dropped without a word
+        assert clock.now_ns() - t0 == 65_000_000
+        assert bus.devices[0x70].rangings == 2
+        assert s.read_range_cm() == 90
 
 
 def test_a_stuck_sonar_keeps_reporting_the_same_value():
@@ -229,7 +252,15 @@ def test_an_io_error_on_one_sonar_leaves_the_other_five_reading(caplog):
     for _ in range(4):
         arrays[1].read()
     assert arrays[1].dead == (False, True, False)
+    assert "sonar 2" in caplog.records[-1].getMessage() and caplog.records[-1].levelno == logging.WARNING
+    # dead: the next 9 reads rest it (no bus traffic to 0x74), the 10th tries again
     bus.clear_faults(0x74)
+    before = bus.devices[0x74].rangings
+    for _ in range(9):
+        r = arrays[1].read()
+        assert math.isnan(r.ranges_m[1]) and r.ranges_m[0] == pytest.approx(0.60)
+    assert bus.devices[0x74].rangings == before
+    assert arrays[1].skipped_counts == [0, 9, 0]
     assert arrays[1].read().ranges_m[1] == pytest.approx(0.70)
     assert arrays[1].dead == (False, False, False)
     assert arrays[1].error_counts == [0, 5, 0]
@@ -252,3 +283,26 @@ def test_real_srf08_on_i2c_bus_1_answers_a_ranging():
     with SRF08(1, 0x70) as s:
         r = s.read()
         assert math.isnan(r.range_m) or 0.0 < r.range_m < 11.0
+
+
+def test_a_scripted_obstacle_approaching_is_read_as_the_script_says():
+    from hw.emulators.srf08 import ScriptedRanges
+
+    clock = ManualClock()
+    script = ScriptedRanges([(0.1, {0x70: 1.0}), (0.3, {0x70: 0.5, 0x71: 0.7}), (0.5, {})])
+    bus = SRF08Bus(clock, script, addresses=[0x70, 0x71])
+    with SRF08(bus, 0x70, clock=clock) as a, SRF08(bus, 0x71, clock=clock) as b:
+        seen = []
+        for t in (0.0, 0.2, 0.35, 0.6):
+            clock.sleep_until_ns(round(t * 1e9))
+            seen.append((a.read().range_m, b.read().range_m))
+    assert seen[1][0] == 1.0 and math.isnan(seen[1][1])  # 0x71 not named before 0.3 s
+    assert seen[2] == (0.5, 0.7)
+    assert math.isnan(seen[0][0]) and all(math.isnan(v) for v in seen[3])
+
+
+def test_a_script_with_times_out_of_order_is_refused():
+    from hw.emulators.srf08 import ScriptedRanges
+
+    with pytest.raises(HardwareError, match=r"keyframes\[1\]"):
+        ScriptedRanges([(1.0, {0x70: 1.0}), (0.5, {0x70: 0.5})])

@@ -81,7 +81,7 @@ def _drive(odo: Odometry, v: float, w: float, duration: float, steps: int, start
     cl = cr = 0.0
     odo.update(wrap_int32(start[0]), wrap_int32(start[1]))
     pose = odo.pose
-    for k in range(1, steps + 1):
+    for _ in range(steps):
         dl, dr = DD.counts_for_motion(v, w, duration / steps)
         cl += dl
         cr += dr
@@ -141,7 +141,7 @@ def test_first_update_only_latches_and_reset_returns_to_the_given_pose():
 
 
 def test_non_integer_counts_are_refused():
-    with pytest.raises(KinematicsError, match="counts_left = 1.5"):
+    with pytest.raises(KinematicsError, match=r"counts_left = 1\.5"):
         Odometry(SPEC).update(1.5, 2)  # type: ignore[arg-type]
 
 

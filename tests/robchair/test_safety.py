@@ -128,7 +128,7 @@ def test_acceleration_is_limited_per_cycle() -> None:
 
 def test_speed_and_yaw_rate_are_capped_and_their_sum_keeps_the_wheels_within_limits() -> None:
     s = SafetyLayer(LIM)
-    s._v, s._w = 0.6, 2.0  # no acceleration limit in the way
+    s._v = 0.6  # already at full speed: no acceleration limit in the way
     d = s.filter(5.0, 0.0, SafetyInputs(), DT)
     assert d.v == pytest.approx(0.6) and d.limited
     s._v, s._w = 0.3, 1.0

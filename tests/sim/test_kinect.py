@@ -31,12 +31,19 @@ def client():
 
 
 def box(c, half, pos, rpy=(0.0, 0.0, 0.0), mass=0.0, inertial=(0.0, 0.0, 0.0), frame=(0.0, 0.0, 0.0)):
-    col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, collisionFramePosition=frame, physicsClientId=c)
+    col = p.createCollisionShape(
+        p.GEOM_BOX, halfExtents=half, collisionFramePosition=frame, physicsClientId=c
+    )
     vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half, visualFramePosition=frame, physicsClientId=c)
     return p.createMultiBody(
-        mass, col, vis, basePosition=pos, baseOrientation=p.getQuaternionFromEuler(rpy),
-        baseInertialFramePosition=inertial, physicsClientId=c,
-    )  # fmt: skip
+        mass,
+        col,
+        vis,
+        basePosition=pos,
+        baseOrientation=p.getQuaternionFromEuler(rpy),
+        baseInertialFramePosition=inertial,
+        physicsClientId=c,
+    )
 
 
 def cam_pose(xyz=(0.0, 0.0, 1.0), yaw=0.0, pitch=0.0):
@@ -111,9 +118,16 @@ def test_an_empty_world_gives_an_all_nan_frame(client):
 
 @pytest.mark.parametrize(
     ("model", "d", "valid"),
-    [("kinect2", 4.4, True), ("kinect2", 4.6, False), ("kinect2", 0.45, False), ("kinect2", 0.55, True),
-     ("kinect1", 3.9, True), ("kinect1", 4.2, False), ("kinect1", 0.55, False)],
-)  # fmt: skip
+    [
+        ("kinect2", 4.4, True),
+        ("kinect2", 4.6, False),
+        ("kinect2", 0.45, False),
+        ("kinect2", 0.55, True),
+        ("kinect1", 3.9, True),
+        ("kinect1", 4.2, False),
+        ("kinect1", 0.55, False),
+    ],
+)
 def test_depth_outside_the_model_range_is_nan(client, model, d, valid):
     wall_at(client, d)
     f = KinectSim(client, model, noise=False).capture(cam_pose())
@@ -211,19 +225,36 @@ def test_registered_output_is_in_the_colour_camera_frame(client):
 
 
 def test_the_mirror_matches_pybullet_ray_tests_with_offset_inertial_and_shape_frames(client):
-    box(client, [0.3, 0.2, 0.5], [2, 0, 0.5], rpy=(0.1, 0.2, 0.3), mass=1.0, inertial=(0.1, 0.05, -0.2),
-        frame=(0.05, -0.1, 0.02))  # fmt: skip
+    box(
+        client,
+        [0.3, 0.2, 0.5],
+        [2, 0, 0.5],
+        rpy=(0.1, 0.2, 0.3),
+        mass=1.0,
+        inertial=(0.1, 0.05, -0.2),
+        frame=(0.05, -0.1, 0.02),
+    )
     box(client, [0.2, 0.4, 0.3], [1.5, -1.0, 1.0], rpy=(0.0, 0.4, -0.2), mass=2.0, inertial=(-0.1, 0.0, 0.1))
     # a two-link body: the mirror must use the link frames after a joint moved
     col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.1, 0.1, 0.3], physicsClientId=client)
     vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.1, 0.1, 0.3], physicsClientId=client)
     arm = p.createMultiBody(
-        1.0, col, vis, basePosition=[2.0, 1.0, 0.5],
-        linkMasses=[1.0], linkCollisionShapeIndices=[col], linkVisualShapeIndices=[vis],
-        linkPositions=[[0, 0, 0.6]], linkOrientations=[[0, 0, 0, 1]], linkInertialFramePositions=[[0, 0, 0.1]],
-        linkInertialFrameOrientations=[[0, 0, 0, 1]], linkParentIndices=[0], linkJointTypes=[p.JOINT_REVOLUTE],
-        linkJointAxis=[[1, 0, 0]], physicsClientId=client,
-    )  # fmt: skip
+        1.0,
+        col,
+        vis,
+        basePosition=[2.0, 1.0, 0.5],
+        linkMasses=[1.0],
+        linkCollisionShapeIndices=[col],
+        linkVisualShapeIndices=[vis],
+        linkPositions=[[0, 0, 0.6]],
+        linkOrientations=[[0, 0, 0, 1]],
+        linkInertialFramePositions=[[0, 0, 0.1]],
+        linkInertialFrameOrientations=[[0, 0, 0, 1]],
+        linkParentIndices=[0],
+        linkJointTypes=[p.JOINT_REVOLUTE],
+        linkJointAxis=[[1, 0, 0]],
+        physicsClientId=client,
+    )
     p.resetJointState(arm, 0, 0.8, physicsClientId=client)
     m = MeshMirror(client)
     rng = np.random.default_rng(1)
@@ -235,8 +266,9 @@ def test_the_mirror_matches_pybullet_ray_tests_with_offset_inertial_and_shape_fr
     p.performCollisionDetection(physicsClientId=client)  # refresh Bullet's broadphase boxes first
     res = []
     for i in range(0, len(d), 2000):
-        res += p.rayTestBatch([o.tolist()] * len(d[i : i + 2000]), (o + 10 * d[i : i + 2000]).tolist(),
-                              physicsClientId=client)  # fmt: skip
+        res += p.rayTestBatch(
+            [o.tolist()] * len(d[i : i + 2000]), (o + 10 * d[i : i + 2000]).tolist(), physicsClientId=client
+        )
     pb_body = np.array([r[0] for r in res])
     pb_dist = np.where(pb_body >= 0, np.array([r[2] for r in res]) * 10, np.inf)
     assert np.isfinite(pb_dist).sum() > 300

@@ -24,8 +24,9 @@ def client():
 
 def box(c, half, pos, yaw=0.0):
     col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
-    return p.createMultiBody(0, col, -1, basePosition=pos, baseOrientation=p.getQuaternionFromEuler([0, 0, yaw]),
-                             physicsClientId=c)  # fmt: skip
+    return p.createMultiBody(
+        0, col, -1, basePosition=pos, baseOrientation=p.getQuaternionFromEuler([0, 0, yaw]), physicsClientId=c
+    )
 
 
 def floor(c):
@@ -47,7 +48,9 @@ def test_sonar_reads_the_perpendicular_distance_to_a_wall(client, d):
 def test_a_wall_turned_within_the_beam_reads_its_perpendicular_distance(client):
     # the echo comes back along the wall's normal, which is 20 deg off the sonar axis but in the beam
     wall(client, 1.2, yaw=math.radians(20))
-    assert SonarSim(client).measure(([0, 0, 0.4], LEVEL)) == pytest.approx(round(1.2 * math.cos(math.radians(20)), 2))
+    assert SonarSim(client).measure(([0, 0, 0.4], LEVEL)) == pytest.approx(
+        round(1.2 * math.cos(math.radians(20)), 2)
+    )
 
 
 def test_a_wall_turned_beyond_the_beam_gives_no_echo(client):
@@ -90,9 +93,11 @@ def test_array_outer_sonars_look_30_degrees_to_each_side_and_turn_with_the_servo
     # a thin pole at bearing +45 deg, 0.8 m away: sonar 1 (+30 deg) and maybe 2 see it, sonar 3 cannot
     col = p.createCollisionShape(p.GEOM_CYLINDER, radius=0.05, height=2.0, physicsClientId=client)
     b = math.radians(45)
-    p.createMultiBody(0, col, -1, basePosition=[0.8 * math.cos(b), 0.8 * math.sin(b), 1.0], physicsClientId=client)
+    p.createMultiBody(
+        0, col, -1, basePosition=[0.8 * math.cos(b), 0.8 * math.sin(b), 1.0], physicsClientId=client
+    )
     a = SonarArraySim(client, "srf08", sonar_offsets_m=np.zeros((3, 3)))
-    r1, r2, r3 = a.measure(([0, 0, 0.4], LEVEL), servo_angle_deg=0.0)
+    r1, _r2, r3 = a.measure(([0, 0, 0.4], LEVEL), servo_angle_deg=0.0)
     assert r1 == pytest.approx(0.75, abs=0.011)  # 0.8 - radius, cylinder tessellation within 1 cm
     assert math.isnan(r3)
     # servo at +75 deg: sonar 3 now points at +45 deg, sonar 1 at +105 deg (60 deg off the pole)

@@ -1,0 +1,68 @@
+"""The CLI turns the project's errors into one stderr line and exit code 2."""
+
+import subprocess
+import sys
+
+import pytest
+
+from hw.errors import HardwareError
+from mapping.errors import MappingError
+from robchair import cli
+from robchair.errors import RobChairError
+from sim.errors import SimError
+
+
+@pytest.mark.parametrize("exc_type", [MappingError, HardwareError, SimError, RobChairError, FileNotFoundError])
+def test_project_error_becomes_one_line_and_exit_code_2(
+    exc_type: type[Exception], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def failing(_args: object) -> int:
+        raise exc_type("input.pcd: truncated data section")
+
+    parser = cli.build_parser()
+    real_parse = parser.parse_args
+
+    def parse(argv: object = None) -> object:
+        ns = real_parse(["bench"])
+        ns.func = failing
+        ns.command = "demo"
+        return ns
+
+    monkeypatch.setattr(parser, "parse_args", parse)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    assert cli.main([]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == ["robchair demo: error: input.pcd: truncated data section"]
+
+
+def test_unexpected_errors_are_not_swallowed(monkeypatch: pytest.MonkeyPatch) -> None:
+    parser = cli.build_parser()
+    real_parse = parser.parse_args
+
+    def parse(argv: object = None) -> object:
+        ns = real_parse(["bench"])
+        ns.func = lambda _a: 1 // 0
+        return ns
+
+    monkeypatch.setattr(parser, "parse_args", parse)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    with pytest.raises(ZeroDivisionError):
+        cli.main([])
+
+
+def test_every_command_module_registers_and_shows_help() -> None:
+    parser = cli.build_parser()
+    names = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    assert {"map", "pid", "sim", "run", "hw", "bench"} <= names
+    out = subprocess.run(
+        [sys.executable, "-m", "robchair.cli", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    for name in ("map", "pid", "sim", "run", "hw", "bench"):
+        assert name in out
+
+
+def test_open3d_imports_through_the_libusb_preload_in_a_fresh_interpreter() -> None:
+    code = "from mapping._deps import import_open3d; o3d = import_open3d(); print(o3d.__version__)"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip()

@@ -1,0 +1,113 @@
+"""Tests of `robchair pid`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from robchair.cli import main
+from robchair.control import (
+    SecondOrderPlant,
+    design_pid,
+    identify_from_step_metrics,
+    roboteq_gains,
+    write_step_trace,
+)
+
+
+def _png_ok(path) -> bool:
+    data = path.read_bytes()
+    return data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_pid_without_arguments_prints_both_motors_and_writes_the_pictures(tmp_path, capsys):
+    out = tmp_path / "pid"
+    assert main(["pid", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "== motor 1 ==" in text and "== motor 2 ==" in text
+    expected = design_pid(identify_from_step_metrics(0.1365, 0.3975, 0.10).plant)
+    assert f"Kp = {expected.kp:.6g}" in text and f"Kd = {expected.kd:.6g} s" in text
+    assert "KP = 14, KI = 37, KD = 3" in text
+    assert "residual" in text and "margins: gain inf, phase" in text
+    assert _png_ok(out / "step_responses.png")
+    assert _png_ok(out / "root_locus_motor_1.png") and _png_ok(out / "root_locus_motor_2.png")
+    summary = json.loads((out / "pid.json").read_text())
+    m2 = summary["motors"][1]
+    d2 = design_pid(identify_from_step_metrics(0.1524, 0.3590, 0.12).plant)
+    assert m2["gains"] == pytest.approx({"kp": d2.kp, "ki": d2.ki, "kd": d2.kd}, rel=1e-12)
+    assert np.array(m2["achieved_poles"]) == pytest.approx(
+        np.array([[-33, 0], [-3.3, 0], [-3.3, 0]]), abs=1e-6
+    )
+    assert m2["identification"]["rise_time_residual_0_100"] == pytest.approx(0.1524 - 0.24734, abs=1e-4)
+    assert m2["margins"]["gain_margin"] is None  # inf: the phase never crosses -180 deg
+
+
+def test_pid_from_step_metrics_with_design_options_and_firmware_2(tmp_path, capsys):
+    out = tmp_path / "o"
+    rc = main(
+        [
+            "pid",
+            "--tr",
+            "0.15",
+            "--tp",
+            "0.4",
+            "--mp",
+            "0.1",
+            "--omega-w",
+            "5",
+            "--xi-w",
+            "0.8",
+            "--p",
+            "30",
+            "--firmware",
+            "2",
+            "--out",
+            str(out),
+            "--no-plots",
+        ]
+    )
+    assert rc == 0
+    d = design_pid(identify_from_step_metrics(0.15, 0.4, 0.1).plant, xi_w=0.8, omega_w=5.0, p=30.0)
+    g = roboteq_gains(d, 2)
+    text = capsys.readouterr().out
+    assert f"KP = {g.kp}, KI = {g.ki}, KD = {g.kd}" in text
+    summary = json.loads((out / "pid.json").read_text())
+    assert summary["motors"][0]["design"] == {"xi_w": 0.8, "omega_w": 5.0, "p": 30.0}
+    assert not (out / "step_responses.png").exists()
+
+
+def test_pid_from_a_trace_file(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    true = SecondOrderPlant(10.0, 0.55)
+    t = np.arange(0.0, 2.0, 0.002)
+    u = np.where(t >= 0.1, 100.0, 0.0)
+    y = true.step(t - 0.1) * 100.0 + rng.normal(0, 1.0, t.size)
+    csv = tmp_path / "motor_left.csv"
+    write_step_trace(csv, t, u, y)
+    out = tmp_path / "o"
+    assert main(["pid", "--trace", str(csv), "--out", str(out)]) == 0
+    summary = json.loads((out / "pid.json").read_text())
+    fitted = summary["motors"][0]["plant"]
+    assert fitted["omega_n"] == pytest.approx(10.0, rel=0.02)
+    assert fitted["xi"] == pytest.approx(0.55, rel=0.02)
+    assert (out / "root_locus_motor_left.png").exists()
+    assert "trace fit" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--tp", "0.4"], "--tp and --mp must be given together"),
+        (["--tp", "0.4", "--mp", "1.5"], "M_p = 1.5"),
+        (["--trace", "x.csv", "--tp", "0.4", "--mp", "0.1"], "cannot be combined"),
+        (["--omega-w", "-1"], "omega_w = -1.0"),
+    ],
+)
+def test_pid_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, argv, message):
+    out = tmp_path / "o"
+    assert main(["pid", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()

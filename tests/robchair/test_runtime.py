@@ -1,0 +1,388 @@
+"""The runtime loop on the emulated chair (real drivers over emulators), and against the simulator."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hw.interfaces import Device, JoystickReading, MotorFaults, SonarArrayReading
+from hw.registry import BackendConfigError, get_backend
+from robchair.cli import main
+from robchair.errors import ConfigError
+from robchair.kinematics import DiffDrive, Pose2D, integrate_arc
+from robchair.runtime import (
+    Corridor,
+    JoystickSource,
+    Observation,
+    PolicySource,
+    PurePursuit,
+    Route,
+    RuntimeConfig,
+    run_to_dir,
+    sonar_obstacle_points,
+)
+from robchair.safety import SafetyLimits, StopReason
+from robchair.spec import load_spec
+
+ROUTE = Route(((0.0, 0.0), (1.5, 0.0), (2.5, 1.0)), speed=0.3)
+# Tolerance of "the same odometry" between the emulated and the simulated chair on ROUTE: the
+# emulator's motors are the identified plant + PID alone, the simulator adds PyBullet's wheel-floor
+# contact and its 240 Hz physics; measured 3.1 cm / 0.045 rad at worst along the route.
+SAME_ODOMETRY_M = 0.05
+SAME_HEADING_RAD = 0.06
+
+
+@pytest.fixture(scope="module")
+def spec():
+    return load_spec()
+
+
+def emulated(**cfg):
+    return get_backend("emulated", {"timeout_s": 0.1, **cfg})
+
+
+# --- pure pursuit and geometry ----------------------------------------------------------------
+
+
+def test_pure_pursuit_on_ideal_kinematics_follows_the_route_to_its_end(spec) -> None:
+    pp = PurePursuit(ROUTE, DiffDrive(spec))
+    pose, dt = Pose2D(), 0.05
+    dd = DiffDrive(spec)
+    for _ in range(2000):
+        cmd = pp.command(Observation(0, pose, None, (), None))
+        if cmd.done:
+            break
+        wl, wr = dd.wheel_speeds(cmd.v, cmd.w)
+        pose = integrate_arc(pose, wl * dd.r * dt, wr * dd.r * dt, dd.b)
+        assert pp.cross_track_error(pose) < 0.1
+    assert cmd.done
+    assert math.hypot(pose.x - 2.5, pose.y - 1.0) <= ROUTE.goal_tolerance_m
+
+
+def test_pure_pursuit_turns_in_place_toward_a_goal_behind(spec) -> None:
+    pp = PurePursuit(Route(((0.0, 0.0), (-2.0, 0.0))), DiffDrive(spec))
+    cmd = pp.command(Observation(0, Pose2D(0.0, 0.0, 0.0), None, (), None))
+    assert cmd.v == 0.0 and cmd.w != 0.0
+
+
+def test_route_file_round_trips_and_bad_routes_name_the_field(tmp_path: Path) -> None:
+    f = tmp_path / "r.toml"
+    f.write_text("waypoints = [[0, 0], [1.5, 0], [2.5, 1]]\nspeed = 0.3\n")
+    assert Route.load(f) == ROUTE
+    with pytest.raises(ConfigError, match="at least 2"):
+        Route(((0.0, 0.0),))
+    with pytest.raises(ConfigError, match="speed"):
+        Route(((0.0, 0.0), (1.0, 0.0)), speed=-1.0)
+    f.write_text("waypoints = [[0, 0], [1, 0]]\nvelocity = 2\n")
+    with pytest.raises(ConfigError, match="velocity"):
+        Route.load(f)
+
+
+def test_corridor_distance_counts_only_points_ahead_within_the_width(spec) -> None:
+    c = Corridor.from_spec(spec)
+    # front edge: centre_x + depth / 2 = 0.16 + 0.42; half width 0.32 + 0.05
+    assert (c.front_x, c.half_width) == pytest.approx((0.58, 0.37))
+    pts = np.array([[1.0, 0.0], [0.9, 0.5], [-1.0, 0.0], [0.8, -0.36]])
+    assert c.distance_ahead(pts) == pytest.approx(0.8 - 0.58)
+    assert c.distance_ahead(np.array([[0.9, 0.5]])) is None
+
+
+def test_sonar_arc_from_five_zone_fusion_lies_ahead_or_beside_as_the_servo_turns(spec) -> None:
+    from mapping.sonar import fuse_array
+
+    mount = spec.mounts["sonar_array_left"]
+    res = fuse_array(0.5, 0.5, 0.5)
+    assert res.zone == 3
+    ahead = sonar_obstacle_points(SonarArrayReading(0, (0.5, 0.5, 0.5), 90.0), mount)
+    a0, a1 = math.radians(res.alpha_deg), math.radians(res.alpha_deg + res.theta_deg)
+    x_min = mount.xyz[0] + 0.5 * min(math.cos(a0), math.cos(a1))
+    assert Corridor.from_spec(spec).distance_ahead(ahead) == pytest.approx(x_min - 0.58)
+    side = sonar_obstacle_points(SonarArrayReading(0, (0.5, 0.5, 0.5), 180.0), mount)  # facing left
+    assert Corridor.from_spec(spec).distance_ahead(side) is None
+    assert sonar_obstacle_points(SonarArrayReading(0, (math.nan,) * 3, 90.0), mount).shape == (0, 2)
+
+
+def test_local_map_from_a_depth_frame_sees_a_wall_ahead_but_not_the_floor(spec) -> None:
+    from hw.interfaces import DepthFrame
+    from robchair.runtime import LocalMapper
+
+    # in base_link: a wall at x = 1.5 m (y in [-0.5, 0.5], z in [0, 1]) and a floor patch nearer
+    yy, zz = np.meshgrid(np.linspace(-0.5, 0.5, 41), np.linspace(0.0, 1.0, 41))
+    wall = np.stack([np.full(yy.size, 1.5), yy.ravel(), zz.ravel()], axis=1)
+    xf, yf = np.meshgrid(np.linspace(0.7, 1.4, 15), np.linspace(-0.3, 0.3, 13))
+    floor = np.stack([xf.ravel(), yf.ravel(), np.zeros(xf.size)], axis=1)
+    pts = np.concatenate([wall, floor, [[np.nan, np.nan, np.nan]]])
+    t = spec.mounts["kinect_link"].transform()
+    cam = (pts - t[:3, 3]) @ t[:3, :3]  # base_link -> kinect_link (inverse of the mount transform)
+    mapper = LocalMapper(spec, Corridor.from_spec(spec), stride=1)
+    d = mapper.distance(DepthFrame(0, "kinect_link", cam))
+    # the wall's cell starts at or before x = 1.5 (a cell is 5 cm): 1.5 - 0.58 - 0.05 < d <= 0.92
+    assert 1.5 - 0.58 - 0.05 - 1e-9 < d <= 1.5 - 0.58 + 1e-9
+    assert mapper.last_stats.points_dropped_nonfinite == 1
+    floor_only = LocalMapper(spec, Corridor.from_spec(spec), stride=1)
+    assert floor_only.distance(DepthFrame(0, "kinect_link", (floor - t[:3, 3]) @ t[:3, :3])) is None
+
+
+# --- the loop on the emulated chair -------------------------------------------------------------
+
+
+def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_path: Path, spec) -> None:
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    out = tmp_path / "run"
+    res = run_to_dir(emulated(), PurePursuit(ROUTE, DiffDrive(spec)), 20.0, out, spec=spec)
+    assert res.route_completed and res.driver_fault is None and res.stops == []
+    assert math.hypot(res.final_pose[0] - 2.5, res.final_pose[1] - 1.0) < 0.15
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["cycles"] == res.cycles and metrics["route_completed"] is True
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    with Reader(out / "run_bag") as r:
+        counts = {c.topic: c.msgcount for c in r.connections}
+        odom = [
+            ts.deserialize_cdr(raw, c.msgtype)
+            for c, _, raw in r.messages([c for c in r.connections if c.topic == "/odom"])
+        ]
+    assert counts["/odom"] == counts["/tf"] == res.cycles
+    assert counts["/sonar/sonar_array_left/1"] == res.cycles
+    last = odom[-1].pose.pose
+    assert (last.position.x, last.position.y) == pytest.approx(res.poses[-1][1:3])
+    assert 2 * math.atan2(last.orientation.z, last.orientation.w) == pytest.approx(res.poses[-1][3])
+
+
+def test_runtime_stall_lets_the_emulated_controller_watchdog_stop_the_motors(spec) -> None:
+    backend = emulated(sonars=False)
+    emu = backend.extras["roboteq_emulator"]
+    calls = {"n": 0}
+
+    def stalling_policy(obs: Observation) -> tuple[float, float]:
+        calls["n"] += 1
+        if calls["n"] == 20:
+            backend.clock.advance(1.5)  # the loop hangs for 1.5 s (longer than ^RWD = 1000 ms)
+        return 0.3, 0.0
+
+    res = run_to_dir(backend, PolicySource(stalling_policy), 4.0, None, spec=spec)
+    assert emu.watchdog_trips == 1
+    watchdog = [s for s in emu.stops if s.reason == "watchdog"]
+    assert len(watchdog) == 1
+    # the last !S came at the start of cycle 19 (t = 1.8 s): the trip is 1 s (+ one 1 ms step) later
+    assert watchdog[0].t_ns / 1e9 == pytest.approx(1.8 + 1.0, abs=0.0015)
+    assert "deadline_missed" in [s["reason"] for s in res.stops]
+
+
+def test_a_fault_flag_during_a_run_ends_it_with_the_motors_stopped(spec) -> None:
+    backend = emulated(sonars=False)
+    emu = backend.extras["roboteq_emulator"]
+
+    def policy(obs: Observation) -> tuple[float, float]:
+        if obs.stamp_ns >= 1_000_000_000:
+            emu.raise_fault(MotorFaults(overheat=True))
+        return 0.3, 0.0
+
+    res = run_to_dir(backend, PolicySource(policy), 5.0, None, spec=spec)
+    assert res.driver_fault is not None and "overheat" in res.driver_fault
+    assert res.sim_time_s < 1.5  # ended at the next cycle
+    assert emu.setpoints_rpm == (0.0, 0.0) and emu.estop
+    assert [s["reason"] for s in res.stops] == [StopReason.DRIVER_FAULT.value]
+
+
+def test_an_unplugged_controller_during_a_run_ends_it_with_a_driver_fault(spec) -> None:
+    backend = emulated(sonars=False)
+    emu = backend.extras["roboteq_emulator"]
+
+    def policy(obs: Observation) -> tuple[float, float]:
+        if obs.stamp_ns >= 1_000_000_000:
+            emu.disconnect()
+        return 0.3, 0.0
+
+    res = run_to_dir(backend, PolicySource(policy), 5.0, None, spec=spec)
+    assert res.driver_fault is not None and "DeviceDisconnectedError" in res.driver_fault
+    assert res.sim_time_s == pytest.approx(1.0)
+    # nothing reaches the controller any more: its watchdog stops the motors 1 s after the last !S
+    backend.clock.advance(1.2)
+    assert emu.setpoints_rpm == (0.0, 0.0) and emu.watchdog_trips == 1
+
+
+def test_the_real_backend_drives_a_roboteq_on_the_given_port(spec) -> None:
+    from hw.clock import ManualClock
+    from hw.roboteq.emulator import RoboteqEmulator
+
+    with RoboteqEmulator(spec, clock=ManualClock()) as emu:
+        backend = get_backend("real", {"port": emu.device_path})
+        assert backend.sonar_arrays == ()
+        with backend:
+            backend.motors.set_speeds_rpm(120.0, -80.0)
+            assert emu.setpoints_rpm == (120.0, -80.0)
+            # the registry wrote the SPEC 5 design in firmware 1.x units (gain x 10)
+            assert {"^KP 1 14", "^KI 1 37", "^KD 1 3", "^KP 2 11", "^KI 2 32", "^KD 2 2"} <= {
+                t for _, t in emu.received
+            }
+            assert backend.motors.read_config("KP") == (14, 11)
+        assert emu.setpoints_rpm == (0.0, 0.0)  # closing the backend stops the motors
+
+
+def test_an_obstacle_heard_by_the_sonars_keeps_the_chair_from_driving_into_it(spec) -> None:
+    # every sonar hears 0.25 m: the fused arc lies 0.22 m ahead of the front edge, inside the
+    # stopping distance for the route's 0.3 m/s (0.15 + 0.09 + 0.056 = 0.30 m)
+    res = run_to_dir(emulated(sonar_range_m=0.25), PurePursuit(ROUTE, DiffDrive(spec)), 3.0, None, spec=spec)
+    assert res.stops and res.stops[0]["reason"] == "obstacle_sonar"
+    assert res.distance_m < 0.02
+
+
+def test_a_sonar_array_failing_for_longer_than_the_stale_limit_stops_the_chair(spec) -> None:
+    backend = emulated()
+    bus = backend.extras["srf08_bus"]
+    calls = {"n": 0}
+
+    def policy(obs: Observation) -> tuple[float, float]:
+        calls["n"] += 1
+        if calls["n"] == 10:  # from t = 0.9 s the left array's three sonars fail every transfer
+            for a in (0x70, 0x71, 0x72):
+                bus.inject_io_error(a)
+        return 0.2, 0.0
+
+    res = run_to_dir(backend, PolicySource(policy), 3.0, None, spec=spec)
+    stale = [s for s in res.stops if s["reason"] == "stale_sensor"]
+    assert len(stale) == 1 and "sonar_array_left" in stale[0]["detail"]
+    # last fresh reading at t = 0.9 s (cycle 9); stale once more than 0.5 s old: the cycle at 1.5 s
+    assert stale[0]["t_s"] == pytest.approx(1.5, abs=0.11)
+
+
+def test_one_dead_sonar_does_not_stop_the_chair(spec) -> None:
+    backend = emulated()
+    bus = backend.extras["srf08_bus"]
+
+    def policy(obs: Observation) -> tuple[float, float]:
+        bus.inject_io_error(0x71)  # the middle sonar of the left array fails from the first cycle on
+        return 0.2, 0.0
+
+    res = run_to_dir(backend, PolicySource(policy), 2.0, None, spec=spec)
+    assert res.stops == [] and res.distance_m > 0.1
+    left = backend.sonar_arrays[0]
+    assert left.dead == (False, True, False)
+
+
+def test_a_loop_too_fast_for_six_sonar_rangings_misses_deadlines_and_stops(spec) -> None:
+    # six SRF08 rangings at the 2 m range setting take 6 x 11.9 ms (+ polls) of emulated time:
+    # a 20 Hz loop (50 ms) cannot fit them
+    cfg = RuntimeConfig(rate_hz=20.0)
+    res = run_to_dir(emulated(), PolicySource(lambda obs: (0.2, 0.0)), 1.0, None, spec=spec, config=cfg)
+    assert res.deadline_misses > 0
+    assert res.stops[0]["reason"] == "deadline_missed"
+
+
+class ScriptedJoystick(Device):
+    """A joystick whose stick and dead-man button follow a script of simulated time."""
+
+    name = "scripted-joystick"
+
+    def __init__(self, clock, script) -> None:
+        self.clock, self.script = clock, script
+
+    def read(self) -> JoystickReading:
+        t = self.clock.now_ns()
+        forward, turn, deadman = self.script(t / 1e9)
+        return JoystickReading(t, forward, turn, deadman)
+
+
+def test_joystick_drives_while_the_deadman_is_held_and_releasing_it_stops(spec) -> None:
+    backend = emulated(sonars=False)
+    backend.joystick = ScriptedJoystick(backend.clock, lambda t: (0.5, 0.0, t < 2.0))
+    lim = SafetyLimits.from_spec(spec)
+    res = run_to_dir(
+        backend, JoystickSource(backend.joystick, lim.max_speed, lim.max_yaw_rate), 4.0, None, spec=spec
+    )
+    assert [s["reason"] for s in res.stops] == ["deadman_released"]
+    assert res.stops[0]["t_s"] == pytest.approx(2.0)
+    poses = np.asarray(res.poses)
+    x_at_release = np.interp(2.0, poses[:, 0], poses[:, 1])
+    assert x_at_release > 0.2  # it drove forward while the button was held
+    assert res.final_pose[0] - x_at_release < 0.3  # and stopped after the release
+
+
+def test_unknown_emulated_config_key_is_refused() -> None:
+    with pytest.raises(BackendConfigError, match="speed"):
+        get_backend("emulated", {"speed": 1})
+    with pytest.raises(BackendConfigError, match="'warp'"):
+        get_backend("warp", {})
+
+
+def test_real_backend_needs_a_port() -> None:
+    with pytest.raises(BackendConfigError, match="port is required"):
+        get_backend("real", {})
+
+
+# --- sim vs emulated ------------------------------------------------------------------------------
+
+
+def test_emulated_and_simulated_chairs_give_the_same_odometry_on_the_same_route(spec) -> None:
+    res_e = run_to_dir(emulated(sonars=False), PurePursuit(ROUTE, DiffDrive(spec)), 20.0, None, spec=spec)
+    sim = get_backend("sim", {"sensor": None, "sonars": False})
+    res_s = run_to_dir(sim, PurePursuit(ROUTE, DiffDrive(spec)), 20.0, None, spec=spec)
+    assert res_e.route_completed and res_s.route_completed
+    a, b = np.asarray(res_e.poses), np.asarray(res_s.poses)
+    n = min(len(a), len(b))
+    assert abs(len(a) - len(b)) <= 2
+    np.testing.assert_allclose(a[:n, 0], b[:n, 0])  # same cycle times
+    assert np.max(np.hypot(a[:n, 1] - b[:n, 1], a[:n, 2] - b[:n, 2])) < SAME_ODOMETRY_M
+    assert np.max(np.abs(a[:n, 3] - b[:n, 3])) < SAME_HEADING_RAD
+
+
+# --- the command line ---------------------------------------------------------------------------
+
+
+def test_robchair_run_emulated_writes_bag_metrics_and_odometry(tmp_path: Path, capsys) -> None:
+    route = tmp_path / "route.toml"
+    route.write_text("waypoints = [[0, 0], [1, 0]]\nspeed = 0.3\n")
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text("[emulated]\nsonars = false\n[runtime]\nrate_hz = 10.0\n")
+    out = tmp_path / "out"
+    rc = main(
+        [
+            "run",
+            "--backend",
+            "emulated",
+            "--config",
+            str(cfg),
+            "--route",
+            str(route),
+            "--duration",
+            "10",
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["route_completed"] is True
+    assert {p.name for p in out.iterdir()} == {"run_bag", "metrics.json", "odometry.csv"}
+    odo = np.loadtxt(out / "odometry.csv", delimiter=",", skiprows=1)
+    assert odo[-1, 1] == pytest.approx(1.0, abs=0.1)
+
+
+def test_robchair_run_without_a_command_source_fails_with_one_line(tmp_path: Path, capsys) -> None:
+    rc = main(["run", "--backend", "emulated", "--duration", "1"])
+    assert rc == 2
+    assert "no command source" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_simulated_kinect_map_stops_the_chair_before_a_wall(tmp_path: Path, spec) -> None:
+    scene = tmp_path / "wall.toml"
+    scene.write_text(
+        '[scene]\nname = "wall"\ndescription = "one wall across the way"\n'
+        '[[object]]\nname = "wall"\nshape = "box"\nsize = [0.1, 3.0, 2.0]\nxyz = [2.5, 0.0, 1.0]\n'
+    )
+    sim = get_backend("sim", {"scene": str(scene), "sensor": "kinect2", "sonars": False})
+    route = Route(((0.0, 0.0), (4.0, 0.0)), speed=0.5)
+    res = run_to_dir(
+        sim, PurePursuit(route, DiffDrive(spec)), 12.0, None, spec=spec, config=RuntimeConfig(map_every=2)
+    )
+    assert res.stops and res.stops[0]["reason"] == "obstacle_map"
+    front = res.final_pose[0] + 0.58
+    gap = 2.45 - front  # the wall's near face is at x = 2.45
+    assert 0.15 <= gap < 0.6  # at least the safety margin kept, and it did get near
