@@ -6,12 +6,15 @@ and closes it. Swapping the simulated chair for the real one is one setting: the
 * ``sim`` — the PyBullet digital twin (:func:`sim.backend.make_sim_backend`, imported lazily).
 * ``emulated`` — the *real drivers* talking to protocol emulators: the Roboteq driver over a pty to
   :class:`hw.roboteq.emulator.RoboteqEmulator`, and SRF08 drivers on an emulated I2C bus
-  (:class:`hw.emulators.srf08.SRF08Bus`). Time is simulated by default (a :class:`hw.clock.ManualClock`
-  that the runtime's sleep advances and the emulators follow), or real with ``realtime = true``.
+  (:class:`hw.emulators.srf08.SRF08Bus`). Time is simulated by default (a
+  :class:`hw.roboteq.emulator.SyncedClock` that the runtime's sleep advances and the emulators
+  follow), or real with ``realtime = true``.
 * ``real`` — the Roboteq on a serial port and the SRF08 arrays on an I2C bus.
 
 Config keys (all optional unless stated; unknown keys are an error naming the allowed ones):
 
+* emulated and real: ``release_stop`` (bool, default false): send ``!MG`` when the Roboteq opens,
+  releasing an emergency stop latched by an earlier session (an operator's decision).
 * sim: as :func:`sim.backend.make_sim_backend`.
 * emulated: ``realtime`` (bool), ``firmware`` (``?FID`` text), ``echo`` (bool), ``rate_hz``
   (controller loop), ``timeout_s``, ``retries``, ``watchdog_ms``, ``sonars`` (bool, default true),
@@ -48,11 +51,11 @@ DEFAULT_SONAR_ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
 DEFAULT_SONAR_MAX_RANGE_M = 2.0
 
 _EMULATED_KEYS = {
-    "realtime", "firmware", "echo", "rate_hz", "timeout_s", "retries", "watchdog_ms",
+    "release_stop", "realtime", "firmware", "echo", "rate_hz", "timeout_s", "retries", "watchdog_ms",
     "sonars", "sonar_range_m", "sonar_max_range_m", "spec",
 }  # fmt: skip
 _REAL_KEYS = {
-    "port", "baudrate", "timeout_s", "retries", "watchdog_ms", "i2c_bus", "sonar_addresses",
+    "release_stop", "port", "baudrate", "timeout_s", "retries", "watchdog_ms", "i2c_bus", "sonar_addresses",
     "sonar_max_range_m", "joystick_port", "spec",
 }  # fmt: skip
 
@@ -145,14 +148,14 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
 
 
 def _emulated(cfg: dict[str, Any]) -> Backend:
-    from hw.clock import ManualClock, MonotonicClock
+    from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
-    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator
+    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
 
     where = "emulated"
     _check_keys(cfg, _EMULATED_KEYS, where)
     spec = _spec(cfg)
-    clock: Clock = MonotonicClock() if cfg.get("realtime", False) else ManualClock()
+    clock: Clock = MonotonicClock() if cfg.get("realtime", False) else SyncedClock()
     emu = RoboteqEmulator(
         spec,
         firmware=str(cfg.get("firmware", DEFAULT_FIRMWARE)),
@@ -172,6 +175,7 @@ def _emulated(cfg: dict[str, Any]) -> Backend:
             max_rpm=int(spec.max_motor_rpm),
             pid=design_pid_configs(spec),
             clock=clock,
+            release_on_open=bool(cfg.get("release_stop", False)),
         )
         arrays: tuple[Any, ...] = ()
         extras: dict[str, Any] = {"roboteq_emulator": emu}
@@ -219,26 +223,32 @@ def _real(cfg: dict[str, Any]) -> Backend:
         max_rpm=int(spec.max_motor_rpm),
         pid=design_pid_configs(spec),
         clock=clock,
+        release_on_open=bool(cfg.get("release_stop", False)),
     )
     arrays: tuple[Any, ...] = ()
     on_close: list[Callable[[], None]] = []
-    if cfg.get("i2c_bus") is not None:
-        from hw.srf08 import _open_smbus
-
-        bus = _open_smbus(_int(cfg, "i2c_bus", 1, where))
-        on_close.append(bus.close)
-        addresses = cfg.get("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
-        arrays = _sonar_arrays(
-            bus, addresses, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
-        )
     joystick = None
-    if cfg.get("joystick_port") is not None:
-        from hw.joystick import SerialJoystick
-        from hw.serial_lines import open_serial
+    try:
+        if cfg.get("i2c_bus") is not None:
+            from hw.srf08 import _open_smbus
 
-        transport = open_serial(str(cfg["joystick_port"]))
-        on_close.append(transport.close)
-        joystick = SerialJoystick(transport, clock=clock)
+            bus = _open_smbus(_int(cfg, "i2c_bus", 1, where))
+            on_close.append(bus.close)
+            addresses = cfg.get("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
+            arrays = _sonar_arrays(
+                bus, addresses, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
+            )
+        if cfg.get("joystick_port") is not None:
+            from hw.joystick import SerialJoystick
+            from hw.serial_lines import open_serial
+
+            transport = open_serial(str(cfg["joystick_port"]))
+            on_close.append(transport.close)
+            joystick = SerialJoystick(transport, clock=clock)
+    except BaseException:
+        for fn in reversed(on_close):  # release what was opened before the failure
+            fn()
+        raise
     return ManagedBackend(
         name="real", clock=clock, motors=motors, sonar_arrays=arrays, joystick=joystick, on_close=on_close
     )

@@ -50,15 +50,17 @@ def scan(pts, cu, cv, ch, step):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mins, maxs, overflow):  # type: ignore[no-untyped-def]
+def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mm, overflow):  # type: ignore[no-untyped-def]
     """Min and max height per (cell, height bin of width ``1 / iw``) inside a box of cells and bins.
 
-    ``mins``/``maxs`` are flat dense arrays of ``ni * nj * nb`` entries pre-filled with +inf/-inf for
-    the box ``[i0, i0 + ni) x [j0, j0 + nj) x [b0, b0 + nb)`` (grid indices, bin indices). Finite
-    in-grid points outside the box are not binned: their indices go to ``overflow`` (as many as fit).
+    ``mm`` is a flat dense table of ``2 * ni * nj * nb`` entries, (min, max) side by side so that one
+    cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 + nj)
+    x [b0, b0 + nb)`` (grid indices, bin indices). In-grid points whose cell or bin falls outside the
+    box — including those with a non-finite height — are not binned: their indices go to ``overflow``
+    (as many as fit) for the exact slow path, which also counts their non-finite heights.
 
     Returns:
-        (n_nonfinite, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
+        (n_nonfinite_uv, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
     """
     n = pts.shape[0]
     n_nonfinite = 0
@@ -68,59 +70,57 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     uni = np.uint64(ni)
     unj = np.uint64(nj)
     unb = np.uint64(nb)
-    unx = np.uint64(nx)
-    uny = np.uint64(ny)
     for k in range(n):
         u = np.float64(pts[k, cu])
         v = np.float64(pts[k, cv])
-        h = np.float64(pts[k, ch])
-        s = u + v + h
-        if s - s != 0.0:  # NaN or inf in any coordinate
-            n_nonfinite += 1
-            continue
         fi = np.floor(u * ics) - ou
         fj = np.floor(v * ics) - ov
-        # Compare as floats first: casting a huge finite value to int64 is undefined.
-        if not (fi >= 0.0 and fj >= 0.0 and fi < unx and fj < uny):
-            n_outside += 1
+        # NaN fails every comparison, so one test screens both non-finite and out-of-grid points (and
+        # comparing floats first avoids casting huge values to int64, which is undefined).
+        if not (fi >= 0.0 and fj >= 0.0 and fi < nx and fj < ny):
+            h = np.float64(pts[k, ch])
+            if math.isfinite(u) and math.isfinite(v) and math.isfinite(h):
+                n_outside += 1
+            else:
+                n_nonfinite += 1
             continue
+        hv = pts[k, ch]
         di = np.int64(fi) - i0
         dj = np.int64(fj) - j0
-        db = np.int64(np.floor(h * iw)) - b0
+        db = np.int64(np.floor(np.float64(hv) * iw)) - b0
         if np.uint64(di) >= uni or np.uint64(dj) >= unj or np.uint64(db) >= unb:
             if n_over < cap:
                 overflow[n_over] = k
             n_over += 1
             continue
-        idx = (di * nj + dj) * nb + db
-        hv = pts[k, ch]
+        idx = 2 * ((di * nj + dj) * nb + db)
         # Branch-free min/max: which point is extreme in its bin is unpredictable.
-        mins[idx] = min(mins[idx], hv)
-        maxs[idx] = max(maxs[idx], hv)
+        mm[idx] = min(mm[idx], hv)
+        mm[idx + 1] = max(mm[idx + 1], hv)
     return n_nonfinite, n_outside, n_over
 
 
 @numba.jit(**_JIT)
-def extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
+def extract_bins(mm, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
     """Merge consecutive non-empty bins of each cell into structures (gap <= tol joins).
 
     Two passes over the dense table (count, then fill) so that the output is allocated at its exact
     size: the table is small next to the points, the structures smaller still.
     """
-    n_cells = mins.shape[0] // nb
+    n_cells = mm.shape[0] // (2 * nb)
     n_out = 0
     for c in range(n_cells):
         base = c * nb
         have = False
         last_top = 0.0
         for b in range(nb):
-            lo = np.float64(mins[base + b])
+            lo = np.float64(mm[2 * (base + b)])
             if lo == np.inf:
                 continue
             if not (have and lo - last_top <= tol):
                 n_out += 1
             have = True
-            last_top = np.float64(maxs[base + b])
+            last_top = np.float64(mm[2 * (base + b) + 1])
     out_key = np.empty(n_out, np.int64)
     out_b = np.empty(n_out, np.float64)
     out_t = np.empty(n_out, np.float64)
@@ -130,10 +130,10 @@ def extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untype
         open_ = False
         key = (i0 + c // nj) * ny + (j0 + c % nj)
         for b in range(nb):
-            lo = np.float64(mins[base + b])
+            lo = np.float64(mm[2 * (base + b)])
             if lo == np.inf:
                 continue
-            hi = np.float64(maxs[base + b])
+            hi = np.float64(mm[2 * (base + b) + 1])
             if open_ and lo - out_t[n_out - 1] <= tol:
                 out_t[n_out - 1] = hi
             else:
@@ -241,3 +241,89 @@ def merge_structures(k1, b1, t1, k2, b2, t2, tol):  # type: ignore[no-untyped-de
             out_t[n_out] = hi
             n_out += 1
     return out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
+
+
+@numba.jit(**_JIT)
+def cell_counts(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, counts):  # type: ignore[no-untyped-def]
+    """Points per cell of the box ``[i0, i0 + ni) x [j0, j0 + nj)`` (which must hold every kept point).
+
+    ``counts`` has ``ni * nj + 1`` zeros; cell ``c`` is counted in ``counts[c + 1]`` so that a cumulative
+    sum gives the start offsets. Returns (n_nonfinite, n_outside_grid).
+    """
+    n_nonfinite = 0
+    n_outside = 0
+    for k in range(pts.shape[0]):
+        u = np.float64(pts[k, cu])
+        v = np.float64(pts[k, cv])
+        h = np.float64(pts[k, ch])
+        s = u + v + h
+        if s - s != 0.0:
+            n_nonfinite += 1
+            continue
+        fi = np.floor(u * ics) - ou
+        fj = np.floor(v * ics) - ov
+        if not (fi >= 0.0 and fj >= 0.0 and fi < nx and fj < ny):
+            n_outside += 1
+            continue
+        counts[(np.int64(fi) - i0) * nj + (np.int64(fj) - j0) + 1] += 1
+    return n_nonfinite, n_outside
+
+
+@numba.jit(**_JIT)
+def scatter_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, nj, fill, out):  # type: ignore[no-untyped-def]
+    """Counting sort: write each kept point's height at ``out[fill[cell]]`` and advance ``fill[cell]``."""
+    for k in range(pts.shape[0]):
+        u = np.float64(pts[k, cu])
+        v = np.float64(pts[k, cv])
+        h = np.float64(pts[k, ch])
+        s = u + v + h
+        if s - s != 0.0:
+            continue
+        fi = np.floor(u * ics) - ou
+        fj = np.floor(v * ics) - ov
+        if not (fi >= 0.0 and fj >= 0.0 and fi < nx and fj < ny):
+            continue
+        c = (np.int64(fi) - i0) * nj + (np.int64(fj) - j0)
+        out[fill[c]] = pts[k, ch]
+        fill[c] += 1
+
+
+@numba.jit(**_JIT)
+def cluster_cells(hs, offsets, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
+    """Thesis pipeline per cell on counting-sorted heights: sort each cell in place, then cluster."""
+    n_cells = offsets.shape[0] - 1
+    n_out = 0
+    for c in range(n_cells):
+        a = offsets[c]
+        b = offsets[c + 1]
+        if b == a:
+            continue
+        hs[a:b].sort()
+        n_out += 1
+        for q in range(a + 1, b):
+            if np.float64(hs[q]) - np.float64(hs[q - 1]) > tol:
+                n_out += 1
+    out_key = np.empty(n_out, np.int64)
+    out_b = np.empty(n_out, np.float64)
+    out_t = np.empty(n_out, np.float64)
+    n_out = 0
+    for c in range(n_cells):
+        a = offsets[c]
+        b = offsets[c + 1]
+        if b == a:
+            continue
+        key = (i0 + c // nj) * ny + (j0 + c % nj)
+        out_key[n_out] = key
+        out_b[n_out] = hs[a]
+        out_t[n_out] = hs[a]
+        n_out += 1
+        for q in range(a + 1, b):
+            z = np.float64(hs[q])
+            if z - out_t[n_out - 1] <= tol:
+                out_t[n_out - 1] = z
+            else:
+                out_key[n_out] = key
+                out_b[n_out] = z
+                out_t[n_out] = z
+                n_out += 1
+    return out_key, out_b, out_t

@@ -134,10 +134,9 @@ class GridSpec:
     def origin(self) -> tuple[int, int]:
         """Lattice indices ``(origin_u, origin_v)`` of the grid's cell ``(0, 0)``."""
         nx, ny = self.shape
-        return (
-            math.floor(self.centre[0] / self.cell_size) - nx // 2,
-            math.floor(self.centre[1] / self.cell_size) - ny // 2,
-        )
+        # Same float operation as world_to_index, so the centre always lands in cell (nx // 2, ny // 2).
+        ics = self.inv_cell_size
+        return math.floor(self.centre[0] * ics) - nx // 2, math.floor(self.centre[1] * ics) - ny // 2
 
     @property
     def columns(self) -> tuple[int, int, int]:

@@ -15,15 +15,18 @@ order and joins a bin to the current structure when ``bin.min - structure.top <=
 This gives exactly the sort + unique + cluster result:
 
 * all heights inside one bin differ by at most ``w <= tolerance`` (``w`` is shrunk by a relative
-  1e-6 so that floating-point rounding of ``h / w`` cannot make a bin wider than ``tolerance``), so
+  1e-6 so that floating-point rounding of ``h * (1 / w)`` cannot make a bin wider than ``tolerance``), so
   every gap between consecutive sorted values inside a bin is ``<= tolerance`` and a bin never splits;
-* ``floor(h / w)`` is monotone in ``h``, so the max of one non-empty bin and the min of the next
+* ``floor(h * (1 / w))`` is monotone in ``h``, so the max of one non-empty bin and the min of the next
   non-empty bin of the same cell are *consecutive* sorted values, and the test on them is the thesis's
   test (4.2.4) on the same two float64 numbers.
 
-The dense (cell, bin) table spans only the frame's bounding box; when it would exceed the size of the
-input array (sparse clouds, outliers far away in height) the build falls back to a compiled
-sort-per-cell path (``method="sort"``, the thesis's pipeline). ``method="numpy"`` is the same bin
+The dense (cell, bin) table spans only the frame's bounding box, guessed from every 8th point and
+widened by a margin; points outside the guess are not lost but clustered by the sort path and merged
+in (exactly, see below). When the table would exceed the size of the input array (or 4 MiB for small
+clouds) or would be mostly empty (more entries than twice the points) — small or sparse clouds,
+outliers far away in height — the build takes the compiled sort path instead (``method="sort"``, the
+thesis's pipeline: a counting sort by cell, then a sort per cell). ``method="numpy"`` is the bin
 algorithm without numba, kept for the benchmark.
 
 Accumulating frames
@@ -366,8 +369,9 @@ def _grid_args(spec: GridSpec) -> tuple[float, int, int, int, int, int, int, int
 
 def _dense_budget_bytes(pts: NDArray[np.floating]) -> int:
     # The dense (cell, bin) min/max table may use as much memory as the input array itself, so that
-    # peak extra memory stays <= 2x the input (issue 2 target); tiny clouds still get 1 MiB.
-    return max(int(pts.nbytes), 1 << 20)
+    # peak extra memory stays <= 2x the input (issue 2 target); small clouds may use 4 MiB, which is
+    # nothing next to the interpreter and keeps them on the fast path.
+    return max(int(pts.nbytes), 4 << 20)
 
 
 def _box_range(lo: float, hi: float, ics: float, origin: int, n: int) -> tuple[int, int]:
@@ -385,16 +389,46 @@ _MARGIN_CELLS = 4
 
 
 def _sort_path(
-    pts: NDArray[np.floating], spec: GridSpec, tol: float, n_finite: int
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], int]:
-    """Thesis pipeline (compiled): returns structures and the number of finite points kept."""
+    pts: NDArray[np.floating], spec: GridSpec, tol: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], int, int]:
+    """Thesis pipeline (compiled): group heights by cell, sort each cell, unique, cluster.
+
+    Grouping is a counting sort over the cells of the frame's exact bounding box (two passes, one
+    height per point of extra memory); only when that box has far more cells than there are points does
+    it fall back to an argsort of the cell keys.
+
+    Returns:
+        (key, bottom, top, n_nonfinite, n_outside_grid).
+    """
     from mapping import _vhv_kernels as K
 
     ics, ou, ov, nx, ny, cu, cv, ch = _grid_args(spec)
-    keys, hs = K.keys_and_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, n_finite)
+    n = int(pts.shape[0])
+    n_nonfinite, u0, u1, v0, v1, _, _ = K.scan(pts, cu, cv, ch, 1)
+    n_nonfinite = int(n_nonfinite)
+    e = np.empty(0, np.int64), np.empty(0, np.float64), np.empty(0, np.float64)
+    if n_nonfinite == n:
+        return *e, n_nonfinite, 0
+    i0, i1 = _box_range(u0, u1, ics, ou, nx)
+    j0, j1 = _box_range(v0, v1, ics, ov, ny)
+    if i0 > i1 or j0 > j1:
+        return *e, n_nonfinite, n - n_nonfinite
+    ni, nj = i1 - i0 + 1, j1 - j0 + 1
+    if ni * nj <= 2 * n + 1024:
+        counts = np.zeros(ni * nj + 1, np.int64)
+        _, n_outside = K.cell_counts(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, counts)
+        offsets = np.cumsum(counts)
+        del counts
+        hs = np.empty(int(offsets[-1]), pts.dtype)
+        fill = offsets[:-1].copy()
+        K.scatter_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, nj, fill, hs)
+        del fill
+        key, bot, top = K.cluster_cells(hs, offsets, i0, j0, nj, ny, tol)
+        return key, bot, top, n_nonfinite, int(n_outside)
+    keys, hs = K.keys_and_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, n - n_nonfinite)
     order = np.argsort(keys, kind="stable")
     key, bot, top = K.cluster_sorted_groups(keys, hs, order, tol)
-    return key, bot, top, int(keys.shape[0])
+    return key, bot, top, n_nonfinite, n - n_nonfinite - int(keys.shape[0])
 
 
 def _build_compiled(
@@ -415,10 +449,7 @@ def _build_compiled(
     if step == 1 and not math.isfinite(u0):
         return *empty, int(nf_s), 0, "bins"
     if method == "sort":
-        n_finite = n - int(nf_s) if step == 1 else n
-        key, bot, top, n_kept = _sort_path(pts, spec, tol, n_finite)
-        n_nonfinite = int(nf_s) if step == 1 else n - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
-        return key, bot, top, n_nonfinite, n - n_nonfinite - n_kept, "sort"
+        return *_sort_path(pts, spec, tol), "sort"
     iw = 1.0 / (tol * _BIN_SHRINK)
     m = _MARGIN_CELLS if step > 1 else 0
     i0, i1 = _box_range(u0, u1, ics, ou, nx)
@@ -433,39 +464,44 @@ def _build_compiled(
     dense = ni * nj * nb
     entry = 2 * pts.dtype.itemsize
     budget = _dense_budget_bytes(pts)
-    if dense * entry > budget:
+    # The table must fit the memory budget, and be worth filling: for small clouds in a large box the
+    # counting-sort path is cheaper than initialising and scanning a mostly empty table.
+    if dense * entry > budget or (method == "auto" and dense > 2 * n + 65536):
         if method == "auto" or ni * nj * entry > budget:
-            key, bot, top, n_kept = _sort_path(pts, spec, tol, n)
-            n_nonfinite = n - int(np.count_nonzero(np.isfinite(pts).all(axis=1)))
-            return key, bot, top, n_nonfinite, n - n_nonfinite - n_kept, "sort"
+            return *_sort_path(pts, spec, tol), "sort"
         # "bins" asked for explicitly: keep the table within budget by narrowing the height window;
         # points above it overflow to the exact sort path.
         nb = max(1, budget // (ni * nj * entry))
         dense = ni * nj * nb
-    mins = np.full(dense, np.inf, dtype=pts.dtype)
-    maxs = np.full(dense, -np.inf, dtype=pts.dtype)
+    mm = np.empty((dense, 2), dtype=pts.dtype)
+    mm[:, 0] = np.inf
+    mm[:, 1] = -np.inf
+    mm = mm.reshape(-1)
     overflow = np.empty(max(4096, n // 64), np.int64)
     n_nonfinite, n_outside, n_over = K.bin_minmax(
-        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mins, maxs, overflow
+        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mm, overflow
     )
-    key, bot, top = K.extract_bins(mins, maxs, nb, i0, j0, nj, ny, tol)
-    del mins, maxs
+    n_nonfinite, n_outside = int(n_nonfinite), int(n_outside)
+    key, bot, top = K.extract_bins(mm, nb, i0, j0, nj, ny, tol)
+    del mm
     if n_over:
         if n_over <= overflow.shape[0]:
             rest = pts[overflow[:n_over]]
         else:  # the guessed box was poor: take every point outside it (exact, slower)
             rest = _outside_box(pts, spec, i0, j0, ni, nj, iw, b0, nb)
-        k2, b2, t2, _ = _sort_path(rest, spec, tol, int(rest.shape[0]))
+        # The overflow holds in-grid points only; some may have a non-finite height.
+        k2, b2, t2, nf2, _ = _sort_path(rest, spec, tol)
+        n_nonfinite += nf2
         key, bot, top = K.merge_structures(key, bot, top, k2, b2, t2, tol)
-    return key, bot, top, int(n_nonfinite), int(n_outside), "bins"
+    return key, bot, top, n_nonfinite, n_outside, "bins"
 
 
 def _outside_box(
     pts: NDArray[np.floating], spec: GridSpec, i0: int, j0: int, ni: int, nj: int, iw: float, b0: int, nb: int
 ) -> NDArray[np.floating]:
-    """The finite in-grid points outside a (cell, bin) box (vectorised; only after a bad box guess)."""
+    """In-grid points outside a (cell, bin) box, non-finite heights included (after a bad box guess)."""
     cu, cv, ch = spec.columns
-    ok = np.isfinite(pts).all(axis=1)
+    ok = np.isfinite(pts[:, cu]) & np.isfinite(pts[:, cv])
     i, j = spec.world_to_index(pts[:, cu], pts[:, cv])
     with np.errstate(invalid="ignore", over="ignore"):
         b = np.floor(pts[:, ch].astype(np.float64) * iw)

@@ -38,13 +38,14 @@ import numpy as np
 from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
 from robchair.errors import ConfigError
-from robchair.kinematics import DiffDrive, Odometry, Pose2D, wrap_angle
+from robchair.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.safety import SafetyDecision, SafetyInputs, SafetyLayer, SafetyLimits
 
 log = logging.getLogger(__name__)
 
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 OUTER_SONAR_DEG = 30.0
+DEPTH_CAMERA = "depth_camera"
 
 
 # --- command sources ---------------------------------------------------------------------------
@@ -524,7 +525,13 @@ class Runtime:
 
     def _stale(self, now_ns: int) -> tuple[str, ...]:
         limit = round(self.safety.limits.stale_after_s * 1e9)
-        return tuple(n for n in self._array_names if now_ns - self._last_fresh.get(n, now_ns) > limit)
+        out = [n for n in self._array_names if now_ns - self._last_fresh.get(n, now_ns) > limit]
+        if self.mapper is not None and self.config.map_every:
+            # the camera is only read every map_every cycles: allow for that interval on top
+            cam_limit = limit + self.config.map_every * self.period_ns
+            if now_ns - self._last_fresh.get(DEPTH_CAMERA, now_ns) > cam_limit:
+                out.append(DEPTH_CAMERA)
+        return tuple(out)
 
     def _act(self, decision: SafetyDecision) -> str | None:
         left, right = self.drive.motor_rpm(decision.v, decision.w)
@@ -549,7 +556,7 @@ class Runtime:
         clock = self.backend.clock
         res = self.result
         t0 = clock.now_ns()
-        for name in self._array_names:
+        for name in (*self._array_names, DEPTH_CAMERA):
             self._last_fresh[name] = t0
         state, fault = self._read_motors()
         if state is not None:
@@ -573,13 +580,18 @@ class Runtime:
                 try:
                     assert self.backend.depth_camera is not None
                     self._map_distance = self.mapper.distance(self.backend.depth_camera.read())
+                    self._last_fresh[DEPTH_CAMERA] = now
                 except HardwareError as exc:
                     log.info("depth camera: %s", exc)
             dists = [d for d in (sonar_dist, self._map_distance) if d is not None]
             obs = Observation(
                 now, pose, state, tuple(r for _, r in sonar_readings), min(dists) if dists else None
             )
-            cmd = self.source.command(obs)
+            try:
+                cmd = self.source.command(obs)
+            except HardwareError as exc:  # the joystick failed: treat it as a released dead-man
+                log.warning("command source failed: %s", exc)
+                cmd = Command(0.0, 0.0, deadman=False)
             inputs = SafetyInputs(
                 stamp_ns=now,
                 sonar_distance_m=sonar_dist,
@@ -677,8 +689,3 @@ def _json_default(o: Any) -> Any:
     if isinstance(o, np.generic):
         return o.item()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def heading_error(a: float, b: float) -> float:
-    """Smallest signed angle a - b, rad."""
-    return wrap_angle(a - b)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -58,20 +59,38 @@ class SimChair:
         camera_backend: ``"raycast"`` (Open3D/Embree) or ``"pybullet"`` (PyBullet's renderer).
         noise: Sensor noise on/off.
         raycast_threads: Embree threads for the shared mirror (0 = all cores).
+        tyre_radius_error: Standard deviation of each tyre's true radius relative to the spec's
+            (drawn from the seed; default 0.2 %, a tyre-pressure-sized error). The odometry assumes
+            the spec's radius, so this is what makes the odometry drift as on the real chair; 0 = none.
     """
 
-    def __init__(self, spec: RobChairSpec | None = None, scene: Scene | str | Path | None = None,
-                 start: tuple[float, float, float] = (0.0, 0.0, 0.0), sensor: str | None = "kinect2",
-                 sonars: bool = True, seed: int = 0, camera_backend: str = "raycast", noise: bool = True,
-                 raycast_threads: int = 0) -> None:
+    def __init__(
+        self,
+        spec: RobChairSpec | None = None,
+        scene: Scene | str | Path | None = None,
+        start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        sensor: str | None = "kinect2",
+        sonars: bool = True,
+        seed: int = 0,
+        camera_backend: str = "raycast",
+        noise: bool = True,
+        raycast_threads: int = 0,
+        tyre_radius_error: float = 0.002,
+    ) -> None:
         self.spec = spec if spec is not None else load_spec()
         self.world = World()
         try:
             self.scene = load_scene(scene) if isinstance(scene, str | Path) else scene
-            self.bodies = build_scene(self.scene, self.world.client) if self.scene is not None else SceneBodies()
-            self.robot = SimRobot(self.world, self.spec, start)
+            self.bodies = (
+                build_scene(self.scene, self.world.client) if self.scene is not None else SceneBodies()
+            )
             ss = np.random.SeedSequence(seed)
-            cam_seed, sonar_seed = ss.spawn(2)
+            cam_seed, sonar_seed, tyre_seed = ss.spawn(3)
+            if not (math.isfinite(tyre_radius_error) and 0 <= tyre_radius_error < 0.1):
+                raise SimError(f"tyre_radius_error={tyre_radius_error!r}: expected a fraction in [0, 0.1)")
+            scale = 1.0 + tyre_radius_error * np.random.default_rng(tyre_seed).standard_normal(2)
+            self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
+            self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
             self.mirror: Any = None
             self.kinect: Any = None
             self.sonars: dict[str, Any] = {}
@@ -80,14 +99,21 @@ class SimChair:
 
                 # the chair never sees itself: its sensors sit outside its body, and leaving it out
                 # avoids rebuilding the ray-casting scene every frame as the chair moves
-                self.mirror = MeshMirror(self.world.client, exclude_bodies=(self.robot.body,),
-                                         nthreads=raycast_threads)
+                self.mirror = MeshMirror(
+                    self.world.client, exclude_bodies=(self.robot.body,), nthreads=raycast_threads
+                )
             if sensor is not None:
                 from sim.kinect import KinectSim
 
-                self.kinect = KinectSim(self.world.client, sensor, backend=camera_backend, noise=noise,
-                                        rng=np.random.default_rng(cam_seed), mirror=self.mirror,
-                                        exclude_bodies=(self.robot.body,))
+                self.kinect = KinectSim(
+                    self.world.client,
+                    sensor,
+                    backend=camera_backend,
+                    noise=noise,
+                    rng=np.random.default_rng(cam_seed),
+                    mirror=self.mirror,
+                    exclude_bodies=(self.robot.body,),
+                )
             if sonars:
                 self.sonars = _make_sonars(self, np.random.default_rng(sonar_seed), noise)
         except BaseException:
@@ -115,8 +141,14 @@ def _make_sonars(chair: SimChair, rng: np.random.Generator, noise: bool) -> dict
 
     out = {}
     for mount, child in zip(SONAR_MOUNTS, rng.spawn(len(SONAR_MOUNTS))):
-        out[mount] = SonarArraySim(chair.world.client, "srf08", mirror=chair.mirror, rng=child,
-                                   noise_std_m=SONAR_NOISE_STD_M if noise else 0.0, name=mount)
+        out[mount] = SonarArraySim(
+            chair.world.client,
+            "srf08",
+            mirror=chair.mirror,
+            rng=child,
+            noise_std_m=SONAR_NOISE_STD_M if noise else 0.0,
+            name=mount,
+        )
     return out
 
 
@@ -160,8 +192,12 @@ class SimMotorController(Device):
     def read_state(self) -> MotorState:
         self._check_open()
         r = self.chair.robot
-        return MotorState(stamp_ns=self.chair.world.now_ns(), encoder_counts=r.encoder_counts(),
-                          speed_rpm=r.wheel_speed_rpm(), faults=MotorFaults(emergency_stop=self._estop))
+        return MotorState(
+            stamp_ns=self.chair.world.now_ns(),
+            encoder_counts=r.encoder_counts(),
+            speed_rpm=r.wheel_speed_rpm(),
+            faults=MotorFaults(emergency_stop=self._estop),
+        )
 
     def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None:
         """Replace both channels' PID gains (continuous units, as the control module designs them)."""
@@ -170,8 +206,9 @@ class SimMotorController(Device):
         self._check_open()
         r = self.chair.robot
         for motor, cfg in ((r.left, left), (r.right, right)):
-            motor.pid = DiscretePID(cfg.kp, cfg.ki, cfg.kd, r.motor_dt, u_min=-r.spec.max_motor_rpm,
-                                    u_max=r.spec.max_motor_rpm)
+            motor.pid = DiscretePID(
+                cfg.kp, cfg.ki, cfg.kd, r.motor_dt, u_min=-r.spec.max_motor_rpm, u_max=r.spec.max_motor_rpm
+            )
 
     def emergency_stop(self) -> None:
         self._estop = True
@@ -218,25 +255,42 @@ class SimSonarArray(Device):
         self._check_open()
         # the link pose already includes the servo's turn, so the sonar model gets servo angle 0
         ranges = self.chair.sonars[self.mount].measure(self.chair.robot.link_transform(self.mount), 0.0)
-        return SonarArrayReading(stamp_ns=self.chair.world.now_ns(), ranges_m=ranges,
-                                 servo_angle_deg=self.servo_deg())
+        return SonarArrayReading(
+            stamp_ns=self.chair.world.now_ns(), ranges_m=ranges, servo_angle_deg=self.servo_deg()
+        )
 
 
-def backend_from_chair(chair: SimChair) -> Backend:
-    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend`."""
-    return Backend(
+@dataclass
+class SimBackend(Backend):
+    """A :class:`Backend` that owns its :class:`SimChair` (``chair``: ground truth for tests and the
+    runner) and shuts its physics client down after the devices close."""
+
+    chair: SimChair | None = None
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            if self.chair is not None:
+                self.chair.close()
+
+
+def backend_from_chair(chair: SimChair) -> SimBackend:
+    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend` (closing it closes the chair)."""
+    return SimBackend(
         name="sim",
         clock=SimClock(chair),
         motors=SimMotorController(chair),
         sonar_arrays=tuple(SimSonarArray(chair, m) for m in SONAR_MOUNTS if m in chair.sonars),
         depth_camera=SimDepthCamera(chair) if chair.kinect is not None else None,
+        chair=chair,
     )
 
 
 _CONFIG_KEYS = {"scene", "scenario", "sensor", "sonars", "seed", "start", "camera_backend", "noise", "spec"}
 
 
-def make_sim_backend(config: Mapping[str, Any] | None = None) -> Backend:
+def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of ``hw.registry``).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
@@ -249,7 +303,9 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> Backend:
     cfg = dict(config or {})
     unknown = set(cfg) - _CONFIG_KEYS
     if unknown:
-        raise SimError(f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}")
+        raise SimError(
+            f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}"
+        )
     spec = load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
     kw: dict[str, Any] = {}
     if cfg.get("scenario"):
@@ -270,10 +326,7 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> Backend:
         if len(st) != 3 or not all(math.isfinite(v) for v in st):
             raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
         kw["start"] = st
-    chair = SimChair(spec, **kw)
-    backend = backend_from_chair(chair)
-    backend.chair = chair  # type: ignore[attr-defined]
-    return backend
+    return backend_from_chair(SimChair(spec, **kw))
 
 
 def robot_radius(spec: RobChairSpec) -> float:

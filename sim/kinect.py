@@ -46,7 +46,9 @@ fact that both fit axial noise over distance z and surface angle theta and later
 were confirmed from their abstracts; the full PDFs were not reachable, so the coefficients were
 checked against several independent implementations that cite the papers (they agree with the
 coefficients above, including the mm unit of the v2 model and its constant 1.6 px lateral term).
-``theta`` is taken here as the angle between the surface normal and the viewing ray.
+``theta`` is taken here as the angle between the surface normal and the viewing ray, held at 75 deg
+for steeper surfaces (the models' angle terms have a pole at 90 deg and were not fitted that far;
+at 85 deg the v2 model would give ~10 cm, scattering the silhouettes of round objects).
 
 Lateral noise is applied the way it shows in real depth images: each pixel takes the depth (and
 surface angle) found at a pixel offset drawn from N(0, sigma_L^2), rounded to the pixel grid, and
@@ -194,7 +196,10 @@ def get_model(model: str | KinectModel) -> KinectModel:
 # noise models (pure functions; z in metres, theta in radians, results in metres or pixels)
 # --------------------------------------------------------------------------------------------
 
-_THETA_MAX = math.radians(85.0)  # the models diverge at grazing angles; clamp before the pole
+# The angle terms of both models have a pole at 90 deg (at 85 deg the v2 model already gives ~10 cm);
+# the papers fitted them on measurements well short of grazing incidence, so the angle is held at
+# 75 deg instead of extrapolating toward the pole (an assumption of this simulation, not paper data).
+_THETA_MAX = math.radians(75.0)
 
 
 def _angle_term(theta: Any) -> FloatArray:

@@ -56,7 +56,7 @@ def merge(meshes: list[Mesh]) -> Mesh:
 
 
 def rot_rpy(roll: float, pitch: float, yaw: float) -> FloatArray:
-    """Rotation matrix of fixed-axis roll, pitch, yaw (URDF/ROS convention: R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    """Rotation of fixed-axis roll, pitch, yaw (URDF/ROS convention: R = Rz(yaw) Ry(pitch) Rx(roll))."""
     cr, sr, cp, sp, cy, sy = (
         math.cos(roll),
         math.sin(roll),
@@ -97,7 +97,12 @@ def cylinder(radius: float, length: float, segments: int = 16) -> Mesh:
     f = []
     for i in range(segments):
         j = (i + 1) % segments
-        f += [(i, j, segments + j), (i, segments + j, segments + i), (cb, j, i), (ct, segments + i, segments + j)]
+        f += [
+            (i, j, segments + j),
+            (i, segments + j, segments + i),
+            (cb, j, i),
+            (ct, segments + i, segments + j),
+        ]
     return Mesh(v, np.array(f, dtype=np.int64))
 
 
@@ -108,8 +113,13 @@ def sphere(radius: float, rings: int = 8, segments: int = 12) -> Mesh:
         phi = math.pi * r / rings
         for s in range(segments):
             th = 2 * math.pi * s / segments
-            verts.append([radius * math.sin(phi) * math.cos(th), radius * math.sin(phi) * math.sin(th),
-                          radius * math.cos(phi)])
+            verts.append(
+                [
+                    radius * math.sin(phi) * math.cos(th),
+                    radius * math.sin(phi) * math.sin(th),
+                    radius * math.cos(phi),
+                ]
+            )
     verts.append([0.0, 0.0, -radius])
     south = len(verts) - 1
     f = []
@@ -129,11 +139,13 @@ def sphere(radius: float, rings: int = 8, segments: int = 12) -> Mesh:
 
 def capsule(radius: float, length: float) -> Mesh:
     """Capsule along z: a cylinder of ``length`` between two hemispheres (total height length + 2r)."""
-    return merge([
-        cylinder(radius, length),
-        sphere(radius).transformed(translation=(0, 0, length / 2)),
-        sphere(radius).transformed(translation=(0, 0, -length / 2)),
-    ])
+    return merge(
+        [
+            cylinder(radius, length),
+            sphere(radius).transformed(translation=(0, 0, length / 2)),
+            sphere(radius).transformed(translation=(0, 0, -length / 2)),
+        ]
+    )
 
 
 def limb(p0: tuple[float, float, float], p1: tuple[float, float, float], radius: float) -> Mesh:
@@ -150,11 +162,13 @@ def limb(p0: tuple[float, float, float], p1: tuple[float, float, float], radius:
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     rot = np.column_stack([x, y, z])
-    return merge([
-        cylinder(radius, length).transformed(rot, (a + b) / 2),
-        sphere(radius, 6, 10).transformed(translation=a),
-        sphere(radius, 6, 10).transformed(translation=b),
-    ])
+    return merge(
+        [
+            cylinder(radius, length).transformed(rot, (a + b) / 2),
+            sphere(radius, 6, 10).transformed(translation=a),
+            sphere(radius, 6, 10).transformed(translation=b),
+        ]
+    )
 
 
 # --- the thesis's objects -------------------------------------------------------------------------
@@ -176,19 +190,39 @@ def person_standing(pose: int) -> Mesh:
     parts = _torso_head()
     sh = _SHOULDER_Z - 0.03
     if pose == 0:
-        parts += [limb((0, 0.1, 0.07), (0, 0.1, _HIP_Z), 0.07), limb((0, -0.1, 0.07), (0, -0.1, _HIP_Z), 0.07)]
-        parts += [limb((0, 0.24, sh), (0.02, 0.27, 0.85), 0.045), limb((0, -0.24, sh), (0.02, -0.27, 0.85), 0.045)]
+        parts += [
+            limb((0, 0.1, 0.07), (0, 0.1, _HIP_Z), 0.07),
+            limb((0, -0.1, 0.07), (0, -0.1, _HIP_Z), 0.07),
+        ]
+        parts += [
+            limb((0, 0.24, sh), (0.02, 0.27, 0.85), 0.045),
+            limb((0, -0.24, sh), (0.02, -0.27, 0.85), 0.045),
+        ]
     elif pose == 1:
-        parts += [limb((0, 0.14, 0.07), (0, 0.1, _HIP_Z), 0.07), limb((0, -0.14, 0.07), (0, -0.1, _HIP_Z), 0.07)]
-        parts += [limb((0, 0.24, sh), (0.0, 0.85, sh + 0.05), 0.045), limb((0, -0.24, sh), (0.0, -0.85, sh + 0.05),
-                                                                            0.045)]
+        parts += [
+            limb((0, 0.14, 0.07), (0, 0.1, _HIP_Z), 0.07),
+            limb((0, -0.14, 0.07), (0, -0.1, _HIP_Z), 0.07),
+        ]
+        parts += [
+            limb((0, 0.24, sh), (0.0, 0.85, sh + 0.05), 0.045),
+            limb((0, -0.24, sh), (0.0, -0.85, sh + 0.05), 0.045),
+        ]
     elif pose == 2:
-        parts += [limb((0.3, 0.1, 0.07), (0, 0.1, _HIP_Z), 0.07), limb((-0.3, -0.1, 0.07), (0, -0.1, _HIP_Z), 0.07)]
-        parts += [limb((0, 0.24, sh), (0.45, 0.25, 1.1), 0.045), limb((0, -0.24, sh), (-0.2, -0.27, 0.9), 0.045)]
+        parts += [
+            limb((0.3, 0.1, 0.07), (0, 0.1, _HIP_Z), 0.07),
+            limb((-0.3, -0.1, 0.07), (0, -0.1, _HIP_Z), 0.07),
+        ]
+        parts += [
+            limb((0, 0.24, sh), (0.45, 0.25, 1.1), 0.045),
+            limb((0, -0.24, sh), (-0.2, -0.27, 0.9), 0.045),
+        ]
     else:
         raise SimError(f"standing person pose must be 0, 1 or 2, got {pose}")
-    parts += [box((0.26, 0.1, 0.07), (0.06, y, 0.035)) for y in (0.1, -0.1)] if pose != 2 else [
-        box((0.26, 0.1, 0.07), (0.36, 0.1, 0.035)), box((0.26, 0.1, 0.07), (-0.24, -0.1, 0.035))]
+    parts += (
+        [box((0.26, 0.1, 0.07), (0.06, y, 0.035)) for y in (0.1, -0.1)]
+        if pose != 2
+        else [box((0.26, 0.1, 0.07), (0.36, 0.1, 0.035)), box((0.26, 0.1, 0.07), (-0.24, -0.1, 0.035))]
+    )
     return merge(parts)
 
 
@@ -201,7 +235,7 @@ def chair() -> Mesh:
 
 
 def person_seated(pose: int) -> Mesh:
-    """An adult seated on :func:`chair`, facing +x. Pose 0: hands on lap; 1: leaning back, right arm raised."""
+    """An adult seated on :func:`chair`, facing +x. Pose 0: hands on lap; 1: leaning back, arm raised."""
     seat_z = 0.47
     parts = [chair()]
     lean = -0.15 if pose == 1 else 0.05
@@ -209,8 +243,10 @@ def person_seated(pose: int) -> Mesh:
         raise SimError(f"seated person pose must be 0 or 1, got {pose}")
     parts += [t.transformed(translation=(-0.08, 0, 0)) for t in _torso_head(lean, seat_z)]
     for y in (0.1, -0.1):
-        parts += [limb((-0.05, y, seat_z + 0.05), (0.38, y, seat_z + 0.05), 0.07), limb((0.38, y, seat_z + 0.05),
-                                                                                       (0.42, y, 0.06), 0.06)]
+        parts += [
+            limb((-0.05, y, seat_z + 0.05), (0.38, y, seat_z + 0.05), 0.07),
+            limb((0.38, y, seat_z + 0.05), (0.42, y, 0.06), 0.06),
+        ]
         parts.append(box((0.26, 0.1, 0.07), (0.48, y, 0.035)))
     sh = seat_z + _SHOULDER_Z - _HIP_Z - 0.03
     parts.append(limb((-0.08, 0.24, sh), (0.15, 0.22, seat_z + 0.25), 0.045))
@@ -226,14 +262,20 @@ def bench() -> Mesh:
     parts = [box((0.09, 1.5, 0.035), (x, 0, 0.45)) for x in (-0.15, -0.05, 0.05, 0.15)]
     parts += [box((0.035, 1.5, 0.09), (-0.22, 0, z)) for z in (0.6, 0.72, 0.84)]
     for y in (-0.65, 0.65):
-        parts += [box((0.05, 0.06, 0.43), (0.15, y, 0.215)), box((0.05, 0.06, 0.88), (-0.2, y, 0.44)),
-                  box((0.4, 0.06, 0.05), (-0.02, y, 0.41))]
+        parts += [
+            box((0.05, 0.06, 0.43), (0.15, y, 0.215)),
+            box((0.05, 0.06, 0.88), (-0.2, y, 0.44)),
+            box((0.4, 0.06, 0.05), (-0.02, y, 0.41)),
+        ]
     return merge(parts)
 
 
 def plant() -> Mesh:
     """A potted plant about 1.3 m tall: pot, stem and a cluster of leaf balls."""
-    parts = [cylinder(0.2, 0.35).transformed(translation=(0, 0, 0.175)), limb((0, 0, 0.3), (0, 0, 0.9), 0.025)]
+    parts = [
+        cylinder(0.2, 0.35).transformed(translation=(0, 0, 0.175)),
+        limb((0, 0, 0.3), (0, 0, 0.9), 0.025),
+    ]
     rng = np.random.default_rng(52)  # fixed: the shipped mesh must be reproducible
     for _ in range(14):
         c = rng.normal((0, 0, 0.95), (0.18, 0.18, 0.2))
@@ -292,7 +334,10 @@ MESHES: dict[str, Callable[[], Mesh]] = {
 
 def obj_text(mesh: Mesh, name: str) -> str:
     """Wavefront OBJ text (6 decimals, 1-based faces) of ``mesh``."""
-    lines = [f"# {name}: generated by sim/meshgen.py (python -m sim.meshgen); metres, z up, front +x", f"o {name}"]
+    lines = [
+        f"# {name}: generated by sim/meshgen.py (python -m sim.meshgen); metres, z up, front +x",
+        f"o {name}",
+    ]
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]
     return "\n".join(lines) + "\n"

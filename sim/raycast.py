@@ -339,6 +339,7 @@ class MeshMirror:
         self.rebuilds = 0
         self._links: list[_LinkGeometry] = []
         self._bodies: tuple[int, ...] = ()
+        self._signature: tuple[Any, ...] = ()
         self._scene: Any = None
         self._o3d: Any = None
         self.keys: IntArray = np.zeros((0, 2), dtype=np.int64)
@@ -478,10 +479,15 @@ class MeshMirror:
         Returns:
             True when the scene was rebuilt.
         """
+        p = self._pb()
         bodies = self._body_ids()
+        # PyBullet reuses the unique id of a removed body, so the set of ids alone cannot tell that
+        # a body was replaced: compare the visual shape records as well (cheap: one call per body)
+        signature = tuple((b, tuple(p.getVisualShapeData(b, physicsClientId=self.client))) for b in bodies)
         changed = False
-        if bodies != self._bodies:
+        if signature != self._signature:
             self._bodies = bodies
+            self._signature = signature
             self._collect()
             changed = True
         by_body: dict[int, list[_LinkGeometry]] = {}

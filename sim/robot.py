@@ -66,9 +66,12 @@ class WheelMotor:
         self.setpoint_rpm = self.command_rpm = self.output_rpm = 0.0
 
 
-def make_wheel_motors(spec: RobChairSpec, dt: float, closed_loop: bool = True,
-                      pid_gains: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
-                      ) -> tuple[WheelMotor, WheelMotor]:
+def make_wheel_motors(
+    spec: RobChairSpec,
+    dt: float,
+    closed_loop: bool = True,
+    pid_gains: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
+) -> tuple[WheelMotor, WheelMotor]:
     """The two wheel motors: plants identified from the spec's step responses, PIDs by design (SPEC 5)."""
     from robchair.control import DiscretePID, DiscretePlant, design_pid, identify_from_step_metrics
 
@@ -95,10 +98,19 @@ class SimRobot:
         start: Initial (x, y, yaw) of ``base_link`` on the floor.
         motor_rate_hz: Rate of the motor controller (plant + PID); must divide the physics rate.
         closed_loop: Closed-loop speed mode (PID) or open loop (the command goes straight to the plant).
+        wheel_radius_scale: True tyre radii relative to the spec (see :func:`sim.urdf.build_urdf`); the
+            encoders and everything downstream keep assuming the spec's radius.
     """
 
-    def __init__(self, world: World, spec: RobChairSpec, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 motor_rate_hz: int | None = None, closed_loop: bool = True) -> None:
+    def __init__(
+        self,
+        world: World,
+        spec: RobChairSpec,
+        start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        motor_rate_hz: int | None = None,
+        closed_loop: bool = True,
+        wheel_radius_scale: tuple[float, float] = (1.0, 1.0),
+    ) -> None:
         import pybullet as p
 
         self.world, self.spec, self.client = world, spec, world.client
@@ -109,8 +121,14 @@ class SimRobot:
         self.motor_dt = 1.0 / rate
         self._steps_per_motor = world.physics_hz // rate
         q = p.getQuaternionFromEuler((0.0, 0.0, start[2]))
-        self.body = p.loadURDF(str(write_urdf(spec)), basePosition=(start[0], start[1], 0.0), baseOrientation=q,
-                               flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=self.client)
+        self.wheel_radius_scale = wheel_radius_scale
+        self.body = p.loadURDF(
+            str(write_urdf(spec, wheel_radius_scale=wheel_radius_scale)),
+            basePosition=(start[0], start[1], 0.0),
+            baseOrientation=q,
+            flags=p.URDF_USE_INERTIA_FROM_FILE,
+            physicsClientId=self.client,
+        )
         self.joints: dict[str, int] = {}
         self.links: dict[str, int] = {}
         for i in range(p.getNumJoints(self.body, physicsClientId=self.client)):
@@ -123,10 +141,19 @@ class SimRobot:
         dyn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)
         self._inertial_inv = p.invertTransform(dyn[3], dyn[4])
         # the URDF origin is placed at basePosition by loadURDF; settle onto the floor before use
-        self.servo_joints = {name: self.joints[m.joint.name] for name, m in spec.mounts.items() if m.joint is not None}
+        self.servo_joints = {
+            name: self.joints[m.joint.name] for name, m in spec.mounts.items() if m.joint is not None
+        }
         for jid in self.servo_joints.values():
-            p.setJointMotorControl2(self.body, jid, p.POSITION_CONTROL, targetPosition=0.0, force=SERVO_MAX_TORQUE,
-                                    maxVelocity=SERVO_MAX_VELOCITY, physicsClientId=self.client)
+            p.setJointMotorControl2(
+                self.body,
+                jid,
+                p.POSITION_CONTROL,
+                targetPosition=0.0,
+                force=SERVO_MAX_TORQUE,
+                maxVelocity=SERVO_MAX_VELOCITY,
+                physicsClientId=self.client,
+            )
         self.left, self.right = make_wheel_motors(spec, self.motor_dt, closed_loop)
         self._apply_wheel_targets(0.0, 0.0)
         self._step_count = 0
@@ -156,9 +183,12 @@ class SimRobot:
         import pybullet as p
 
         p.setJointMotorControlArray(
-            self.body, self.wheel_ids, p.VELOCITY_CONTROL,
+            self.body,
+            self.wheel_ids,
+            p.VELOCITY_CONTROL,
             targetVelocities=[self.drive.rpm_to_wheel(left_rpm), self.drive.rpm_to_wheel(right_rpm)],
-            forces=[WHEEL_MAX_FORCE, WHEEL_MAX_FORCE], physicsClientId=self.client,
+            forces=[WHEEL_MAX_FORCE, WHEEL_MAX_FORCE],
+            physicsClientId=self.client,
         )
 
     def _pre_step(self) -> None:
@@ -172,7 +202,8 @@ class SimRobot:
         import pybullet as p
 
         states = p.getJointStates(self.body, self.wheel_ids, physicsClientId=self.client)
-        return tuple(wrap_int32(int(math.floor(self.drive.wheel_angle_to_counts(s[0])))) for s in states)  # type: ignore[return-value]
+        left, right = (wrap_int32(math.floor(self.drive.wheel_angle_to_counts(s[0]))) for s in states)
+        return left, right
 
     # -- poses ---------------------------------------------------------------------------------------
     def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
@@ -183,7 +214,8 @@ class SimRobot:
         pos, orn = p.multiplyTransforms(pos, orn, *self._inertial_inv)
         if not (np.isfinite(pos).all() and np.isfinite(orn).all()):
             raise SimulationDivergedError(
-                f"the chair's pose became non-finite at t = {self.world.time:.4f} s (position {pos})")
+                f"the chair's pose became non-finite at t = {self.world.time:.4f} s (position {pos})"
+            )
         return tuple(pos), tuple(orn)  # type: ignore[return-value]
 
     def pose2d(self) -> Pose2D:
@@ -202,7 +234,9 @@ class SimRobot:
             return self.base_pose()
         if name not in self.links:
             raise SimError(f"robot has no link {name!r} (links: {', '.join(sorted(self.links))})")
-        st = p.getLinkState(self.body, self.links[name], computeForwardKinematics=True, physicsClientId=self.client)
+        st = p.getLinkState(
+            self.body, self.links[name], computeForwardKinematics=True, physicsClientId=self.client
+        )
         return tuple(st[4]), tuple(st[5])  # type: ignore[return-value]
 
     def link_transform(self, name: str) -> np.ndarray:
@@ -227,8 +261,15 @@ class SimRobot:
         j = self.spec.mounts[mount].joint
         assert j is not None
         target = float(np.clip(math.radians(angle_deg), j.lower, j.upper))
-        p.setJointMotorControl2(self.body, self.servo_joints[mount], p.POSITION_CONTROL, targetPosition=target,
-                                force=SERVO_MAX_TORQUE, maxVelocity=SERVO_MAX_VELOCITY, physicsClientId=self.client)
+        p.setJointMotorControl2(
+            self.body,
+            self.servo_joints[mount],
+            p.POSITION_CONTROL,
+            targetPosition=target,
+            force=SERVO_MAX_TORQUE,
+            maxVelocity=SERVO_MAX_VELOCITY,
+            physicsClientId=self.client,
+        )
 
     def servo_deg(self, mount: str) -> float:
         """Current servo angle, degrees."""
@@ -236,7 +277,9 @@ class SimRobot:
 
         if mount not in self.servo_joints:
             raise SimError(f"no servo on {mount!r} (servos: {', '.join(sorted(self.servo_joints))})")
-        return math.degrees(p.getJointState(self.body, self.servo_joints[mount], physicsClientId=self.client)[0])
+        return math.degrees(
+            p.getJointState(self.body, self.servo_joints[mount], physicsClientId=self.client)[0]
+        )
 
     def contact_normal_forces(self, plane: int) -> dict[str, float]:
         """Sum of normal contact forces (N) between each robot link and ``plane`` (for load checks)."""

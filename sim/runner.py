@@ -80,8 +80,9 @@ class PurePursuit:
         goal_tolerance: Stop within this distance of the last point, m.
     """
 
-    def __init__(self, path: np.ndarray, speed: float, lookahead: float, drive: DiffDrive,
-                 goal_tolerance: float = 0.15) -> None:
+    def __init__(
+        self, path: np.ndarray, speed: float, lookahead: float, drive: DiffDrive, goal_tolerance: float = 0.15
+    ) -> None:
         self.path = np.asarray(path, dtype=float).reshape(-1, 2)
         if len(self.path) < 2:
             raise SimError("pure pursuit needs at least two path points")
@@ -180,7 +181,7 @@ def dilate(mask: np.ndarray, r: int = 1) -> np.ndarray:
     n0, n1 = mask.shape
     for di in range(-r, r + 1):
         for dj in range(-r, r + 1):
-            out |= p[r + di:r + di + n0, r + dj:r + dj + n1]
+            out |= p[r + di : r + di + n0, r + dj : r + dj + n1]
     return out
 
 
@@ -218,6 +219,10 @@ def run_scenario(
     pictures: bool = True,
     camera_backend: str = "raycast",
     write: bool = True,
+    sensors: bool = True,
+    mapping_thread: bool = True,
+    raycast_threads: int = 0,
+    ground_truth_map: bool = True,
 ) -> RunResult:
     """Run a scenario headlessly and (with ``write``) write its run folder.
 
@@ -230,6 +235,10 @@ def run_scenario(
         write_bag, pictures: Write the ROS 2 bag / the PNG pictures.
         camera_backend: ``"raycast"`` or ``"pybullet"``.
         write: Write the run folder at all (False: return the metrics and maps only).
+        sensors: Simulate the Kinect and sonars (False: physics, motors and route following only).
+        mapping_thread: Map Kinect frames on a second thread (overlapping the physics and sensors).
+        raycast_threads: Embree threads of the ray caster (0 = all cores).
+        ground_truth_map: Also build the map placed with ground-truth poses (for the comparison metrics).
 
     Raises:
         ScenarioError: The scenario is invalid.
@@ -249,10 +258,41 @@ def run_scenario(
     if seed < 0:
         raise SimError(f"seed must be >= 0, got {seed}")
     if not write:
-        return _simulate(scenario, spec, duration, sensor, seed, None, progress, False, camera_backend)
+        res = _simulate(
+            scenario,
+            spec,
+            duration,
+            sensor,
+            seed,
+            None,
+            progress,
+            False,
+            camera_backend,
+            sensors,
+            mapping_thread,
+            raycast_threads,
+            ground_truth_map,
+        )
+        if res.error is not None:
+            raise res.error
+        return res
     target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
     with staged_output_dir(target) as staging:
-        res = _simulate(scenario, spec, duration, sensor, seed, staging, progress, write_bag, camera_backend)
+        res = _simulate(
+            scenario,
+            spec,
+            duration,
+            sensor,
+            seed,
+            staging,
+            progress,
+            write_bag,
+            camera_backend,
+            sensors,
+            mapping_thread,
+            raycast_threads,
+            ground_truth_map,
+        )
         _write_outputs(res, scenario, spec, staging, pictures)
     res.out_dir = target.resolve()
     if res.error is not None:
@@ -268,30 +308,56 @@ def _grid_for(scenario: Scenario) -> Any:
     x0, y0 = min(x0, pts[:, 0].min()), min(y0, pts[:, 1].min())
     x1, y1 = max(x1, pts[:, 0].max()), max(y1, pts[:, 1].max())
     x0, y0, x1, y1 = x0 - GRID_MARGIN, y0 - GRID_MARGIN, x1 + GRID_MARGIN, y1 + GRID_MARGIN
-    return GridSpec(cell_size=CELL_SIZE, size_x=x1 - x0, size_y=y1 - y0, centre=((x0 + x1) / 2, (y0 + y1) / 2))
+    return GridSpec(
+        cell_size=CELL_SIZE, size_x=x1 - x0, size_y=y1 - y0, centre=((x0 + x1) / 2, (y0 + y1) / 2)
+    )
 
 
-def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: str, seed: int,
-              out: Path | None, progress: bool, write_bag: bool, camera_backend: str) -> RunResult:
+def _simulate(
+    scenario: Scenario,
+    spec: RobChairSpec,
+    duration: float,
+    sensor: str,
+    seed: int,
+    out: Path | None,
+    progress: bool,
+    write_bag: bool,
+    camera_backend: str,
+    sensors: bool = True,
+    mapping_thread: bool = True,
+    raycast_threads: int = 0,
+    ground_truth_map: bool = True,
+) -> RunResult:
     from mapping.sonar import array_points, servo_command_deg
     from mapping.vhv import VHVMap
     from sim.backend import SimChair, backend_from_chair
 
     wall0 = time.perf_counter()
-    chair = SimChair(spec, scenario.scene, scenario.start, sensor=sensor, sonars=scenario.sonars, seed=seed,
-                     camera_backend=camera_backend)
+    chair = SimChair(
+        spec,
+        scenario.scene,
+        scenario.start,
+        sensor=sensor if sensors else None,
+        sonars=scenario.sonars and sensors,
+        seed=seed,
+        camera_backend=camera_backend,
+        raycast_threads=raycast_threads,
+    )
     world, robot = chair.world, chair.robot
     backend = backend_from_chair(chair)
     backend.open()
     grid = _grid_for(scenario)
-    maps = {"odometry": VHVMap(grid, MAP_TOLERANCE), "ground_truth": VHVMap(grid, MAP_TOLERANCE),
-            "sonar": VHVMap(grid, MAP_TOLERANCE)}
+    maps = {
+        "odometry": VHVMap(grid, MAP_TOLERANCE),
+        "ground_truth": VHVMap(grid, MAP_TOLERANCE),
+        "sonar": VHVMap(grid, MAP_TOLERANCE),
+    }
     drive = DiffDrive(spec)
     odom = Odometry(spec, Pose2D(*scenario.start))
     path = np.array([scenario.start[:2], *scenario.route.waypoints], dtype=float)
     follower = PurePursuit(path, scenario.route.speed, scenario.route.lookahead, drive)
     hz = world.physics_hz
-    n_steps = int(round(duration * hz))
+    n_steps = round(duration * hz)
     every = {"control": hz // CONTROL_HZ, "kinect": hz // KINECT_HZ, "sonar": hz // SONAR_HZ}
     cam = chair.kinect
     t_base_cam = spec.mounts["kinect_link"].transform()  # the chair's belief of where its Kinect sits
@@ -310,9 +376,16 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
                     statics.append((mount, f"{mount}_{k}", t))
             rec.tf(1, statics, static=True)
     paths: dict[str, list[Any]] = {"t": [], "odometry": [], "ground_truth": []}
-    frame_stats = {"kinect_frames": 0, "sonar_readings": 0, "points_in": 0, "points_dropped_nonfinite": 0,
-                   "points_outside_grid": 0, "sonar_points": 0, "sonar_fusions_with_obstacle": 0}
-    mapper = _Mapper(maps, frame_stats)
+    frame_stats = {
+        "kinect_frames": 0,
+        "sonar_readings": 0,
+        "points_in": 0,
+        "points_dropped_nonfinite": 0,
+        "points_outside_grid": 0,
+        "sonar_points": 0,
+        "sonar_fusions_with_obstacle": 0,
+    }
+    mapper = _Mapper(maps, frame_stats, threaded=mapping_thread, ground_truth=ground_truth_map)
     sonar_ranges: list[tuple[int, str, tuple[float, float, float]]] = []
     error: BaseException | None = None
     v_cmd = w_cmd = 0.0
@@ -320,9 +393,14 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=round(duration, 3), unit="sim s", desc=f"sim {scenario.name}",
-                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} sim s "
-                              "[{elapsed} wall, {rate_fmt}{postfix}]")
+        bar = tqdm(
+            total=round(duration, 3),
+            unit="sim s",
+            desc=f"sim {scenario.name}",
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} sim s "
+            "[{elapsed} wall, {rate_fmt}{postfix}]",
+        )
+    timing = {"physics": 0.0, "kinect_capture": 0.0, "sonar": 0.0}
     loop0 = time.perf_counter()
     setup_wall = loop0 - wall0
     try:
@@ -336,21 +414,30 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
                 paths["odometry"].append((pose.x, pose.y, pose.theta))
                 paths["ground_truth"].append((gt.x, gt.y, gt.theta))
                 if rec is not None and step % (2 * every["control"]) == 0:
-                    rec.odometry("/odom", stamp, "odom", "base_link", pose.x, pose.y, pose.theta, v_cmd, w_cmd)
+                    rec.odometry(
+                        "/odom", stamp, "odom", "base_link", pose.x, pose.y, pose.theta, v_cmd, w_cmd
+                    )
                     rec.odometry("/ground_truth/odom", stamp, "map", "base_link_gt", gt.x, gt.y, gt.theta)
                     rec.tf(stamp, [("odom", "base_link", planar_transform(pose.x, pose.y, pose.theta))])
                 v_cmd, w_cmd = follower.command(pose)
                 backend.motors.set_speeds_rpm(*drive.motor_rpm(v_cmd, w_cmd))
             if cam is not None and step % every["kinect"] == 0:
+                tk = time.perf_counter()
                 t_world_cam_gt = chair.kinect_pose()
                 frame = cam.capture(t_world_cam_gt, stamp_ns=stamp)
+                timing["kinect_capture"] += time.perf_counter() - tk
                 pose = odom.pose
                 t_odom = planar_transform(pose.x, pose.y, pose.theta) @ t_base_cam @ t_cam_out
                 mapper.submit(frame, t_odom, t_world_cam_gt @ t_cam_out)
                 if rec is not None and step % (hz // BAG_CLOUD_HZ) == 0:  # sqlite: this thread only
-                    rec.cloud("/kinect/points", stamp, frame.frame_id,
-                              frame.points[::BAG_CLOUD_STRIDE, ::BAG_CLOUD_STRIDE])
+                    rec.cloud(
+                        "/kinect/points",
+                        stamp,
+                        frame.frame_id,
+                        frame.points[::BAG_CLOUD_STRIDE, ::BAG_CLOUD_STRIDE],
+                    )
             if backend.sonar_arrays and step % every["sonar"] == 0:
+                ts = time.perf_counter()
                 pose = odom.pose
                 for arr in backend.sonar_arrays:
                     reading = arr.read()
@@ -363,20 +450,43 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
                         mount = spec.mounts[arr.mount]
                         joint_rad = math.radians(reading.servo_angle_deg - 90.0)
                         t_arr = planar_transform(pose.x, pose.y, pose.theta) @ mount.transform(joint_rad)
-                        maps["sonar"].insert(spts @ t_arr[:3, :3].T + t_arr[:3, 3], sensor_origin=t_arr[:3, 3])
+                        maps["sonar"].insert(
+                            spts @ t_arr[:3, :3].T + t_arr[:3, 3], sensor_origin=t_arr[:3, 3]
+                        )
                         frame_stats["sonar_points"] += len(spts)
-                    servo_cmd[arr.mount] = servo_command_deg(fusion, servo_cmd[arr.mount], gain=0.5,
-                                                             max_step_deg=15.0)
+                    servo_cmd[arr.mount] = servo_command_deg(
+                        fusion, servo_cmd[arr.mount], gain=0.5, max_step_deg=15.0
+                    )
                     arr.set_servo_deg(servo_cmd[arr.mount])
                     if rec is not None:
                         model = chair.sonars[arr.mount].model
                         for k, r in enumerate(reading.ranges_m, 1):
-                            rec.range(f"/sonar/{arr.mount}_{k}", stamp, f"{arr.mount}_{k}", r, model.min_range_m,
-                                      model.max_range_m, model.field_of_view_rad)
-                        rec.tf(stamp, [("base_link", arr.mount,
-                                        spec.mounts[arr.mount].transform(math.radians(reading.servo_angle_deg - 90)))])
+                            rec.range(
+                                f"/sonar/{arr.mount}_{k}",
+                                stamp,
+                                f"{arr.mount}_{k}",
+                                r,
+                                model.min_range_m,
+                                model.max_range_m,
+                                model.field_of_view_rad,
+                            )
+                        rec.tf(
+                            stamp,
+                            [
+                                (
+                                    "base_link",
+                                    arr.mount,
+                                    spec.mounts[arr.mount].transform(
+                                        math.radians(reading.servo_angle_deg - 90)
+                                    ),
+                                )
+                            ],
+                        )
+                timing["sonar"] += time.perf_counter() - ts
             if step < n_steps:
+                tp = time.perf_counter()
                 chair.step(1)
+                timing["physics"] += time.perf_counter() - tp
             if bar is not None and step % hz == 0 and step:
                 wall = time.perf_counter() - loop0
                 bar.set_postfix_str(f"RTF {world.time / max(wall, 1e-9):.2f}")
@@ -395,15 +505,36 @@ def _simulate(scenario: Scenario, spec: RobChairSpec, duration: float, sensor: s
     sim_time = world.time
     chair.close()
     arr_paths = {k: np.asarray(v, dtype=np.float64 if k != "t" else np.int64) for k, v in paths.items()}
-    metrics = _metrics(scenario, spec, sensor, seed, duration, sim_time, loop_wall,
-                       time.perf_counter() - wall0, mapper.map_ms, frame_stats, arr_paths, maps, odom, follower, error)
+    metrics = _metrics(
+        scenario,
+        spec,
+        sensor,
+        seed,
+        duration,
+        sim_time,
+        loop_wall,
+        time.perf_counter() - wall0,
+        mapper.map_ms,
+        frame_stats,
+        arr_paths,
+        maps,
+        odom,
+        follower,
+        error,
+    )
     metrics["camera_backend"] = camera_backend
+    metrics["tyre_radius_scale"] = list(chair.wheel_radius_scale)
     metrics["wall_time_s"]["setup"] = setup_wall
+    metrics["wall_time_s"]["main_thread"] = timing
     res = RunResult(None, metrics, maps, arr_paths, error)
     res.sonar_ranges = sonar_ranges  # type: ignore[attr-defined]
     if rec is not None:
-        metrics["bag"] = {"path": "bag", "messages": dict(sorted(rec.counts.items())),
-                          "cloud_rate_hz": BAG_CLOUD_HZ, "cloud_stride": BAG_CLOUD_STRIDE}
+        metrics["bag"] = {
+            "path": "bag",
+            "messages": dict(sorted(rec.counts.items())),
+            "cloud_rate_hz": BAG_CLOUD_HZ,
+            "cloud_stride": BAG_CLOUD_STRIDE,
+        }
     return res
 
 
@@ -415,19 +546,28 @@ class _Mapper:
     the next physics steps and sensor reads on the second core. At most ``max_pending`` frames wait.
     """
 
-    def __init__(self, maps: dict[str, Any], stats: dict[str, int], max_pending: int = 3) -> None:
+    def __init__(
+        self,
+        maps: dict[str, Any],
+        stats: dict[str, int],
+        max_pending: int = 3,
+        threaded: bool = True,
+        ground_truth: bool = True,
+    ) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
         self.maps, self.stats = maps, stats
+        self.ground_truth = ground_truth
         self.map_ms: list[float] = []
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vhv-mapper")
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vhv-mapper") if threaded else None
         self.pending: list[Any] = []
         self.max_pending = max_pending
 
     def _job(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray) -> None:
         pts = frame.points
         s = self.maps["odometry"].insert(transform_points(t_odom, pts), sensor_origin=t_odom[:3, 3])
-        self.maps["ground_truth"].insert(transform_points(t_gt, pts), sensor_origin=t_gt[:3, 3])
+        if self.ground_truth:
+            self.maps["ground_truth"].insert(transform_points(t_gt, pts), sensor_origin=t_gt[:3, 3])
         self.map_ms.append(s.build_ms)
         st = self.stats
         st["kinect_frames"] += 1
@@ -436,6 +576,9 @@ class _Mapper:
         st["points_outside_grid"] += s.points_outside_grid
 
     def submit(self, frame: Any, t_odom: np.ndarray, t_gt: np.ndarray) -> None:
+        if self.pool is None:
+            self._job(frame, t_odom, t_gt)
+            return
         still = []
         for f in self.pending:
             if f.done():
@@ -452,14 +595,28 @@ class _Mapper:
             for f in self.pending:
                 f.result()
         finally:
-            self.pool.shutdown(wait=True)
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
             self.pending = []
 
 
-def _metrics(scenario: Scenario, spec: RobChairSpec, sensor: str, seed: int, duration: float, sim_time: float,
-             loop_wall: float, total_wall: float, map_ms: list[float], stats: dict[str, int],
-             paths: dict[str, np.ndarray], maps: dict[str, Any], odom: Odometry, follower: PurePursuit,
-             error: BaseException | None) -> dict[str, Any]:
+def _metrics(
+    scenario: Scenario,
+    spec: RobChairSpec,
+    sensor: str,
+    seed: int,
+    duration: float,
+    sim_time: float,
+    loop_wall: float,
+    total_wall: float,
+    map_ms: list[float],
+    stats: dict[str, int],
+    paths: dict[str, np.ndarray],
+    maps: dict[str, Any],
+    odom: Odometry,
+    follower: PurePursuit,
+    error: BaseException | None,
+) -> dict[str, Any]:
     grid = maps["odometry"].spec
     shape = grid.shape
     band = (OCC_BAND[0], spec.body.height)
@@ -516,8 +673,8 @@ def _metrics(scenario: Scenario, spec: RobChairSpec, sensor: str, seed: int, dur
             "ground_truth_pose_map_vs_scene": prf(occ["ground_truth"], gt_scene),
             "scene_occupied_cells": int(gt_scene.sum()),
             "notes": "occupancy = a structure overlapping the band; precision/recall with one-cell tolerance "
-                     "against the static scene rasterised from its meshes (moving people are not in the "
-                     "scene truth; recall counts every static surface, seen or not, so it measures coverage)",
+            "against the static scene rasterised from its meshes (moving people are not in the "
+            "scene truth; recall counts every static surface, seen or not, so it measures coverage)",
         },
     }
 
@@ -576,7 +733,9 @@ def _write_outputs(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     if "bag" in res.metrics:
         files.append("bag")
     res.metrics["files"] = sorted(files)
-    (out / "metrics.json").write_text(json.dumps(res.metrics, indent=2, allow_nan=False, default=_json_default) + "\n")
+    (out / "metrics.json").write_text(
+        json.dumps(res.metrics, indent=2, allow_nan=False, default=_json_default) + "\n"
+    )
 
 
 def _json_default(o: Any) -> Any:
@@ -595,9 +754,13 @@ def _export_maps(res: RunResult, out: Path, spec_height: float) -> list[str]:
     d = out / "map_odometry"
     d.mkdir()
     try:
-        write_map_outputs(res.maps["odometry"], d, band=(OCC_BAND[0], spec_height),
-                          build_ms=res.metrics["mapping_ms_total"],
-                          parameters={"scenario": res.metrics["scenario"], "pose_source": "odometry"})
+        write_map_outputs(
+            res.maps["odometry"],
+            d,
+            band=(OCC_BAND[0], spec_height),
+            build_ms=res.metrics["mapping_ms_total"],
+            parameters={"scenario": res.metrics["scenario"], "pose_source": "odometry"},
+        )
     except ImportError as exc:  # a mapping module it needs is not built yet; keep the run
         log.warning("map exports skipped (%s): maps.npz holds the maps", exc)
         shutil.rmtree(d, ignore_errors=True)
@@ -623,8 +786,12 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     band = (OCC_BAND[0], spec.body.height)
     x0, y0 = grid.index_to_world(np.array([0]), np.array([0]))
     h = grid.cell_size / 2
-    extent = (float(x0[0]) - h, float(x0[0]) - h + shape[0] * grid.cell_size,
-              float(y0[0]) - h, float(y0[0]) - h + shape[1] * grid.cell_size)
+    extent = (
+        float(x0[0]) - h,
+        float(x0[0]) - h + shape[0] * grid.cell_size,
+        float(y0[0]) - h,
+        float(y0[0]) - h + shape[1] * grid.cell_size,
+    )
     occ = occupancy(m.structures(), shape, *band)
     truth = scene_occupancy(scenario, grid, band)
     fig, ax = plt.subplots(figsize=(9, 9 * shape[1] / max(shape[0], 1) + 1), dpi=110)
@@ -632,7 +799,10 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     rgb[truth] = (1.0, 0.8, 0.8)
     rgb[occ] = (0.15, 0.15, 0.15)
     ax.imshow(np.transpose(rgb, (1, 0, 2)), origin="lower", extent=extent, interpolation="nearest")
-    for key, col, lab in (("ground_truth", "tab:green", "ground truth"), ("odometry", "tab:blue", "odometry")):
+    for key, col, lab in (
+        ("ground_truth", "tab:green", "ground truth"),
+        ("odometry", "tab:blue", "odometry"),
+    ):
         p = res.paths.get(key)
         if p is not None and len(p):
             ax.plot(p[:, 0], p[:, 1], color=col, lw=1.6, label=f"path ({lab})")
@@ -640,8 +810,10 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     ax.plot(wp[:, 0], wp[:, 1], "x", color="tab:orange", label="route waypoints")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(f"{scenario.name}: 2D occupancy {band[0]:.2f}-{band[1]:.2f} m from the odometry map\n"
-                 "(black: mapped, pink: scene truth)")
+    ax.set_title(
+        f"{scenario.name}: 2D occupancy {band[0]:.2f}-{band[1]:.2f} m from the odometry map\n"
+        "(black: mapped, pink: scene truth)"
+    )
     ax.legend(loc="upper right", fontsize=8)
     ax.set_aspect("equal")
     fig.tight_layout()
@@ -671,9 +843,14 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
         cx, cy = grid.index_to_world(np.asarray(s.i), np.asarray(s.j))
         keep = np.arange(len(s))
         if len(keep) > 40000:  # the picture cannot show more; the choice is deterministic
-            keep = keep[:: int(math.ceil(len(keep) / 40000))]
-        segs = np.stack([np.stack([cx[keep], cy[keep], np.asarray(s.bottom)[keep]], -1),
-                         np.stack([cx[keep], cy[keep], np.asarray(s.top)[keep] + 0.01], -1)], axis=1)
+            keep = keep[:: math.ceil(len(keep) / 40000)]
+        segs = np.stack(
+            [
+                np.stack([cx[keep], cy[keep], np.asarray(s.bottom)[keep]], -1),
+                np.stack([cx[keep], cy[keep], np.asarray(s.top)[keep] + 0.01], -1),
+            ],
+            axis=1,
+        )
         cmap = plt.get_cmap("viridis")
         top = np.asarray(s.top)[keep]
         cols = cmap(np.clip(top / max(float(top.max()), 1e-6), 0, 1))
@@ -692,8 +869,13 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     return files
 
 
-def render_scene(scenario: Scenario, spec: RobChairSpec, path: np.ndarray | None = None,
-                 width: int = 960, height: int = 600) -> np.ndarray:
+def render_scene(
+    scenario: Scenario,
+    spec: RobChairSpec,
+    path: np.ndarray | None = None,
+    width: int = 960,
+    height: int = 600,
+) -> np.ndarray:
     """A rendered overview of the scene (PyBullet's TinyRenderer), with the chair at its start pose."""
     import pybullet as p
 
@@ -706,8 +888,16 @@ def render_scene(scenario: Scenario, spec: RobChairSpec, path: np.ndarray | None
         dist = 0.75 * max(x1 - x0, y1 - y0) + 2.0
         view = p.computeViewMatrixFromYawPitchRoll(target, dist, yaw=-30, pitch=-50, roll=0, upAxisIndex=2)
         proj = p.computeProjectionMatrixFOV(fov=50, aspect=width / height, nearVal=0.1, farVal=200)
-        img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
-                               lightDirection=(0.4, -0.3, 1.0), shadow=1, physicsClientId=chair.world.client)
+        img = p.getCameraImage(
+            width,
+            height,
+            view,
+            proj,
+            renderer=p.ER_TINY_RENDERER,
+            lightDirection=(0.4, -0.3, 1.0),
+            shadow=1,
+            physicsClientId=chair.world.client,
+        )
         rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))
         return rgba[..., :3].copy()
     finally:

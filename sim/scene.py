@@ -69,8 +69,20 @@ SHAPES = ("box", "cylinder", "sphere", "capsule", "mesh")
 SENSORS = ("kinect2", "kinect2-hd", "kinect2-qhd", "kinect1")
 
 _SCENE_KEYS = {"name", "description"}
-_OBJECT_KEYS = {"name", "shape", "size", "radius", "length", "mesh", "scale", "xyz", "yaw", "rpy", "color",
-                "motion"}
+_OBJECT_KEYS = {
+    "name",
+    "shape",
+    "size",
+    "radius",
+    "length",
+    "mesh",
+    "scale",
+    "xyz",
+    "yaw",
+    "rpy",
+    "color",
+    "motion",
+}
 _MOTION_KEYS = {"waypoints", "speed", "loop"}
 _SCENARIO_KEYS = {"name", "description", "scene", "duration", "sensor", "sonars", "seed", "start"}
 _ROUTE_KEYS = {"waypoints", "speed", "lookahead"}
@@ -211,24 +223,32 @@ def _read_mesh_cached(path: Path) -> Mesh:
 
 
 class _Ctx:
-    """Builds error messages with file, key path and the key's line in the raw text."""
+    """Builds error messages with file, key path and the key's line in the raw text.
+
+    ``tomllib`` keeps no positions, so the line is found by searching the raw text for ``key =`` (or a
+    ``[table]`` header) inside the block of the current ``[[object]]`` (``block`` = its index).
+    """
 
     def __init__(self, path: Path, text: str) -> None:
         self.path = path
         self.lines = text.splitlines()
+        self.block: int | None = None
+        heads = [n for n, line in enumerate(self.lines) if re.match(r"^\s*\[\[\s*object\s*\]\]", line)]
+        self._blocks = [(a, b) for a, b in zip(heads, [*heads[1:], len(self.lines)])]
 
-    def line_of(self, key: str, occurrence: int = 0) -> int | None:
+    def line_of(self, key: str) -> int | None:
         pat = re.compile(rf"^\s*(\[+\s*)?([\w.\"-]*\.)?{re.escape(key)}\s*(=|\]|\.)")
-        seen = 0
-        for n, line in enumerate(self.lines, 1):
-            if pat.search(line):
-                if seen == occurrence:
-                    return n
-                seen += 1
+        lo, hi = 0, len(self.lines)
+        if self.block is not None and self.block < len(self._blocks):
+            lo, hi = self._blocks[self.block]
+        for n in range(lo, hi):
+            if pat.search(self.lines[n]):
+                return n + 1
         return None
 
     def error(self, where: str, key: str, reason: str, occurrence: int = 0) -> ScenarioError:
-        line = self.line_of(key.split(".")[-1], occurrence)
+        del occurrence
+        line = self.line_of(key.split(".")[-1])
         loc = f"{self.path}:{line}" if line is not None else str(self.path)
         return ScenarioError(f"{loc}: {where}{key}: {reason}")
 
@@ -250,11 +270,20 @@ def _number(ctx: _Ctx, value: Any, where: str, key: str, occ: int = 0, positive:
     return v
 
 
-def _vector(ctx: _Ctx, value: Any, n: int | tuple[int, ...], where: str, key: str, occ: int = 0,
-            positive: bool = False) -> tuple[float, ...]:
+def _vector(
+    ctx: _Ctx,
+    value: Any,
+    n: int | tuple[int, ...],
+    where: str,
+    key: str,
+    occ: int = 0,
+    positive: bool = False,
+) -> tuple[float, ...]:
     ns = (n,) if isinstance(n, int) else n
     if not isinstance(value, list) or len(value) not in ns:
-        raise ctx.error(where, key, f"expected a list of {' or '.join(map(str, ns))} numbers, got {value!r}", occ)
+        raise ctx.error(
+            where, key, f"expected a list of {' or '.join(map(str, ns))} numbers, got {value!r}", occ
+        )
     return tuple(_number(ctx, v, where, key, occ, positive) for v in value)
 
 
@@ -289,20 +318,25 @@ def _resolve(name: str, base: Path) -> Path:
 
 
 def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
-    where = f"object[{i}]."
+    ctx.block = i
     if not isinstance(raw, dict):
         raise ctx.error("", "object", f"entry {i} must be a table")
-    _check_keys(ctx, raw, _OBJECT_KEYS, where, 0)
     name = raw.get("name", f"object{i}")
     if not isinstance(name, str) or not name:
-        raise ctx.error(where, "name", f"expected a non-empty string, got {name!r}")
+        raise ctx.error(f"object[{i}].", "name", f"expected a non-empty string, got {name!r}")
+    where = f"object {name!r}: "
+    occ = 0
+    _check_keys(ctx, raw, _OBJECT_KEYS, where)
     shape = raw.get("shape")
     if shape not in SHAPES:
-        raise ctx.error(where, "shape", f"expected one of {', '.join(SHAPES)}, got {shape!r}", i)
-    where = f"object {name!r}: "
-    occ = _occurrence(ctx, "name", name)
-    need = {"box": {"size"}, "cylinder": {"radius", "length"}, "capsule": {"radius", "length"},
-            "sphere": {"radius"}, "mesh": {"mesh"}}[shape]
+        raise ctx.error(where, "shape", f"expected one of {', '.join(SHAPES)}, got {shape!r}")
+    need = {
+        "box": {"size"},
+        "cylinder": {"radius", "length"},
+        "capsule": {"radius", "length"},
+        "sphere": {"radius"},
+        "mesh": {"mesh"},
+    }[shape]
     extra = {"size", "radius", "length", "mesh", "scale"} - need - ({"scale"} if shape == "mesh" else set())
     for k in need:
         if k not in raw:
@@ -315,8 +349,11 @@ def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
     xyz = _vector(ctx, raw["xyz"], 3, where, "xyz", occ)
     if "yaw" in raw and "rpy" in raw:
         raise ctx.error(where, "rpy", "give either yaw or rpy, not both")
-    rpy = (0.0, 0.0, _number(ctx, raw["yaw"], where, "yaw")) if "yaw" in raw else (
-        _vector(ctx, raw["rpy"], 3, where, "rpy") if "rpy" in raw else (0.0, 0.0, 0.0))
+    rpy = (
+        (0.0, 0.0, _number(ctx, raw["yaw"], where, "yaw"))
+        if "yaw" in raw
+        else (_vector(ctx, raw["rpy"], 3, where, "rpy") if "rpy" in raw else (0.0, 0.0, 0.0))
+    )
     color = (0.7, 0.7, 0.7, 1.0)
     if "color" in raw:
         c = _vector(ctx, raw["color"], (3, 4), where, "color")
@@ -337,7 +374,9 @@ def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
         cands = [ctx.path.parent / m, MESHES_DIR / m]
         found = next((c for c in cands if c.is_file()), None)
         if found is None:
-            raise ctx.error(where, "mesh", f"mesh file {m!r} not found (looked in {ctx.path.parent} and {MESHES_DIR})")
+            raise ctx.error(
+                where, "mesh", f"mesh file {m!r} not found (looked in {ctx.path.parent} and {MESHES_DIR})"
+            )
         kw["mesh_path"] = found.resolve()
         if "scale" in raw:
             kw["scale"] = _number(ctx, raw["scale"], where, "scale", positive=True)
@@ -357,22 +396,10 @@ def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
     obj = SceneObject(name=name, shape=shape, xyz=xyz, rpy=rpy, color=color, motion=motion, **kw)  # type: ignore[arg-type]
     zmin = float(obj.world_mesh().vertices[:, 2].min())
     if zmin < -_FLOOR_TOLERANCE:
-        raise ctx.error(where, "xyz", f"impossible pose: the object reaches {zmin:.3f} m, below the floor (z = 0)",
-                        occ)
+        raise ctx.error(
+            where, "xyz", f"impossible pose: the object reaches {zmin:.3f} m, below the floor (z = 0)", occ
+        )
     return obj
-
-
-def _occurrence(ctx: _Ctx, key: str, value: str) -> int:
-    """Index among the ``key = ...`` lines of the one whose value is ``value`` (for line numbers)."""
-    pat = re.compile(rf"^\s*{re.escape(key)}\s*=\s*(.*)$")
-    count = 0
-    for line in ctx.lines:
-        m = pat.match(line)
-        if m:
-            if m.group(1).strip().strip("\"'") == value:
-                return 0 if ctx.line_of(key) is None else count
-            count += 1
-    return 0
 
 
 def load_scene(path: Path | str) -> Scene:
@@ -388,6 +415,7 @@ def load_scene(path: Path | str) -> Scene:
     if not isinstance(raw_objects, list):
         raise ctx.error("", "object", "must be an array of tables ([[object]])")
     objects = tuple(_parse_object(ctx, i, o) for i, o in enumerate(raw_objects))
+    ctx.block = None
     names = [o.name for o in objects]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -430,7 +458,9 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
         kw["duration"] = _number(ctx, head["duration"], "scenario.", "duration", positive=True)
     if "sensor" in head:
         if head["sensor"] not in SENSORS:
-            raise ctx.error("scenario.", "sensor", f"expected one of {', '.join(SENSORS)}, got {head['sensor']!r}")
+            raise ctx.error(
+                "scenario.", "sensor", f"expected one of {', '.join(SENSORS)}, got {head['sensor']!r}"
+            )
         kw["sensor"] = head["sensor"]
     if "sonars" in head:
         if not isinstance(head["sonars"], bool):
@@ -451,8 +481,15 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
             route_kw[k] = _number(ctx, route_raw[k], "route.", k, positive=True)
     _check_start_clear(ctx, scene, start, robot_radius)
     name = head.get("name", path.stem)
-    return Scenario(name=str(name), path=path, scene=scene, route=Route(**route_kw), start=start,
-                    description=str(head.get("description", "")), **kw)
+    return Scenario(
+        name=str(name),
+        path=path,
+        scene=scene,
+        route=Route(**route_kw),
+        start=start,
+        description=str(head.get("description", "")),
+        **kw,
+    )
 
 
 def _check_start_clear(ctx: _Ctx, scene: Scene, start: tuple[float, float, float], radius: float) -> None:
@@ -461,15 +498,18 @@ def _check_start_clear(ctx: _Ctx, scene: Scene, start: tuple[float, float, float
     for obj in scene.objects:
         pos = obj.xyz
         if obj.motion is not None:
-            x, y, yaw = obj.motion.pose_at(0.0)
+            x, y, _ = obj.motion.pose_at(0.0)
             pos = (x, y, obj.xyz[2])
         v = obj.world_mesh(xyz=pos).vertices
         lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
         nearest = np.clip(c, lo, hi)
         if float(np.hypot(*(nearest - c))) < radius:
-            raise ctx.error("scenario.", "start",
-                            f"impossible pose: the chair at {tuple(start)} (radius {radius:.2f} m) overlaps "
-                            f"object {obj.name!r} of scene {scene.path.name}")
+            raise ctx.error(
+                "scenario.",
+                "start",
+                f"impossible pose: the chair at {tuple(start)} (radius {radius:.2f} m) overlaps "
+                f"object {obj.name!r} of scene {scene.path.name}",
+            )
 
 
 def list_scenarios(folder: Path = SCENES) -> list[Path]:
@@ -484,8 +524,9 @@ def list_scenarios(folder: Path = SCENES) -> list[Path]:
     return out
 
 
-def ground_truth_points(scene: Scene, spacing: float, rng: np.random.Generator,
-                        include_dynamic: bool = False) -> npt.NDArray[np.float64]:
+def ground_truth_points(
+    scene: Scene, spacing: float, rng: np.random.Generator, include_dynamic: bool = False
+) -> npt.NDArray[np.float64]:
     """Points sampled on every static object's surface (area-weighted, ~one per ``spacing``^2 m^2).
 
     Used to rasterise the scene's ground-truth occupancy; moving people are left out unless asked.
@@ -548,8 +589,11 @@ def build_scene(scene: Scene, client: int) -> SceneBodies:
             vkw = {"radius": obj.radius, "length": obj.length}
         else:
             geom = p.GEOM_MESH
-            kw = {"fileName": str(obj.mesh_path), "meshScale": [obj.scale] * 3,
-                  "flags": p.GEOM_FORCE_CONCAVE_TRIMESH}
+            kw = {
+                "fileName": str(obj.mesh_path),
+                "meshScale": [obj.scale] * 3,
+                "flags": p.GEOM_FORCE_CONCAVE_TRIMESH,
+            }
             vkw = {"fileName": str(obj.mesh_path), "meshScale": [obj.scale] * 3}
         col = p.createCollisionShape(geom, physicsClientId=client, **kw)
         vis = p.createVisualShape(geom, rgbaColor=list(obj.color), physicsClientId=client, **vkw)

@@ -106,8 +106,13 @@ def beam_rays(spacing_deg: float = 1.0) -> tuple[FloatArray, FloatArray, FloatAr
         raise SonarSimError(f"ray spacing {spacing_deg} deg: expected 0.05 .. 10")
     left, right = _widest_deg()
     vert = 0.5 * (left + right)
-    b = np.arange(-right, left + 1e-9, spacing_deg)
-    e = np.arange(-vert, vert + 1e-9, spacing_deg)
+    # grids through 0 so the axis itself is a ray (a wall square to the sonar reads exactly)
+    b = np.concatenate(
+        [-np.arange(spacing_deg, right + 1e-9, spacing_deg)[::-1], np.arange(0.0, left + 1e-9, spacing_deg)]
+    )
+    e = np.concatenate(
+        [-np.arange(spacing_deg, vert + 1e-9, spacing_deg)[::-1], np.arange(0.0, vert + 1e-9, spacing_deg)]
+    )
     bb, ee = np.meshgrid(b, e)
     h = np.where(bb >= 0, left, right)
     keep = (bb / h) ** 2 + (ee / vert) ** 2 <= 1.0

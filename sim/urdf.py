@@ -54,8 +54,18 @@ def _geom_box(xyz: tuple[float, float, float], size: tuple[float, float, float],
     return vis + f"<collision>{g}</collision>"
 
 
-def build_urdf(spec: RobChairSpec) -> str:
-    """The URDF text of the chair described by ``spec``."""
+def build_urdf(spec: RobChairSpec, wheel_radius_scale: tuple[float, float] = (1.0, 1.0)) -> str:
+    """The URDF text of the chair described by ``spec``.
+
+    Args:
+        spec: The platform spec.
+        wheel_radius_scale: True radius of the (left, right) tyre relative to the spec's (tyre pressure
+            and wear make real tyres differ by a few tenths of a percent; the odometry keeps using the
+            spec's radius, which is what makes real odometry drift).
+    """
+    for k in wheel_radius_scale:
+        if not (math.isfinite(k) and 0.5 < k < 1.5):
+            raise ValueError(f"wheel_radius_scale {wheel_radius_scale!r}: expected factors near 1")
     b, d = spec.body, spec.drive
     x0 = b.centre_x - b.depth / 2  # rear edge of the footprint
     x1 = b.centre_x + b.depth / 2
@@ -75,13 +85,17 @@ def build_urdf(spec: RobChairSpec) -> str:
         '<material name="sensor"><color rgba="0.8 0.4 0.1 1"/></material>',
         '<link name="base_link">',
         _inertial(b.mass, b.com_xyz, ixx, iyy, izz),
-        _geom_box(((x0 + x1) / 2, 0.0, CHASSIS_CLEARANCE + chassis_h / 2), (b.depth, chassis_w, chassis_h), "seat"),
+        _geom_box(
+            ((x0 + x1) / 2, 0.0, CHASSIS_CLEARANCE + chassis_h / 2), (b.depth, chassis_w, chassis_h), "seat"
+        ),
         _geom_box(
             (x0 + back_depth / 2 + 0.04, 0.0, (SEAT_HEIGHT + BACKREST_TOP) / 2),
             (back_depth, chassis_w, BACKREST_TOP - SEAT_HEIGHT),
             "seat",
         ),
-        _geom_box((mast_x, 0.0, (BACKREST_TOP + mast_top) / 2), (0.04, 0.04, mast_top - BACKREST_TOP), "frame"),
+        _geom_box(
+            (mast_x, 0.0, (BACKREST_TOP + mast_top) / 2), (0.04, 0.04, mast_top - BACKREST_TOP), "frame"
+        ),
         "</link>",
     ]
     # driven wheels: continuous joints about +y, so a positive wheel speed drives the chair forward
@@ -89,21 +103,23 @@ def build_urdf(spec: RobChairSpec) -> str:
         d.wheel_mass * (3 * d.wheel_radius**2 + d.wheel_width**2) / 12,
         d.wheel_mass * d.wheel_radius**2 / 2,
     )
-    for side, sign in (("left", 1.0), ("right", -1.0)):
+    for side, sign, scale in (("left", 1.0, wheel_radius_scale[0]), ("right", -1.0, wheel_radius_scale[1])):
+        radius = d.wheel_radius * scale
         g = (
             f'<origin xyz="0 0 0" rpy="{math.pi / 2:.9f} 0 0"/>'
-            f'<geometry><cylinder radius="{d.wheel_radius:.6g}" length="{d.wheel_width:.6g}"/></geometry>'
+            f'<geometry><cylinder radius="{radius:.9g}" length="{d.wheel_width:.6g}"/></geometry>'
         )
         # collision as a sphere of the wheel's radius: one stable contact point on the tyre's centre line
         # (Bullet's cylinder-plane contacts flicker between the rim edges and make the chair yaw)
-        gc = f'<origin xyz="0 0 0" rpy="0 0 0"/><geometry><sphere radius="{d.wheel_radius:.6g}"/></geometry>'
+        gc = f'<origin xyz="0 0 0" rpy="0 0 0"/><geometry><sphere radius="{radius:.9g}"/></geometry>'
         parts += [
             f'<link name="{side}_wheel">',
             _inertial(d.wheel_mass, (0, 0, 0), wi[0], wi[1], wi[0]),
             f'<visual>{g}<material name="tyre"/></visual><collision>{gc}</collision>',
             "</link>",
             f'<joint name="{side}_wheel_joint" type="continuous"><parent link="base_link"/>'
-            f'<child link="{side}_wheel"/><origin xyz="{_f(d.wheel_x, sign * d.wheel_separation / 2, d.wheel_radius)}"'
+            f'<child link="{side}_wheel"/>'
+            f'<origin xyz="{_f(d.wheel_x, sign * d.wheel_separation / 2)} {radius:.9g}"'
             ' rpy="0 0 0"/><axis xyz="0 1 0"/></joint>',
         ]
     for c in spec.casters:
@@ -131,7 +147,8 @@ def build_urdf(spec: RobChairSpec) -> str:
         origin = f'<origin xyz="{_f(*mount.xyz)}" rpy="{_f(*mount.rpy)}"/>'
         if mount.joint is None:
             parts.append(
-                f'<joint name={quoteattr(name + "_joint")} type="fixed"><parent link={quoteattr(mount.parent)}/>'
+                f'<joint name={quoteattr(name + "_joint")} type="fixed">'
+                f"<parent link={quoteattr(mount.parent)}/>"
                 f"<child link={quoteattr(name)}/>{origin}</joint>"
             )
         else:
@@ -146,9 +163,13 @@ def build_urdf(spec: RobChairSpec) -> str:
     return "\n".join(parts) + "\n"
 
 
-def write_urdf(spec: RobChairSpec, directory: Path | str | None = None) -> Path:
+def write_urdf(
+    spec: RobChairSpec,
+    directory: Path | str | None = None,
+    wheel_radius_scale: tuple[float, float] = (1.0, 1.0),
+) -> Path:
     """Write the URDF to a cache file named by its content hash (reused while the spec is unchanged)."""
-    text = build_urdf(spec)
+    text = build_urdf(spec, wheel_radius_scale)
     digest = hashlib.sha1(text.encode()).hexdigest()[:12]
     folder = Path(directory) if directory is not None else Path(tempfile.gettempdir()) / "robchair-urdf"
     folder.mkdir(parents=True, exist_ok=True)
@@ -164,12 +185,26 @@ def apply_contact_dynamics(client: int, body: int, spec: RobChairSpec) -> None:
     """Friction per link: grippy driven wheels, frictionless caster spheres (they may only push up)."""
     import pybullet as p
 
-    names = {p.getJointInfo(body, i, physicsClientId=client)[12].decode(): i
-             for i in range(p.getNumJoints(body, physicsClientId=client))}
+    names = {
+        p.getJointInfo(body, i, physicsClientId=client)[12].decode(): i
+        for i in range(p.getNumJoints(body, physicsClientId=client))
+    }
     for side in ("left_wheel", "right_wheel"):
-        p.changeDynamics(body, names[side], lateralFriction=WHEEL_FRICTION, rollingFriction=0.0,
-                         spinningFriction=0.0, physicsClientId=client)
+        p.changeDynamics(
+            body,
+            names[side],
+            lateralFriction=WHEEL_FRICTION,
+            rollingFriction=0.0,
+            spinningFriction=0.0,
+            physicsClientId=client,
+        )
     for c in spec.casters:
-        p.changeDynamics(body, names[c.name], lateralFriction=0.0, rollingFriction=0.0, spinningFriction=0.0,
-                         physicsClientId=client)
+        p.changeDynamics(
+            body,
+            names[c.name],
+            lateralFriction=0.0,
+            rollingFriction=0.0,
+            spinningFriction=0.0,
+            physicsClientId=client,
+        )
     p.changeDynamics(body, -1, lateralFriction=0.5, physicsClientId=client)

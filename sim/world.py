@@ -43,8 +43,14 @@ class World:
         p.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=self.client)
         p.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=self.client)
         self.plane = p.loadURDF("plane.urdf", physicsClientId=self.client)
-        p.changeDynamics(self.plane, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0,
-                         physicsClientId=self.client)
+        p.changeDynamics(
+            self.plane,
+            -1,
+            lateralFriction=1.0,
+            rollingFriction=0.0,
+            spinningFriction=0.0,
+            physicsClientId=self.client,
+        )
 
     @property
     def time(self) -> float:
@@ -89,5 +95,5 @@ class World:
     def __del__(self) -> None:  # pragma: no cover - best effort when a caller forgets close()
         try:
             self.close()
-        except Exception:  # noqa: BLE001
+        except Exception:
             pass

@@ -70,6 +70,9 @@ class RoboteqMDC2230(Device):
         clock: gives ``MotorState.stamp_ns`` (default ``time.monotonic_ns``).
         configure: write the configuration in ``open()`` (False only probes ``?FID``: for read-only
             checks such as ``robchair hw check``).
+        release_on_open: send ``!MG`` in ``open()``, leaving an emergency stop latched by an earlier
+            session (the controller holds ``!EX`` until released). Off by default: releasing a stop
+            is the operator's decision.
     """
 
     name = "roboteq-mdc2230"
@@ -87,6 +90,7 @@ class RoboteqMDC2230(Device):
         pid: tuple[PIDConfig, PIDConfig] | None = None,
         clock: Any = None,
         configure: bool = True,
+        release_on_open: bool = False,
     ) -> None:
         if not isinstance(watchdog_ms, int) or not 1 <= watchdog_ms <= 65000:
             raise CommandError(
@@ -111,6 +115,7 @@ class RoboteqMDC2230(Device):
         self._pid = pid
         self._clock = clock
         self._configure_on_open = configure
+        self._release_on_open = release_on_open
         self._port: SerialLike | None = None
         self._owns_port = False
         self._rx = b""
@@ -155,6 +160,8 @@ class RoboteqMDC2230(Device):
             log.info("Roboteq on %s: %s", self._port_arg, self.firmware.text)
             if self._configure_on_open:
                 self._configure()
+            if self._release_on_open:
+                self.release_stop()
         except BaseException:
             self.close()
             raise

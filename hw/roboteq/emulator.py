@@ -22,6 +22,7 @@ Fault injection: :meth:`RoboteqEmulator.inject` drops, garbles or delays the nex
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import logging
@@ -40,9 +41,33 @@ from hw.roboteq import codec
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_FIRMWARE", "ManualClock", "RoboteqEmulator", "StopEvent"]
+__all__ = ["DEFAULT_FIRMWARE", "ManualClock", "RoboteqEmulator", "StopEvent", "SyncedClock"]
 
 DEFAULT_FIRMWARE = "Roboteq v1.3 MDC2230 07/24/2013"
+
+
+class SyncedClock(ManualClock):
+    """A :class:`hw.clock.ManualClock` that brings its followers (emulators) up to date on each move.
+
+    Stepping an emulated controller through a long jump of simulated time (1.5 s = 1500 controller
+    steps) takes real milliseconds. With a plain ManualClock the emulator catches up when the next
+    command arrives, i.e. inside the driver's reply deadline; with this clock the catch-up happens in
+    ``advance``/``sleep_until_ns`` (the caller's thread), where the real controller's time passes too.
+    """
+
+    def __init__(self, start_ns: int = 0) -> None:
+        super().__init__(start_ns)
+        self.followers: list[Any] = []
+
+    def advance(self, seconds: float) -> None:
+        super().advance(seconds)
+        for f in self.followers:
+            f.sync()
+
+    def sleep_until_ns(self, t_ns: int) -> None:
+        super().sleep_until_ns(t_ns)
+        for f in self.followers:
+            f.sync()
 
 
 @dataclass
@@ -134,13 +159,16 @@ class RoboteqEmulator:
         self._delay_n = 0
         self._delay_s = 0.0
         # observation
-        self.received: list[tuple[int, str]] = []
+        # (motor time, command line) of everything received; bounded for long interactive sessions
+        self.received: collections.deque[tuple[int, str]] = collections.deque(maxlen=100_000)
         self.stops: list[StopEvent] = []
         self.watchdog_trips = 0
         self.disconnected = False
         self._t_ns = self.clock.now_ns()
         self._last_bang_ns = self._t_ns
         self._channels = [self._make_channel(i) for i in range(2)]
+        if isinstance(self.clock, SyncedClock):
+            self.clock.followers.append(self)
 
     # --- plant ------------------------------------------------------------------------------
 
@@ -157,10 +185,14 @@ class RoboteqEmulator:
         g_p, g_i, g_d = ch.gains_fw
         kp, ki, kd = self._control.gains_from_roboteq(g_p, g_i, g_d, firmware_major=self.firmware.major)
         mx = float(ch.config["MXRPM"])
+        integral = ch.pid.integral if ch.pid is not None else 0.0
         ch.pid = self._control.DiscretePID(kp, ki, kd, self.dt, u_min=-mx, u_max=mx)
+        ch.pid.integral = integral  # new gains must not make a running motor jump
 
     def _ticks_per_motor_rev(self, ch: _Channel) -> float:
-        # quadrature x4; an encoder on the wheel turns gear_ratio times slower than the motor
+        # quadrature x4; an encoder on the wheel turns gear_ratio times slower than the motor.
+        # Speeds (!S, ?S) are motor-shaft RPM here whatever encoder_on says (the spec's default is
+        # "motor", where the controller's encoder RPM is the motor RPM).
         per_rev = 4.0 * ch.config["EPPR"]
         if getattr(self.spec, "encoder_on", "motor") == "wheel":
             per_rev /= float(self.spec.gear_ratio)
@@ -193,6 +225,11 @@ class RoboteqEmulator:
         self.stops.append(StopEvent(self._t_ns, reason))
 
     # --- observation (thread-safe, synced to the clock) ---------------------------------------
+
+    def sync(self) -> None:
+        """Advance the motors to the clock's current time now (thread-safe)."""
+        with self._lock:
+            self._sync()
 
     @property
     def setpoints_rpm(self) -> tuple[float, float]:
@@ -243,6 +280,11 @@ class RoboteqEmulator:
             self.faults = faults
             if faults.any:
                 self._stop_all("fault")
+
+    def emit(self, line: str) -> None:
+        """Send a line the host did not ask for (telemetry, a script's print), CR-terminated."""
+        with self._lock:
+            self._write(line.encode("ascii") + codec.CR)
 
     def clear_faults(self) -> None:
         with self._lock:

@@ -7,7 +7,6 @@ Humble's. Topic selection: the named topic, or the only PointCloud2 topic when n
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,15 +32,6 @@ def _typestore(ros2: bool) -> Any:
     return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
 
 
-def _reader_errors() -> tuple[type[BaseException], ...]:
-    from rosbags.rosbag1 import ReaderError as Reader1Error
-    from rosbags.rosbag2 import ReaderError as Reader2Error
-    from rosbags.serde import SerdeError
-
-    # Truncated or corrupt bags also surface as struct/index/value errors from the parsers.
-    return (Reader1Error, Reader2Error, SerdeError, struct.error, IndexError, ValueError, KeyError, EOFError)
-
-
 def _open_reader(path: Path) -> tuple[Any, bool]:
     from rosbags.rosbag1 import Reader as Reader1
     from rosbags.rosbag2 import Reader as Reader2
@@ -50,13 +40,9 @@ def _open_reader(path: Path) -> tuple[Any, bool]:
     try:
         reader = Reader2(path) if ros2 else Reader1(path)
         reader.open()
-    except _reader_errors() as exc:
-        raise PointCloudFormatError(f"{path}: cannot open bag ({exc})") from None
-    except Exception as exc:  # sqlite3/mcap errors of corrupt files have no common base class
-        if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError | PermissionError):
-            raise PointCloudFormatError(f"{path}: cannot open bag ({exc})") from None
-        if isinstance(exc, OSError):
-            raise
+    except (FileNotFoundError, PermissionError, MemoryError):
+        raise
+    except Exception as exc:  # rosbags, sqlite3 and mcap report damaged files with unrelated error types
         raise PointCloudFormatError(f"{path}: cannot open bag ({type(exc).__name__}: {exc})") from None
     return reader, ros2
 
@@ -189,6 +175,30 @@ def to_ros_pointcloud2(cloud: Any, *, ros2: bool = True) -> Any:
     )
 
 
+def _latched_qos() -> Any:
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    infinite = QosTime(sec=9223372036, nsec=854775807)  # rmw's "infinite" duration as rosbag2 stores it
+    return Qos(
+        history=QosHistory.KEEP_LAST,
+        depth=1,
+        reliability=QosReliability.RELIABLE,
+        durability=QosDurability.TRANSIENT_LOCAL,
+        deadline=infinite,
+        lifespan=infinite,
+        liveliness=QosLiveliness.AUTOMATIC,
+        liveliness_lease_duration=infinite,
+        avoid_ros_namespace_conventions=False,
+    )
+
+
 def write_bag(
     path: Path | str,
     messages: list[tuple[str, str, int, Any]],
@@ -196,6 +206,7 @@ def write_bag(
     ros2: bool = True,
     storage: str = "sqlite3",
     compression: str | None = None,
+    latched_topics: tuple[str, ...] = (),
 ) -> Path:
     """Write messages to a new bag.
 
@@ -205,6 +216,9 @@ def write_bag(
         ros2: ROS 2 (Humble types, bag version 8) or ROS 1 (Noetic types).
         storage: ROS 2 storage plugin, ``sqlite3`` or ``mcap``.
         compression: ROS 1 chunk compression, ``None``, ``"bz2"`` or ``"lz4"``.
+        latched_topics: ROS 2 topics recorded as offered with transient-local durability (what a
+            map server offers), so ``ros2 bag play`` republishes them the way RViz's Map display
+            subscribes; ROS 1 connections get ``latching=1``.
     """
     path = Path(path)
     store = _typestore(ros2)
@@ -217,7 +231,10 @@ def write_bag(
             conns: dict[str, Any] = {}
             for topic, msgtype, stamp, msg in messages:
                 if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                    qos = [_latched_qos()] if topic in latched_topics else []
+                    conns[topic] = writer.add_connection(
+                        topic, msgtype, typestore=store, offered_qos_profiles=qos
+                    )
                 writer.write(conns[topic], int(stamp), store.serialize_cdr(msg, msgtype))
     else:
         from rosbags.rosbag1 import Writer as Writer1
@@ -231,6 +248,7 @@ def write_bag(
             conns = {}
             for topic, msgtype, stamp, msg in messages:
                 if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+                    latching = 1 if topic in latched_topics else None
+                    conns[topic] = writer.add_connection(topic, msgtype, typestore=store, latching=latching)
                 writer.write(conns[topic], int(stamp), store.serialize_ros1(msg, msgtype))
     return path

@@ -223,11 +223,13 @@ def _decode_ascii_fast(header: PcdHeader, body: bytes) -> np.ndarray | None:
     if any(header.sizes[k] == 8 and header.types[k] != "F" for k in range(len(header.fields))):
         return None  # 64-bit integers do not survive a float64 detour
     per_point = sum(header.counts)
+    if header.points == 0 or not body.strip():
+        return None  # the token path reports empty or missing data precisely
     try:
         table = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, comments=None)
     except ValueError:
         return None
-    if table.shape != (header.points, per_point) and not (header.points == 0 and table.size == 0):
+    if table.shape != (header.points, per_point):
         return None
     out = np.zeros(header.points, dtype=_packed_dtype(header))
     col = 0

@@ -5,6 +5,11 @@ the PointCloud2 messages of a bag are accumulated into that input's map. For eve
 compares the VHV structures with the standard voxels of the same map (the columns of the thesis's
 Table 5.2). Outputs go to ``--out`` (per-input sub-folders when there are several inputs), written
 all-or-nothing. Without INPUT (or with ``--sample``) a small synthetic indoor cloud is mapped.
+
+Outputs: occupancy.png, elevation.png, vhv_3d.png, map.pgm + map.yaml (map_server), vhv_boxes.ply and
+voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid, /vhv_markers MarkerArray) and
+summary.json. Bag points are mapped in their message frame (no TF lookup); without --size the grid
+follows the data's extent, so a bag is read twice (once for the extent).
 """
 
 from __future__ import annotations
@@ -117,43 +122,68 @@ class _SampleSource:
         yield CloudFrame(pts, 0, "map", "synthetic sample", sensor_origin=SAMPLE_SENSOR_ORIGIN)
 
 
-def _grid_from_extent(frames: list[Any], args: argparse.Namespace) -> tuple[Any, str]:
-    """A GridSpec covering the finite points of ``frames`` plus a margin (bounded); and how it was chosen."""
-    import numpy as np
+class _Extent:
+    """Running bounds of the finite points (and sensor origins) in the grid plane, one frame at a time."""
 
-    from mapping.grid import AXIS_COLUMNS, GridSpec
+    def __init__(self, axis: str) -> None:
+        from mapping.grid import AXIS_COLUMNS
 
-    cu, cv, _ = AXIS_COLUMNS[args.axis]
-    cell = args.cell
-    chunks = []
-    for f in frames:
-        p = np.asarray(f.points).reshape(-1, 3)
-        p = p[np.isfinite(p).all(axis=1)]
-        chunks.append(p[:, [cu, cv]].astype(np.float64))
-    # The sensor belongs inside the grid too: free space is traced from it.
-    origins = [args.sensor_origin] if args.sensor_origin is not None else [f.sensor_origin for f in frames]
-    known = [o for o in origins if o is not None]
-    if chunks and any(c.shape[0] for c in chunks) and known:
-        chunks.append(np.asarray(known, dtype=np.float64)[:, [cu, cv]])
-    uv = np.concatenate(chunks) if chunks else np.zeros((0, 2))
-    if uv.shape[0] == 0:
-        n = math.ceil(1.0 / cell)
-        return GridSpec(cell, n * cell, n * cell, (0.0, 0.0), args.axis), "no finite points: 1 m grid at 0"
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
-    margin = 2 * cell + 0.05 * (hi - lo)
-    sizes, centre, capped = [], [], False
-    for k in range(2):
-        want = hi[k] - lo[k] + 2 * margin[k]
-        if want > MAX_GRID_SIDE_M:
-            capped = True
-            want = MAX_GRID_SIDE_M
-            centre.append(float(np.median(uv[:, k])))  # outliers should not pull the bounded grid away
-        else:
-            centre.append(float((lo[k] + hi[k]) / 2))
-        # +1 cell: snapping the centre to the lattice may shift the grid by up to one cell.
-        sizes.append((math.ceil(want / cell) + 1) * cell)
-    how = "data extent + margin" + (f" (capped at {MAX_GRID_SIDE_M:g} m per side)" if capped else "")
-    return GridSpec(cell, sizes[0], sizes[1], (centre[0], centre[1]), args.axis), how
+        self.cols = list(AXIS_COLUMNS[axis][:2])
+        self.lo = [math.inf, math.inf]
+        self.hi = [-math.inf, -math.inf]
+        self.medians: list[tuple[float, float, int]] = []  # per-frame median and weight, for capped grids
+        self.origins: list[tuple[float, float]] = []
+
+    def add(self, points: Any, sensor_origin: Any) -> None:
+        import numpy as np
+
+        p = np.asarray(points).reshape(-1, 3)
+        uv = p[np.isfinite(p).all(axis=1)][:, self.cols].astype(np.float64)
+        if uv.shape[0]:
+            for k in range(2):
+                self.lo[k] = min(self.lo[k], float(uv[:, k].min()))
+                self.hi[k] = max(self.hi[k], float(uv[:, k].max()))
+            med = np.median(uv, axis=0)
+            self.medians.append((float(med[0]), float(med[1]), int(uv.shape[0])))
+        if sensor_origin is not None:
+            self.origins.append((float(sensor_origin[self.cols[0]]), float(sensor_origin[self.cols[1]])))
+
+    def grid(self, args: argparse.Namespace) -> tuple[Any, str]:
+        """GridSpec over the points and the sensor plus a margin, each side bounded; and how it was chosen."""
+        import numpy as np
+
+        from mapping.grid import GridSpec
+
+        cell = args.cell
+        if not self.medians:
+            n = math.ceil(1.0 / cell)
+            return GridSpec(
+                cell, n * cell, n * cell, (0.0, 0.0), args.axis
+            ), "no finite points: 1 m grid at 0"
+        lo, hi = list(self.lo), list(self.hi)
+        for o in self.origins:  # the sensor belongs inside the grid too: free space is traced from it
+            lo = [min(lo[k], o[k]) for k in range(2)]
+            hi = [max(hi[k], o[k]) for k in range(2)]
+        sizes, centre, capped = [], [], False
+        for k in range(2):
+            margin = 2 * cell + 0.05 * (hi[k] - lo[k])
+            want = hi[k] - lo[k] + 2 * margin
+            if want > MAX_GRID_SIDE_M:
+                capped = True
+                want = MAX_GRID_SIDE_M
+                # Far outliers should not drag a bounded grid away from the bulk of the points.
+                med = np.array([(m[k], m[2]) for m in self.medians])
+                order = np.argsort(med[:, 0])
+                cum = np.cumsum(med[order, 1])
+                centre.append(float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0]))
+            else:
+                centre.append((lo[k] + hi[k]) / 2)
+            # +1 cell: snapping the centre to the lattice may shift the grid by up to one cell.
+            sizes.append((math.ceil(want / cell) + 1) * cell)
+        how = "data extent + margin" + (
+            f" (capped at {MAX_GRID_SIDE_M:g} m per side, centred on the median)" if capped else ""
+        )
+        return GridSpec(cell, sizes[0], sizes[1], (centre[0], centre[1]), args.axis), how
 
 
 def _unique_names(paths: list[Path]) -> list[str]:
@@ -195,16 +225,17 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
         spec = GridSpec(args.cell, args.size[0], args.size[1], centre, args.axis)  # type: ignore[arg-type]
         how = "--size"
     else:
-        # One pass to find the extent; single-frame inputs are kept in memory, bags are read twice.
-        scanned = (
-            list(tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"}))
-            if source.n_frames > 1
-            else list(source)
-        )
-        spec, how = _grid_from_extent(scanned, args)
-        frames = scanned if source.n_frames <= 1 else None
-        if frames is None:
-            del scanned
+        # One pass to find the extent: a one-frame input is kept in memory, a bag is read twice
+        # (frame summaries only are kept, so a long bag does not have to fit in memory).
+        extent = _Extent(args.axis)
+        kept: list[Any] = []
+        for frame in tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"}):
+            origin = tuple(args.sensor_origin) if args.sensor_origin is not None else frame.sensor_origin
+            extent.add(frame.points, origin)
+            if source.n_frames <= 1:
+                kept.append(frame)
+        spec, how = extent.grid(args)
+        frames = kept if source.n_frames <= 1 else None
     m = VHVMap(spec, tolerance=args.tolerance)
     build_ms = 0.0
     sensor_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None

@@ -8,7 +8,8 @@ Sources of the plant, one per run:
 Prints the plant, gains (continuous and Roboteq units), designed and achieved poles, margins, closed-loop
 step metrics and the rise-time residual; writes into ``--out`` (default out/pid): ``step_responses.png``
 (like the thesis's Figure 9.3: reference, open loop, closed loop), ``root_locus_<motor>.png`` per motor and
-``pid.json`` with every number.
+``pid.json`` with every number. Like the thesis, the design uses the delay-free second-order plant; with
+``--trace`` the fitted dead time is reported together with the phase margin it leaves.
 """
 
 from __future__ import annotations
@@ -44,6 +45,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     d.add_argument("--p", type=float, default=None, help="extra real pole at -p (default 10 xi_w omega_w)")
     d.add_argument("--firmware", type=int, choices=(1, 2), default=1, help="Roboteq firmware major version")
     d.add_argument("--scale", type=float, default=1.0, help="Roboteq units scale (see control.roboteq_gains)")
+    d.add_argument(
+        "--rate",
+        type=float,
+        action="append",
+        default=[],
+        help="also check the sampled loop at this rate, Hz (repeatable; 1000 Hz is always checked)",
+    )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/pid)")
     p.add_argument("--no-plots", action="store_true", help="only print and write pid.json")
     p.set_defaults(func=_run)
@@ -54,6 +62,9 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.errors import ConfigError
     from robchair.outdir import staged_output_dir
 
+    for r in args.rate:
+        if not (math.isfinite(r) and r > 0):
+            raise ConfigError(f"--rate {r!r}: expected a sample rate > 0 Hz")
     metric_args = [args.tp is not None, args.mp is not None]
     if args.trace is not None and (any(metric_args) or args.tr is not None):
         raise ConfigError("--trace cannot be combined with --tr/--tp/--mp: choose one plant source")
@@ -98,6 +109,9 @@ def _run(args: argparse.Namespace) -> int:
     for m in motors:
         m["design"] = rc.design_pid(m["plant"], xi_w=args.xi_w, omega_w=args.omega_w, p=args.p)
         m["roboteq"] = rc.roboteq_gains(m["design"], args.firmware, scale=args.scale)
+        m["rates"] = sorted({rc.CONTROLLER_RATE_HZ, *args.rate}, reverse=True)
+        kq = m["roboteq"].effective
+        m["sampled"] = {r: rc.sampled_loop(m["plant"], kq[0], kq[1], kq[2], 1.0 / r) for r in m["rates"]}
         print(_report(m, args.firmware))
 
     with staged_output_dir(args.out) as out:
@@ -138,7 +152,13 @@ def _report(m: dict[str, Any], firmware: int) -> str:
     ident = m.get("ident")
     if ident is not None:
         lines.append(f"           t_p = {ident.t_p:.4f} s, M_p = {ident.M_p:.4f}")
-        if ident.t_r_measured is not None:
+        if fit is not None and ident.t_r_measured is not None:
+            lines.append(
+                f"  rise time (10-90 %): trace {ident.t_r_measured:.4f} s,"
+                f" model {ident.t_r_model_10_90:.4f} s"
+                f" -> residual {ident.rise_time_residual_10_90:+.4f} s"
+            )
+        elif ident.t_r_measured is not None:
             lines.append(
                 f"  rise time: measured {ident.t_r_measured:.4f} s;"
                 f" model {ident.t_r_model_0_100:.4f} s (0-100 %, Ogata)"
@@ -169,6 +189,19 @@ def _report(m: dict[str, Any], firmware: int) -> str:
         f"  margins: gain {gm}, phase {mg.phase_margin_deg:.2f} deg at {mg.gain_crossover:.4g} rad/s, "
         f"stability margin {mg.stability_margin:.4g}"
     )
+    for rate in m["rates"]:
+        sl = m["sampled"][rate]
+        dominant = sorted(sl.s_equivalent, key=lambda p: -p.real)[:2]
+        lines.append(
+            f"  sampled at {rate:g} Hz (Roboteq gains): max |z| = {sl.max_abs_z:.6f} "
+            f"({'stable' if sl.stable else 'UNSTABLE'}), dominant equivalent poles {_fmt_poles(dominant)}"
+        )
+    if fit is not None and fit.delay > 0:
+        # the design uses the delay-free plant (as the thesis does); a dead time only costs phase
+        pm_delay = mg.phase_margin_deg - math.degrees(mg.gain_crossover * fit.delay)
+        lines.append(
+            f"  the design ignores the fitted dead time; with it the phase margin is {pm_delay:.2f} deg"
+        )
     for label, sm in (("closed loop", d.closed_loop), ("open loop", d.open_loop)):
         lines.append(
             f"  {label}: rise {sm.rise_time:.4f} s (10-90 %), settling {sm.settling_time:.4f} s (2 %), "
@@ -208,6 +241,15 @@ def _to_json(m: dict[str, Any]) -> dict[str, Any]:
         "designed_poles": [_c(p) for p in d.designed_poles],
         "achieved_poles": [_c(p) for p in d.achieved_poles],
         "max_pole_error": d.max_pole_error,
+        "sampled_loops": [
+            {
+                "rate_hz": r,
+                "max_abs_z": m["sampled"][r].max_abs_z,
+                "stable": m["sampled"][r].stable,
+                "z_poles": [_c(p) for p in m["sampled"][r].z_poles],
+            }
+            for r in m["rates"]
+        ],
         "margins": _finite_or_none(asdict(d.margins)),
         "closed_loop": _finite_or_none(asdict(d.closed_loop)),
         "open_loop": _finite_or_none(asdict(d.open_loop)),
@@ -276,7 +318,13 @@ def _plot_steps(motors: list[dict[str, Any]], path: Path) -> None:
         for k in range(n):
             y_q[k + 1] = plant.step(pid.update(amp, plant.output))
         ax.plot([-0.1 * t_end, 0, 0, t_end], [0, 0, amp, amp], color="tab:blue", label="reference")
-        ax.plot(t, y_open, color="tab:red", label="open loop (plant)")
+        fit = m.get("fit")
+        if fit is not None and fit.delay > 0:
+            # show the fitted model as it was fitted: with its dead time
+            y_open = np.interp(t - fit.delay, t, y_open, left=0.0)
+            ax.plot(t, y_open, color="tab:red", label=f"open loop (fit, dead time {fit.delay * 1e3:.1f} ms)")
+        else:
+            ax.plot(t, y_open, color="tab:red", label="open loop (plant)")
         ax.plot(t, y_closed, color="tab:green", label="closed loop (PID design)")
         ax.plot(
             dt * np.arange(n + 1),
@@ -286,9 +334,8 @@ def _plot_steps(motors: list[dict[str, Any]], path: Path) -> None:
             linewidth=0.9,
             label=f"closed loop, Roboteq {rq.firmware_major}.x gains @ {CONTROLLER_RATE_HZ:g} Hz",
         )
-        if m.get("trace") is not None:
+        if fit is not None and m.get("trace") is not None:
             tt, _u, yy = m["trace"]
-            fit = m["fit"]
             ax.plot(
                 tt - fit.t_step,
                 (yy - fit.y_initial) * amp / abs(fit.u_step),

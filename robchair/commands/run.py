@@ -32,6 +32,11 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
     p.add_argument("--out", type=Path, help="output folder: run_bag/, metrics.json, odometry.csv")
+    p.add_argument(
+        "--release-stop",
+        action="store_true",
+        help="release an emergency stop the motor controller still holds from an earlier run (!MG)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -77,6 +82,8 @@ def _run(args: argparse.Namespace) -> int:
         route = Route.load(args.route)
     elif "route" in cfg:
         route = Route.from_dict(cfg["route"], f"{args.config} [route]")
+    if args.release_stop and args.backend != "sim":
+        backend_cfg["release_stop"] = True
     backend = get_backend(args.backend, backend_cfg)
     if route is not None:
         source: Any = PurePursuit(route, DiffDrive(spec))

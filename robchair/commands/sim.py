@@ -17,14 +17,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "metrics.json into the run folder (default runs/<scenario>-<UTC time>)."
         ),
     )
-    p.add_argument("scenario", nargs="?", default="office_corridor",
-                   help="scenario name in assets/scenes/ or a scenario TOML file (default: office_corridor)")
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        default="office_corridor",
+        help="scenario name in assets/scenes/ or a scenario TOML file (default: office_corridor)",
+    )
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
     p.add_argument("--sensor", choices=SENSORS, default=None, help="Kinect model (default: the scenario's)")
     p.add_argument("--out", default=None, help="run folder (default runs/<scenario>-<UTC timestamp>)")
-    p.add_argument("--seed", type=int, default=None, help="seed of every noise generator (default: the scenario's)")
-    p.add_argument("--camera-backend", choices=("raycast", "pybullet"), default="raycast",
-                   help="depth camera backend: Open3D ray casting (default) or PyBullet's renderer")
+    p.add_argument(
+        "--seed", type=int, default=None, help="seed of every noise generator (default: the scenario's)"
+    )
+    p.add_argument(
+        "--camera-backend",
+        choices=("raycast", "pybullet"),
+        default="raycast",
+        help="depth camera backend: Open3D ray casting (default) or PyBullet's renderer",
+    )
     p.add_argument("--no-bag", action="store_true", help="do not record the ROS 2 bag")
     p.add_argument("--no-pictures", action="store_true", help="do not draw the PNG pictures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -40,7 +50,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.list:
         for path in list_scenarios():
             sc = load_scenario(path)
-            print(f"{sc.name:24s} {sc.duration:6.1f} s  {sc.sensor:10s} scene {sc.scene.name:16s} {sc.description}")
+            print(
+                f"{sc.name:24s} {sc.duration:6.1f} s  {sc.sensor:10s} "
+                f"scene {sc.scene.name:16s} {sc.description}"
+            )
         return 0
     from sim.runner import run_scenario
 

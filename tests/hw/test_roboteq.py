@@ -1,7 +1,7 @@
 """The real Roboteq driver, unchanged, against the emulator over a pseudo-terminal.
 
-Motor time is simulated (a ManualClock the test advances), so seconds of driving take milliseconds;
-reply deadlines are real time and kept short.
+Motor time is simulated (a SyncedClock the test advances; the emulator catches up inside the
+advance), so seconds of driving take milliseconds; reply deadlines are real time and kept short.
 """
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from hw.clock import ManualClock
 from hw.errors import (
     CommandError,
     DeviceClosedError,
@@ -22,7 +23,7 @@ from hw.errors import (
 from hw.interfaces import MotorController, MotorFaults, PIDConfig
 from hw.roboteq import codec
 from hw.roboteq.driver import RoboteqMDC2230
-from hw.roboteq.emulator import RoboteqEmulator
+from hw.roboteq.emulator import RoboteqEmulator, SyncedClock
 from robchair import control
 from robchair.kinematics import DiffDrive, Odometry
 from robchair.spec import load_spec
@@ -31,25 +32,25 @@ TIMEOUT_S = 0.05  # reply deadline used in these tests (the pty answers in about
 
 
 @pytest.fixture
-def clock() -> ManualClock:
-    return ManualClock()
+def clock() -> SyncedClock:
+    return SyncedClock()
 
 
 @pytest.fixture
-def emu(clock: ManualClock):
+def emu(clock: SyncedClock):
     with RoboteqEmulator(clock=clock) as e:
         yield e
 
 
 @pytest.fixture
-def drv(emu: RoboteqEmulator, clock: ManualClock):
+def drv(emu: RoboteqEmulator, clock: SyncedClock):
     d = RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, retries=2, clock=clock)
     d.open()
     yield d
     d.close()
 
 
-def drive_for(drv: RoboteqMDC2230, clock: ManualClock, left: float, right: float, seconds: float, hz=20.0):
+def drive_for(drv: RoboteqMDC2230, clock: SyncedClock, left: float, right: float, seconds: float, hz=20.0):
     """Send the speeds every cycle (as the runtime does, keeping the watchdog fed) for ``seconds``."""
     for _ in range(round(seconds * hz)):
         drv.set_speeds_rpm(left, right)
@@ -212,6 +213,13 @@ def test_replies_dropped_beyond_the_retries_time_out_after_stopping_the_motors(d
     assert emu.setpoints_rpm == (100.0, 100.0)
 
 
+def test_unsolicited_lines_are_ignored_and_answers_are_routed_by_name(drv, emu) -> None:
+    emu.emit("A=55:60")  # e.g. telemetry the controller was set to stream
+    emu.emit("+")  # a stray acknowledgement is not an answer to a query either
+    assert drv.read_config("EPPR") == (1000, 1000)
+    assert drv.n_retries == 0
+
+
 def test_one_garbled_line_is_retried(drv, emu) -> None:
     emu.inject(garble=1)
     assert drv.read_config("MMOD") == (1, 1)
@@ -302,6 +310,18 @@ def test_emergency_stop_and_release(drv, emu, clock) -> None:
     assert emu.setpoints_rpm == (50.0, 50.0)
 
 
+def test_an_emergency_stop_latched_by_an_earlier_session_is_released_only_when_asked(emu, clock) -> None:
+    with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S) as first:
+        first.emergency_stop()
+    with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S) as second:
+        with pytest.raises(DeviceFaultError, match="emergency_stop"):
+            second.read_state()
+    assert emu.estop
+    with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, release_on_open=True) as third:
+        assert not emu.estop
+        assert not third.read_state().faults.any
+
+
 def test_status_and_motor_flags_are_decoded(drv, emu) -> None:
     assert drv.read_status().names() == ["serial_mode"]
     emu.set_motor_flags(2, codec.MotorFlags(loop_error=True, amps_limit=True))
@@ -333,3 +353,60 @@ def test_emulator_answers_unknown_or_malformed_commands_with_minus(emu) -> None:
     lines, _ = codec.split_lines(data)
     assert lines == ["?NOPE", "-", "!S 3 10", "-", "^RWD 70000", "-"]
     assert os.path.exists(emu.device_path)
+
+
+class ScriptedPort:
+    """A serial-like transport: answers each command line with scripted bytes, delivered in chunks.
+
+    ``chunks`` gives the sizes in which received bytes are handed to ``read`` (cycled), so a reply
+    can be split anywhere, as a USB serial port may split it.
+    """
+
+    def __init__(self, answers: dict[str, bytes], chunks: list[int], echo: bool) -> None:
+        self.answers, self.chunks, self.echo = answers, chunks, echo
+        self.buf = b""
+        self.k = 0
+        self.written: list[bytes] = []
+
+    def write(self, data: bytes) -> int:
+        self.written.append(data)
+        for line in data.split(b"\r")[:-1]:
+            self.buf += (line + b"\r" if self.echo else b"") + self.answers.get(line.decode(), b"-\r")
+        return len(data)
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.buf)
+
+    def read(self, size: int = 1) -> bytes:
+        n = min(size, self.chunks[self.k % len(self.chunks)])
+        self.k += 1
+        out, self.buf = self.buf[:n], self.buf[n:]
+        return out
+
+    def reset_input_buffer(self) -> None:
+        self.buf = b""
+
+    def close(self) -> None:
+        pass
+
+
+ANSWERS = {
+    "?FID": b"FID=Roboteq v1.3 MDC2230 07/24/2013\r",
+    "?C": b"T=12:13\rC=-5:2147483647\r",  # an unsolicited telemetry line first
+    "!S 1 0": b"+\r",
+    "!S 2 0": b"+\r",
+}
+
+
+@given(chunks=st.lists(st.integers(1, 9), min_size=1, max_size=8), echo=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_replies_split_into_any_chunks_are_reassembled_with_or_without_echo(chunks, echo) -> None:
+    port = ScriptedPort(ANSWERS, chunks, echo)
+    drv = RoboteqMDC2230(port, configure=False, timeout_s=0.5)
+    drv.open()
+    assert drv.firmware is not None and drv.firmware.major == 1
+    assert drv._ints(codec.query("C"), 2) == (-5, 2**31 - 1)
+    assert drv.n_retries == 0
+    drv.close()
+    assert port.written[-2:] == [b"!S 1 0\r", b"!S 2 0\r"]  # close() stops the motors

@@ -105,6 +105,8 @@ def test_map_bag_replays_with_humble_types(tmp_path, codes):
             "/vhv_markers": "visualization_msgs/msg/MarkerArray",
         }
         got = {c.topic: ts.deserialize_cdr(raw, c.msgtype) for c, t, raw in reader.messages()}
+        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    assert all(q[0].durability.name == "TRANSIENT_LOCAL" and q[0].depth == 1 for q in qos.values())
     np.testing.assert_array_equal(got["/map"].data, occupancy_grid_msg(codes, 0.1, (0, 0)).data)
     assert len(got["/vhv_markers"].markers) == 2
     assert got["/vhv_markers"].markers[1].scale.z == pytest.approx(0.5)

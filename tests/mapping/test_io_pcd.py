@@ -299,3 +299,17 @@ def test_any_float32_cloud_round_trips_bit_exactly(tmp_path_factory, pts, encodi
     got = read_pcd(path)
     assert got.shape == pts.shape
     np.testing.assert_array_equal(got, pts)
+
+
+def test_ascii_uint64_field_keeps_every_digit(tmp_path):
+    head = _header("x y z id", "4 4 4 8", "F F F U", "1 1 1 1", 2, 1, "ascii")
+    path = _simple(tmp_path, head, b"1 2 3 18446744073709551615\n0.5 nan -1 9007199254740993\n")
+    data = read_pcd_cloud(path).data
+    assert data["id"].tolist() == [2**64 - 1, 2**53 + 1]
+    np.testing.assert_array_equal(read_pcd(path), np.array([[1, 2, 3], [0.5, np.nan, -1]], np.float32))
+
+
+def test_ascii_with_a_non_number_is_refused(tmp_path):
+    path = _simple(tmp_path, _header("x y z", "4 4 4", "F F F", "1 1 1", 1, 1, "ascii"), b"1 two 3\n")
+    with pytest.raises(PointCloudFormatError, match="field 'y' holds a non-number"):
+        read_pcd(path)

@@ -143,3 +143,41 @@ def test_encode_then_decode_returns_the_points(height, width, datatype, big, ext
         cloud = encode(pts, datatype=datatype, is_bigendian=big, point_step=cloud.point_step + extra_step,
                        row_padding=row_padding)  # fmt: skip
     np.testing.assert_array_equal(decode(cloud, organized=True), pts)
+
+
+_NP = {INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", UINT32: "u4", FLOAT32: "f4", FLOAT64: "f8"}
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.permutations(["x", "y", "z", "rgb"]),
+    st.lists(st.sampled_from(sorted(_NP)), min_size=4, max_size=4),
+    st.lists(st.integers(0, 5), min_size=5, max_size=5),
+    st.booleans(),
+    st.integers(1, 3),
+    st.integers(0, 6),
+    st.integers(0, 6),
+)
+def test_any_field_order_types_gaps_and_byte_order_decode(order, types, gaps, big, height, width, row_pad):
+    """Lay the bytes out with struct, field by field, independently of the decoder's numpy view."""
+    offsets, pos = {}, 0
+    for name, dtype, gap in zip(order, types, gaps):
+        pos += gap
+        offsets[name] = (pos, dtype)
+        pos += np.dtype(_NP[dtype]).itemsize
+    point_step = pos + gaps[4]
+    rng = np.random.default_rng(width * 10 + height)
+    values = rng.integers(0, 100, size=(height, width, 4))
+    endian = ">" if big else "<"
+    fmt = {INT8: "b", UINT8: "B", INT16: "h", UINT16: "H", UINT32: "I", FLOAT32: "f", FLOAT64: "d"}
+    rows = []
+    for r in range(height):
+        row = bytearray(point_step * width + row_pad)
+        for c in range(width):
+            for k, name in enumerate(["x", "y", "z", "rgb"]):
+                off, dtype = offsets[name]
+                struct.pack_into(endian + fmt[dtype], row, c * point_step + off, values[r, c, k])
+        rows.append(bytes(row))
+    fields = [PointField(n, offsets[n][0], offsets[n][1]) for n in order]
+    msg = _msg(fields, b"".join(rows), width, height, point_step, point_step * width + row_pad, big)
+    np.testing.assert_array_equal(decode(msg, organized=True), values[..., :3])

@@ -392,3 +392,23 @@ def test_synthetic_hd_frame_gives_the_same_map_on_every_path() -> None:
     for method in METHODS[1:]:
         assert maps[method].structures().equals(maps["auto"].structures())
     assert maps["auto"].n_structures < maps["auto"].n_voxels
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    pts=st.lists(
+        st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.one_of(special, st.floats(-1, 2))),
+        min_size=2,
+        max_size=40,
+    ).map(lambda p: np.array(p, float)),
+    method=st.sampled_from(METHODS),
+)
+def test_sparse_points_on_a_large_grid_take_the_sort_fallbacks_and_stay_exact(
+    pts: np.ndarray, method: str
+) -> None:
+    # A 2000 x 2000-cell grid: the frame's box has far more cells than points (argsort fallback).
+    spec = GridSpec(cell_size=0.05, size_x=100.0, size_y=100.0)
+    pts = np.concatenate([pts, [[-49.9, -49.9, 0.0], [49.9, 49.9, 0.0]]])
+    m = VHVMap(spec, 0.05)
+    m.insert(pts, method=method)
+    assert as_tuples(m.structures()) == reference_structures(pts, spec, 0.05)

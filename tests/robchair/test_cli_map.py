@@ -8,12 +8,15 @@ import struct
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Reader as Reader2
 from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 
+from mapping.export.rosmap import read_pgm
 from mapping.grid import GridSpec
 from mapping.io import write_pcd
 from mapping.io.bags import to_ros_pointcloud2, write_bag
+from mapping.io.ply import read_ply_mesh
 from mapping.pointcloud2 import encode
 from mapping.synthetic import small_sample_cloud
 from mapping.vhv import VHVMap
@@ -39,9 +42,17 @@ def _check_outputs(folder):
         summary["parameters"]["grid_extent"][0],
         summary["parameters"]["grid_extent"][2],
     ]
-    assert (folder / "vhv_boxes.ply").read_bytes().startswith(b"ply\n")
-    assert (folder / "voxels.ply").read_bytes().startswith(b"ply\n")
-    assert (folder / "map_bag" / "metadata.yaml").exists()
+    # Every export holds exactly what the summary counts.
+    assert read_ply_mesh(folder / "vhv_boxes.ply").faces.shape[0] == 12 * summary["structures"]
+    assert read_ply_mesh(folder / "voxels.ply").faces.shape[0] == 12 * summary["voxels"]
+    assert summary["voxels_exported"] == summary["voxels"]
+    assert np.count_nonzero(read_pgm(folder / "map.pgm") == 0) == summary["cells_occupied_2d"]
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    with Reader2(folder / "map_bag") as reader:
+        msgs = {c.topic: ts.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages()}
+    assert np.count_nonzero(msgs["/map"].data == 100) == summary["cells_occupied_2d"]
+    assert (msgs["/map"].info.width, msgs["/map"].info.height) == (width, height)
+    assert len(msgs["/vhv_markers"].markers) == summary["structures"] + 1  # + the DELETEALL
     return summary
 
 
@@ -101,15 +112,19 @@ def test_several_inputs_get_one_row_and_one_folder_each_with_totals(tmp_path, ca
     b = rng.uniform(0, 1, size=(2, 10, 3))
     msgs = [("/pts", PC2, k + 1, to_ros_pointcloud2(encode(b[k]), ros2=False)) for k in range(2)]
     write_bag(tmp_path / "b.bag", msgs, ros2=False, compression="lz4")
+    write_pcd(tmp_path / "empty.pcd", np.zeros((0, 3), np.float32))
     out = tmp_path / "multi"
-    assert main(["map", str(tmp_path / "a.pcd"), str(tmp_path / "b.bag"), "--out", str(out)]) == 0
+    inputs = [str(tmp_path / n) for n in ("a.pcd", "b.bag", "empty.pcd")]
+    assert main(["map", *inputs, "--out", str(out)]) == 0
     total = json.loads((out / "summary.json").read_text())
-    sa, sb = (_check_outputs(out / name) for name in ("a", "b"))
+    sa, sb, se = (_check_outputs(out / name) for name in ("a", "b", "empty"))
+    assert (se["points_in"], se["structures"], se["voxels"]) == (0, 0, 0)  # an empty cloud, an empty map
     assert sb["frames"] == 2 and sb["points_in"] == 20
     assert total["points_in"] == 320 == sa["points_in"] + sb["points_in"]
     assert total["structures"] == sa["structures"] + sb["structures"]
     rows = capsys.readouterr().out.splitlines()
-    assert any("a.pcd" in r for r in rows) and any("b.bag [/pts]" in r for r in rows)
+    assert len(rows) == 5  # header, three inputs, the closing line
+    assert "a.pcd" in rows[1] and "b.bag [/pts]" in rows[2] and "empty.pcd" in rows[3]
 
 
 def test_kept_axis_x_maps_a_wall_with_its_depth(tmp_path):
@@ -121,6 +136,14 @@ def test_kept_axis_x_maps_a_wall_with_its_depth(tmp_path):
     s = _check_outputs(out)
     assert s["parameters"]["axis"] == "x"
     assert s["structures"] == s["cells_occupied"]  # one flat structure per (y, z) cell at x = 3
+
+
+def test_all_nan_cloud_gives_an_empty_map_with_valid_outputs(tmp_path):
+    np.save(tmp_path / "nan.npy", np.full((4, 5, 3), np.nan))
+    out = tmp_path / "e"
+    assert main(["map", str(tmp_path / "nan.npy"), "--out", str(out)]) == 0
+    s = _check_outputs(out)
+    assert (s["points_in"], s["points_dropped_nonfinite"], s["structures"], s["voxels"]) == (20, 20, 0, 0)
 
 
 # ------------------------------------------------------------------ bad input
@@ -144,12 +167,12 @@ def _bad_inputs(tmp_path):
     write_bag(tmp_path / "noz.bag", [("/pts", PC2, 1, to_ros_pointcloud2(noz, ros2=False))], ros2=False)
     (tmp_path / "scan.xyz").write_text("1 2 3\n")
     return {
-        "trunc.pcd": ([], "binary data truncated"),
-        "type.pcd": ([], "unknown PCD TYPE 'Z'"),
-        "strings.bag": ([], "no sensor_msgs/msg/PointCloud2 topic"),
-        "noz.bag": ([], "PointCloud2 has no z field"),
-        "scan.xyz": ([], "unknown point-cloud format"),
-        "missing.pcd": ([], "no such file"),
+        "trunc.pcd": "binary data truncated",
+        "type.pcd": "unknown PCD TYPE 'Z'",
+        "strings.bag": "no sensor_msgs/msg/PointCloud2 topic",
+        "noz.bag": "PointCloud2 has no z field",
+        "scan.xyz": "unknown point-cloud format",
+        "missing.pcd": "no such file",
     }
 
 
@@ -157,8 +180,7 @@ def _bad_inputs(tmp_path):
     "name", ["trunc.pcd", "type.pcd", "strings.bag", "noz.bag", "scan.xyz", "missing.pcd"]
 )
 def test_bad_input_gives_exit_2_one_stderr_line_and_no_output_folder(tmp_path, capsys, name):
-    cases = _bad_inputs(tmp_path)
-    _, reason = cases[name]
+    reason = _bad_inputs(tmp_path)[name]
     out = tmp_path / "out"
     assert main(["map", str(tmp_path / name), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -195,3 +217,16 @@ def test_invalid_parameters_are_refused_before_any_work(tmp_path, capsys):
     assert main(["map", "--sample", "--band", "2", "1", "--out", str(out)]) == 2
     assert "ZMIN <= ZMAX" in capsys.readouterr().err
     assert _no_leftovers(tmp_path, "out")
+
+
+def test_far_outlier_caps_the_data_derived_grid_and_is_counted_outside(tmp_path):
+    rng = np.random.default_rng(3)
+    pts = np.vstack([rng.uniform(-1, 1, size=(500, 3)), [[500.0, 0.0, 0.5]]])
+    np.save(tmp_path / "outlier.npy", pts)
+    out = tmp_path / "c"
+    assert main(["map", str(tmp_path / "outlier.npy"), "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert "capped at 100 m" in s["parameters"]["grid_size_source"]
+    assert s["parameters"]["grid_size"][0] <= 100.1
+    assert abs(s["parameters"]["grid_centre"][0]) < 0.5  # centred on the bulk, not pulled to 250 m
+    assert (s["points_in"], s["points_outside_grid"]) == (501, 1)

@@ -63,6 +63,8 @@ def test_pid_from_step_metrics_with_design_options_and_firmware_2(tmp_path, caps
             "30",
             "--firmware",
             "2",
+            "--rate",
+            "100",
             "--out",
             str(out),
             "--no-plots",
@@ -75,6 +77,9 @@ def test_pid_from_step_metrics_with_design_options_and_firmware_2(tmp_path, caps
     assert f"KP = {g.kp}, KI = {g.ki}, KD = {g.kd}" in text
     summary = json.loads((out / "pid.json").read_text())
     assert summary["motors"][0]["design"] == {"xi_w": 0.8, "omega_w": 5.0, "p": 30.0}
+    loops = summary["motors"][0]["sampled_loops"]
+    assert [lp["rate_hz"] for lp in loops] == [1000.0, 100.0] and all(lp["stable"] for lp in loops)
+    assert "sampled at 100 Hz" in text
     assert not (out / "step_responses.png").exists()
 
 
@@ -103,6 +108,7 @@ def test_pid_from_a_trace_file(tmp_path, capsys):
         (["--tp", "0.4", "--mp", "1.5"], "M_p = 1.5"),
         (["--trace", "x.csv", "--tp", "0.4", "--mp", "0.1"], "cannot be combined"),
         (["--omega-w", "-1"], "omega_w = -1.0"),
+        (["--rate", "0"], "--rate 0.0"),
     ],
 )
 def test_pid_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, argv, message):
@@ -111,3 +117,13 @@ def test_pid_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, arg
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_root_locus_passes_through_the_design_at_unit_gain_and_starts_at_the_open_loop_poles():
+    from robchair.commands.pid import root_locus
+
+    d = design_pid(identify_from_step_metrics(0.1365, 0.3975, 0.10).plant, xi_w=0.7)
+    locus = root_locus(d, [0.0, 1.0])
+    open_loop = np.sort_complex(np.roots([1.0, d.plant.a1, d.plant.a0, 0.0]))
+    np.testing.assert_allclose(locus[0], open_loop, atol=1e-12)
+    np.testing.assert_allclose(locus[1], np.sort_complex(d.designed_poles), rtol=1e-9)

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hw.interfaces import Device, JoystickReading, MotorFaults, SonarArrayReading
+from hw.errors import DeviceTimeoutError
+from hw.interfaces import DepthFrame, Device, JoystickReading, MotorFaults, SonarArrayReading
 from hw.registry import BackendConfigError, get_backend
 from robchair.cli import main
 from robchair.errors import ConfigError
@@ -152,6 +153,15 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
     last = odom[-1].pose.pose
     assert (last.position.x, last.position.y) == pytest.approx(res.poses[-1][1:3])
     assert 2 * math.atan2(last.orientation.z, last.orientation.w) == pytest.approx(res.poses[-1][3])
+
+
+def test_emulated_backend_also_runs_in_real_time(spec) -> None:
+    # the emulator steps its motors by the real elapsed time; the loop really sleeps
+    backend = emulated(realtime=True, sonars=False)
+    res = run_to_dir(backend, PolicySource(lambda obs: (0.3, 0.0)), 1.5, None, spec=spec)
+    assert res.driver_fault is None and res.cycles == 15
+    assert res.sim_time_s >= 1.5
+    assert res.distance_m > 0.05  # it moved (how far depends on how loaded the machine is)
 
 
 def test_runtime_stall_lets_the_emulated_controller_watchdog_stop_the_motors(spec) -> None:
@@ -304,6 +314,43 @@ def test_joystick_drives_while_the_deadman_is_held_and_releasing_it_stops(spec) 
     assert res.final_pose[0] - x_at_release < 0.3  # and stopped after the release
 
 
+def test_a_failing_joystick_counts_as_a_released_deadman(spec) -> None:
+    def script(t: float) -> tuple[float, float, bool]:
+        if t >= 1.0:
+            raise DeviceTimeoutError("joystick: no line for 0.2 s")
+        return 0.5, 0.0, True
+
+    backend = emulated(sonars=False)
+    backend.joystick = ScriptedJoystick(backend.clock, script)
+    res = run_to_dir(backend, JoystickSource(backend.joystick, 0.6, 2.0), 2.0, None, spec=spec)
+    assert [(s["reason"], s["t_s"]) for s in res.stops] == [("deadman_released", pytest.approx(1.0))]
+
+
+class FailingCamera(Device):
+    """A depth camera that sees nothing (all NaN) and, from ``fail_after_s`` on, raises on every read."""
+
+    name = "failing-camera"
+
+    def __init__(self, clock, fail_after_s: float) -> None:
+        self.clock, self.fail_after_ns = clock, round(fail_after_s * 1e9)
+
+    def read(self) -> DepthFrame:
+        if self.clock.now_ns() >= self.fail_after_ns:
+            raise DeviceTimeoutError("camera: no frame")
+        return DepthFrame(self.clock.now_ns(), "kinect_link", np.full((4, 4, 3), np.nan))
+
+
+def test_a_depth_camera_that_stops_delivering_frames_stops_the_chair(spec) -> None:
+    backend = emulated(sonars=False)
+    backend.depth_camera = FailingCamera(backend.clock, fail_after_s=1.0)
+    cfg = RuntimeConfig(map_every=5)  # camera read at t = 0, 0.5, 1.0 (fails), 1.5 (fails), ...
+    res = run_to_dir(backend, PolicySource(lambda obs: (0.2, 0.0)), 3.0, None, spec=spec, config=cfg)
+    stale = [s for s in res.stops if s["reason"] == "stale_sensor"]
+    assert len(stale) == 1 and "depth_camera" in stale[0]["detail"]
+    # last frame at 0.5 s; stale beyond 0.5 s + 5 cycles (0.5 s): first at the cycle of 1.6 s
+    assert stale[0]["t_s"] == pytest.approx(1.6)
+
+
 def test_unknown_emulated_config_key_is_refused() -> None:
     with pytest.raises(BackendConfigError, match="speed"):
         get_backend("emulated", {"speed": 1})
@@ -319,17 +366,27 @@ def test_real_backend_needs_a_port() -> None:
 # --- sim vs emulated ------------------------------------------------------------------------------
 
 
-def test_emulated_and_simulated_chairs_give_the_same_odometry_on_the_same_route(spec) -> None:
-    res_e = run_to_dir(emulated(sonars=False), PurePursuit(ROUTE, DiffDrive(spec)), 20.0, None, spec=spec)
-    sim = get_backend("sim", {"sensor": None, "sonars": False})
-    res_s = run_to_dir(sim, PurePursuit(ROUTE, DiffDrive(spec)), 20.0, None, spec=spec)
-    assert res_e.route_completed and res_s.route_completed
-    a, b = np.asarray(res_e.poses), np.asarray(res_s.poses)
+def test_robchair_run_emulated_and_sim_give_the_same_odometry_on_the_same_route(
+    tmp_path: Path, capsys
+) -> None:
+    route = tmp_path / "route.toml"
+    route.write_text("waypoints = [[0, 0], [1.5, 0], [2.5, 1]]\nspeed = 0.3\n")
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('[sim]\nsensor = "none"\nsonars = false\n[emulated]\nsonars = false\n')
+    odo = {}
+    for backend in ("emulated", "sim"):
+        out = tmp_path / backend
+        args = ["run", "--backend", backend, "--config", str(cfg), "--route", str(route), "--duration", "20"]
+        assert main([*args, "--out", str(out)]) == 0
+        assert json.loads((out / "metrics.json").read_text())["route_completed"] is True
+        odo[backend] = np.loadtxt(out / "odometry.csv", delimiter=",", skiprows=1)
+    a, b = odo["emulated"], odo["sim"]
     n = min(len(a), len(b))
     assert abs(len(a) - len(b)) <= 2
-    np.testing.assert_allclose(a[:n, 0], b[:n, 0])  # same cycle times
+    np.testing.assert_allclose(a[:n, 0], b[:n, 0])  # the same cycle times on both clocks
     assert np.max(np.hypot(a[:n, 1] - b[:n, 1], a[:n, 2] - b[:n, 2])) < SAME_ODOMETRY_M
     assert np.max(np.abs(a[:n, 3] - b[:n, 3])) < SAME_HEADING_RAD
+    assert np.hypot(a[-1, 1] - 2.5, a[-1, 2] - 1.0) < 0.15  # and both did drive the route
 
 
 # --- the command line ---------------------------------------------------------------------------

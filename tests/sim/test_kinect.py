@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from sim.kinect import (
     MODELS,
@@ -296,6 +298,11 @@ def test_the_mirror_follows_a_moving_body_and_skips_excluded_ones(client):
     p.removeBody(b, physicsClientId=client)
     m.sync()
     assert m.cast([0, 0, 0], [[1.0, 0, 0]]).distance[0] == math.inf
+    # PyBullet hands the freed id to the next body: the mirror must notice the new shape anyway
+    col = p.createCollisionShape(p.GEOM_SPHERE, radius=0.5, physicsClientId=client)
+    assert p.createMultiBody(0, col, -1, basePosition=[2.0, 0, 0], physicsClientId=client) == b
+    assert m.sync() is True
+    assert m.cast([0, 0, 0], [[1.0, 0, 0]]).distance[0] == pytest.approx(1.5, abs=2e-3)
 
 
 def test_bad_inputs_are_refused_with_a_clear_message(client):
@@ -310,3 +317,29 @@ def test_bad_inputs_are_refused_with_a_clear_message(client):
         k.capture(([0, 0, np.nan], [0, 0, 0, 1]))
     with pytest.raises(MeshMirrorError, match="directions"):
         MeshMirror(client).cast([0, 0, 0], np.zeros((3, 2)))
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    d=st.floats(0.8, 3.5),
+    wall_yaw=st.floats(-1.0, 1.0),
+    cam_yaw=st.floats(-0.3, 0.3),
+    cam_pitch=st.floats(-0.3, 0.3),
+)
+def test_any_plane_seen_from_any_pose_comes_out_on_the_plane(client, d, wall_yaw, cam_yaw, cam_pitch):
+    ids = [
+        p.getBodyUniqueId(i, physicsClientId=client) for i in range(p.getNumBodies(physicsClientId=client))
+    ]
+    for b in ids:
+        p.removeBody(b, physicsClientId=client)
+    n, q = wall_at(client, d, yaw=wall_yaw)
+    small = dataclasses.replace(MODELS["kinect2"], name="small", width=64, height=53)
+    k = KinectSim(client, small, noise=False)
+    pose = cam_pose(yaw=cam_yaw, pitch=cam_pitch)
+    world = k.to_world(k.capture(pose).points.astype(float), pose).reshape(-1, 3)
+    world = world[np.isfinite(world[:, 0])]
+    assert len(world) > 0
+    assert np.max(np.abs((world - q) @ n)) < 1e-4
+    # every valid point is within the model's depth range along the optical axis
+    depth = (world - pose_matrix(pose)[:3, 3]) @ pose_matrix(pose)[:3, 0]
+    assert depth.min() >= 0.5 - 1e-6 and depth.max() <= 4.5 + 1e-6

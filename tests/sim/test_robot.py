@@ -54,7 +54,7 @@ def test_open_loop_speed_step_shows_the_identified_peak_time_and_overshoot(world
 
 
 def test_closed_loop_reaches_the_set_point_without_steady_state_error(world_robot):
-    world, robot, spec = world_robot
+    world, robot, _ = world_robot
     robot.set_closed_loop(True)
     robot.set_motor_rpm(300.0, -200.0)
     world.step(4 * world.physics_hz)
@@ -94,7 +94,7 @@ def test_odometry_from_simulated_encoders_tracks_the_ground_truth(world_robot):
 
 
 def test_servo_turns_the_sonar_array_and_respects_its_limits(world_robot):
-    world, robot, spec = world_robot
+    world, robot, _ = world_robot
     robot.set_servo_deg("sonar_array_left", 40.0)
     world.step(120)
     assert robot.servo_deg("sonar_array_left") == pytest.approx(40.0, abs=0.5)
@@ -106,11 +106,12 @@ def test_servo_turns_the_sonar_array_and_respects_its_limits(world_robot):
 
 
 def test_non_finite_pose_raises_simulation_diverged(world_robot):
-    world, robot, spec = world_robot
+    world, robot, _ = world_robot
     import pybullet as p
 
-    p.resetBasePositionAndOrientation(robot.body, (float("nan"), 0.0, 0.0), (0, 0, 0, 1),
-                                      physicsClientId=world.client)
+    p.resetBasePositionAndOrientation(
+        robot.body, (float("nan"), 0.0, 0.0), (0, 0, 0, 1), physicsClientId=world.client
+    )
     with pytest.raises(SimulationDivergedError, match="non-finite"):
         robot.base_pose()
 
@@ -122,8 +123,8 @@ def test_non_finite_motor_command_is_refused(world_robot):
 
 
 def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the_physics():
-    from hw.interfaces import Clock, DepthCamera, MotorController, SonarArray
     from hw.errors import DeviceClosedError
+    from hw.interfaces import Clock, DepthCamera, MotorController, SonarArray
     from sim.backend import make_sim_backend
 
     backend = make_sim_backend({"sensor": None, "sonars": False, "seed": 1})
@@ -144,6 +145,7 @@ def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the
             backend.clock.sleep_until_ns(backend.clock.now_ns() + 2_000_000_000)
             assert abs(backend.motors.read_state().speed_rpm[0]) < 5.0
             assert backend.motors.read_state().faults.emergency_stop
+        assert backend.chair.world.client < 0  # closing the backend shut the physics down
     finally:
         backend.chair.close()
     with pytest.raises(SimError, match="unknown key"):

@@ -1,4 +1,4 @@
-"""Scene and scenario files: every shipped file loads, and bad files are refused with file, line, key, reason."""
+"""Scene and scenario files: shipped files load; bad ones are refused with file, line, key and reason."""
 
 from __future__ import annotations
 
@@ -22,21 +22,29 @@ def _write(tmp_path, text, name="scene.toml"):
     return p
 
 
-def _scenario(tmp_path, extra_scenario="", route='waypoints = [[2.0, 0.0]]', start="[0.0, 0.0, 0.0]"):
-    _write(tmp_path, SCENE_HEAD + textwrap.dedent('''
+def _scenario(tmp_path, extra_scenario="", route="waypoints = [[2.0, 0.0]]", start="[0.0, 0.0, 0.0]"):
+    _write(
+        tmp_path,
+        SCENE_HEAD
+        + textwrap.dedent("""
         [[object]]
         name = "wall"
         shape = "box"
         size = [0.1, 4.0, 2.0]
         xyz = [3.0, 0.0, 1.0]
-        '''))
-    return _write(tmp_path, f'''[scenario]
+        """),
+    )
+    return _write(
+        tmp_path,
+        f"""[scenario]
 scene = "scene"
 start = {start}
 {extra_scenario}
 [route]
 {route}
-''', "run.toml")
+""",
+        "run.toml",
+    )
 
 
 def test_every_shipped_scenario_and_its_scene_load():
@@ -66,77 +74,107 @@ def test_office_table_top_is_below_the_chair_height_so_the_chair_cannot_pass_und
 
 
 def test_unknown_key_is_refused_with_file_line_and_key(tmp_path):
-    p = _write(tmp_path, SCENE_HEAD + '''
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + """
 [[object]]
 name = "w"
 shape = "box"
 size = [1.0, 1.0, 1.0]
 colour = [1.0, 0.0, 0.0]
 xyz = [3.0, 0.0, 0.5]
-''')
+""",
+    )
     with pytest.raises(ScenarioError, match=rf"{p.name}:8: object 'w': colour: unknown key"):
         load_scene(p)
 
 
 def test_missing_mesh_is_refused_naming_the_file(tmp_path):
-    p = _write(tmp_path, SCENE_HEAD + '''
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + """
 [[object]]
 name = "ghost"
 shape = "mesh"
 mesh = "no_such_mesh.obj"
 xyz = [3.0, 0.0, 0.0]
-''')
-    with pytest.raises(ScenarioError, match=r"scene.toml:7: object 'ghost': mesh: mesh file 'no_such_mesh.obj' not found"):
+""",
+    )
+    with pytest.raises(
+        ScenarioError, match=r"scene.toml:7: object 'ghost': mesh: mesh file 'no_such_mesh.obj' not found"
+    ):
         load_scene(p)
 
 
 @pytest.mark.parametrize("xyz", ["[nan, 0.0, 1.0]", "[3.0, inf, 1.0]"])
 def test_non_finite_pose_is_refused(tmp_path, xyz):
-    p = _write(tmp_path, SCENE_HEAD + f'''
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + f"""
 [[object]]
 name = "w"
 shape = "sphere"
 radius = 0.5
 xyz = {xyz}
-''')
+""",
+    )
     with pytest.raises(ScenarioError, match=r"object 'w': xyz: must be finite"):
         load_scene(p)
 
 
 def test_object_below_the_floor_is_an_impossible_pose(tmp_path):
-    p = _write(tmp_path, SCENE_HEAD + '''
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + """
 [[object]]
 name = "sunk"
 shape = "box"
 size = [1.0, 1.0, 1.0]
 xyz = [3.0, 0.0, 0.2]
-''')
-    with pytest.raises(ScenarioError, match=r"object 'sunk': xyz: impossible pose: .*-0.300 m, below the floor"):
+""",
+    )
+    with pytest.raises(
+        ScenarioError, match=r"object 'sunk': xyz: impossible pose: .*-0.300 m, below the floor"
+    ):
         load_scene(p)
 
 
 def test_rotated_object_that_dips_below_the_floor_is_caught_too(tmp_path):
     # a 2 m long box resting at z = 0.5 is fine flat, but pitched 45 deg its end reaches z < 0
-    p = _write(tmp_path, SCENE_HEAD + '''
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + """
 [[object]]
 name = "tilted"
 shape = "box"
 size = [2.0, 0.2, 0.2]
 xyz = [3.0, 0.0, 0.5]
 rpy = [0.0, 0.7853981634, 0.0]
-''')
+""",
+    )
     with pytest.raises(ScenarioError, match="below the floor"):
         load_scene(p)
 
 
 def test_object_overlapping_the_chair_start_is_refused(tmp_path):
     p = _scenario(tmp_path, start="[2.8, 0.0, 0.0]")
-    with pytest.raises(ScenarioError, match=r"run.toml:3: scenario.start: impossible pose: .*overlaps object 'wall'"):
+    with pytest.raises(
+        ScenarioError, match=r"run.toml:3: scenario.start: impossible pose: .*overlaps object 'wall'"
+    ):
         load_scenario(p)
 
 
 def test_a_valid_scenario_loads_with_its_values(tmp_path):
-    p = _scenario(tmp_path, 'duration = 4.5\nsensor = "kinect1"\nseed = 7\n', 'waypoints = [[2.0, 0.0], [2.0, 1.0]]\nspeed = 0.3')
+    p = _scenario(
+        tmp_path,
+        'duration = 4.5\nsensor = "kinect1"\nseed = 7\n',
+        "waypoints = [[2.0, 0.0], [2.0, 1.0]]\nspeed = 0.3",
+    )
     sc = load_scenario(p)
     assert (sc.duration, sc.sensor, sc.seed, sc.route.speed) == (4.5, "kinect1", 7, 0.3)
     assert sc.route.waypoints == ((2.0, 0.0), (2.0, 1.0))
@@ -146,12 +184,12 @@ def test_a_valid_scenario_loads_with_its_values(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "route", "match"),
     [
-        ('sensor = "kinect3"\n', "waypoints = [[1.0, 0.0]]", r"run.toml:5: scenario.sensor: expected one of"),
+        ('sensor = "kinect3"\n', "waypoints = [[1.0, 0.0]]", r"run.toml:4: scenario.sensor: expected one of"),
         ("duration = -1.0\n", "waypoints = [[1.0, 0.0]]", r"scenario.duration: must be > 0"),
         ("seed = 1.5\n", "waypoints = [[1.0, 0.0]]", r"scenario.seed: expected a non-negative integer"),
         ("", "waypoints = [[1.0]]", r"route.waypoints: expected a list of 2 numbers"),
         ("", "speed = 0.5", r"route.waypoints: missing"),
-        ("", "waypoints = [[1.0, 0.0]]\nturbo = true", r"run.toml:8: route.turbo: unknown key"),
+        ("", "waypoints = [[1.0, 0.0]]\nturbo = true", r"run.toml:7: route.turbo: unknown key"),
     ],
 )
 def test_bad_scenario_values_are_refused_with_key_and_reason(tmp_path, extra, route, match):

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from sim.raycast import MeshMirror
 from sim.sonar import SonarArraySim, SonarSim, SonarSimError, beam_rays
@@ -146,3 +148,21 @@ def test_bad_sonar_configuration_is_refused(client):
         SonarSim(client, max_incidence_deg=95)
     with pytest.raises(SonarSimError, match=r"sonar_offsets_m of shape \(2, 3\)"):
         SonarArraySim(client, sonar_offsets_m=np.zeros((2, 3)))
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(d=st.floats(0.1, 5.5), yaw_deg=st.floats(-25.0, 25.0), height=st.floats(0.2, 0.8))
+def test_a_wall_anywhere_in_the_beam_reads_its_perpendicular_distance_to_the_centimetre(
+    client, d, yaw_deg, height
+):
+    ids = [
+        p.getBodyUniqueId(i, physicsClientId=client) for i in range(p.getNumBodies(physicsClientId=client))
+    ]
+    for b in ids:
+        p.removeBody(b, physicsClientId=client)
+    floor(client)
+    wall(client, d, yaw=math.radians(yaw_deg))
+    r = SonarSim(client).measure(([0, 0, height], LEVEL))
+    expected = d * math.cos(math.radians(yaw_deg))  # distance from the sonar to the wall's plane
+    # rounding to cm, plus the 1 deg ray grid: the ray nearest the wall's normal is <= 0.71 deg off it
+    assert abs(r - expected) <= 0.005 + expected * (1 / math.cos(math.radians(0.71)) - 1) + 1e-9

@@ -50,7 +50,9 @@ def test_sonar_arrays_hang_on_revolute_servo_joints_at_their_mounts(spec):
         assert float(lim.get("lower")) == pytest.approx(m.joint.lower)
         assert float(lim.get("upper")) == pytest.approx(m.joint.upper)
     k = _joint(root, "kinect_link_joint")
-    assert [float(v) for v in k.find("origin").get("rpy").split()] == pytest.approx(list(spec.mounts["kinect_link"].rpy))
+    assert [float(v) for v in k.find("origin").get("rpy").split()] == pytest.approx(
+        list(spec.mounts["kinect_link"].rpy)
+    )
 
 
 def test_write_urdf_reuses_the_file_while_the_spec_is_unchanged(spec, tmp_path):
@@ -93,9 +95,13 @@ def test_chair_drives_straight_on_equal_wheel_speeds(settled):
     # accelerates; give both wheels motor 1's dynamics so only the casters could pull it off its line
     from robchair.control import DiscretePlant
 
-    world, robot, spec = settled
+    world, robot, _ = settled
     robot.right.plant = DiscretePlant(robot.left.plant.plant, robot.motor_dt)
-    robot.right.pid.kp, robot.right.pid.ki, robot.right.pid.kd = robot.left.pid.kp, robot.left.pid.ki, robot.left.pid.kd
+    robot.right.pid.kp, robot.right.pid.ki, robot.right.pid.kd = (
+        robot.left.pid.kp,
+        robot.left.pid.ki,
+        robot.left.pid.kd,
+    )
     start = robot.pose2d()
     rpm = robot.drive.motor_rpm(0.5, 0.0)[0]
     robot.set_motor_rpm(rpm, rpm)

@@ -1,0 +1,839 @@
+"""Goal navigation for the simulated RobChair as a Gymnasium environment (``RobChair/Navigation-v0``).
+
+The agent commands a normalised body twist; the command goes through the same kinematics, motor plant
+and PID as every other simulated drive (:class:`sim.robot.SimRobot`); the agent sees an egocentric patch
+of the 2D occupancy grid that the variable-height-voxel map (:mod:`mapping.vhv`) builds from the
+simulated sensors, plus the goal in its own frame and its measured speed.
+
+Usage::
+
+    import gymnasium
+    import sim.envs  # registers RobChair/Navigation-v0 and RobChair/NavigationSonar-v0
+
+    env = gymnasium.make("RobChair/Navigation-v0", render_mode="rgb_array")
+    obs, info = env.reset(seed=0)
+    for _ in range(100):
+        action = env.action_space.sample()  # (v, w) in [-1, 1]^2
+        obs, reward, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            obs, info = env.reset()
+    picture = env.render()  # (H, W, 3) uint8 top-down map
+    env.close()
+
+Pure pieces (tested by hand): :func:`navigation_reward`, :func:`goal_in_robot_frame`,
+:func:`egocentric_patch`, :class:`FreeSpace`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, SupportsFloat
+
+import gymnasium
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from mapping.grid import GridSpec
+from robchair.kinematics import DiffDrive, Odometry, Pose2D, wrap_angle
+from robchair.spec import RobChairSpec, load_spec
+from sim.errors import SimError
+from sim.scene import Scene, ground_truth_points, load_scene
+
+AGENT_HZ = 10
+PATCH_SHAPE = (64, 64)
+PATCH_CELL = 0.10  # m
+PATCH_BEHIND = 1.6  # m of the patch behind base_link (the Kinect looks forward)
+OCC_Z_MIN = 0.10  # m: above the floor's depth noise, like the runner's occupancy band
+MAP_MARGIN = 1.0  # m around the scene's bounds
+SETTLE_STEPS = 12  # physics steps with zero command after placing the chair
+ODOM_HZ = 60  # encoder read-out for odometry (as the runner's control loop)
+START_MARGIN = 0.10  # m of extra clearance around the chair's turning circle at start and goal
+PASS_MARGIN = 0.05  # m each side of the chair's width for two free regions to count as connected
+SENSORS = ("kinect2", "kinect1")
+POSE_SOURCES = ("ground_truth", "odometry")
+SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the command limits
+
+
+class NavigationEnvError(SimError, ValueError):
+    """An argument of the navigation environment (or of its reset options / actions) is invalid."""
+
+
+# --------------------------------------------------------------------------------------------
+# rewards and geometry (pure functions)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the navigation reward.
+
+    Attributes:
+        progress: Reward per metre the goal distance shrank during the step.
+        collision: Penalty when the chair touched a scene body during the step.
+        time: Cost of every step.
+        success: Bonus when the goal is reached.
+    """
+
+    progress: float = 1.0
+    collision: float = 10.0
+    time: float = 0.01
+    success: float = 10.0
+
+
+def reward_terms(
+    prev_distance: float,
+    distance: float,
+    collided: bool,
+    reached: bool,
+    weights: RewardWeights = RewardWeights(),
+) -> dict[str, float]:
+    """The reward's parts: ``progress``, ``collision``, ``time``, ``success`` (their sum is the reward)."""
+    return {
+        "progress": weights.progress * (prev_distance - distance),
+        "collision": -weights.collision if collided else 0.0,
+        "time": -weights.time,
+        "success": weights.success if reached else 0.0,
+    }
+
+
+def navigation_reward(
+    prev_distance: float,
+    distance: float,
+    collided: bool,
+    reached: bool,
+    weights: RewardWeights = RewardWeights(),
+) -> float:
+    """Reward of one step: progress toward the goal, minus collision and time costs, plus success.
+
+    ``progress * (prev_distance - distance) - time - collision * collided + success * reached``.
+
+    Args:
+        prev_distance: Goal distance before the step, m.
+        distance: Goal distance after the step, m.
+        collided: The chair touched a scene body during the step.
+        reached: The goal is reached after the step.
+        weights: The weights.
+    """
+    return float(sum(reward_terms(prev_distance, distance, collided, reached, weights).values()))
+
+
+def goal_in_robot_frame(pose: Pose2D, goal: tuple[float, float]) -> tuple[float, float]:
+    """Distance (m) and bearing (rad, (-pi, pi], counter-clockwise from the robot's x axis) of the goal."""
+    dx, dy = goal[0] - pose.x, goal[1] - pose.y
+    return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - pose.theta)
+
+
+def patch_cell_centres(
+    shape: tuple[int, int], cell: float, behind: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Robot-frame (x, y) of every patch cell centre: row ``i`` runs forward, column ``j`` to the left.
+
+    Row 0 starts ``behind`` metres behind base_link; the columns are centred on the robot's x axis.
+    """
+    h, w = shape
+    fx = -behind + (np.arange(h) + 0.5) * cell
+    ly = (np.arange(w) + 0.5 - w / 2) * cell
+    x, y = np.meshgrid(fx, ly, indexing="ij")
+    return x, y
+
+
+def egocentric_patch(
+    occupancy: npt.NDArray[np.bool_],
+    grid: GridSpec,
+    pose: Pose2D,
+    shape: tuple[int, int] = PATCH_SHAPE,
+    cell: float = PATCH_CELL,
+    behind: float = PATCH_BEHIND,
+) -> npt.NDArray[np.uint8]:
+    """Crop the world-frame occupancy grid into the robot's frame (nearest cell, outside the grid = 0).
+
+    Args:
+        occupancy: ``(nx, ny)`` bool grid of ``grid``.
+        grid: The grid's spec (axis z).
+        pose: The robot's pose.
+        shape: Patch size ``(rows forward, columns lateral)``.
+        cell: Patch cell size, m.
+        behind: Metres of the patch behind base_link.
+
+    Returns:
+        ``shape`` uint8 array, 1 = occupied; ``[i, j]`` is the cell at robot-frame
+        ``x = -behind + (i + 0.5) cell``, ``y = (j + 0.5 - shape[1] / 2) cell``.
+    """
+    x, y = patch_cell_centres(shape, cell, behind)
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    i, j = grid.world_to_index(pose.x + c * x - s * y, pose.y + s * x + c * y)
+    inside = grid.contains_index(i, j)
+    out = np.zeros(shape, dtype=np.uint8)
+    out[inside] = occupancy[i[inside], j[inside]]
+    return out
+
+
+def planar_transform(pose: Pose2D) -> npt.NDArray[np.float64]:
+    """4x4 world <- base_link for a pose on the floor."""
+    t = np.eye(4)
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    t[:2, :2] = [[c, -s], [s, c]]
+    t[:2, 3] = (pose.x, pose.y)
+    return t
+
+
+@dataclass(frozen=True)
+class FreeSpace:
+    """Where the chair may start and where goals may lie, from the scene's ground truth.
+
+    Attributes:
+        grid: The raster's grid (axis z).
+        occupied: ``(nx, ny)`` cells holding scene surface in the chair's height band.
+        clearance: ``(nx, ny)`` lower bound of the distance (m) from each cell centre to scene surface.
+        region: ``(nx, ny)`` one connected region inside the scene's bounds where the chair fits through.
+    """
+
+    grid: GridSpec
+    occupied: npt.NDArray[np.bool_]
+    clearance: npt.NDArray[np.float64]
+    region: npt.NDArray[np.bool_]
+
+    @classmethod
+    def from_scene(
+        cls,
+        scene: Scene,
+        grid: GridSpec,
+        band: tuple[float, float],
+        pass_radius: float,
+        anchor: tuple[float, float] | None = None,
+    ) -> FreeSpace:
+        """Rasterise the static objects' surfaces in ``band`` and find the free region.
+
+        Args:
+            scene: The scene (moving people are left out).
+            grid: Raster grid; its cells outside the scene's bounds never belong to the region.
+            band: Height band (z_min, z_max) in metres.
+            pass_radius: Clearance (m) a cell needs to connect the region (half the chair's width).
+            anchor: A point (x, y) the region must contain; None takes the largest region.
+
+        Raises:
+            NavigationEnvError: No free region (or the anchor is not in one).
+        """
+        from scipy import ndimage
+
+        cs = grid.cell_size
+        # a fixed generator: the raster is part of the scene, not of an episode
+        pts = ground_truth_points(scene, spacing=cs / 2, rng=np.random.default_rng(0))
+        sel = (pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])
+        i, j = grid.world_to_index(pts[sel, 0], pts[sel, 1])
+        ok = grid.contains_index(i, j)
+        occupied = np.zeros(grid.shape, dtype=bool)
+        occupied[i[ok], j[ok]] = True
+        # distance between cell centres, less half a diagonal: the surface may lie anywhere in its cell
+        clearance = ndimage.distance_transform_edt(~occupied) * cs - cs * math.sqrt(0.5)
+        x0, y0, x1, y1 = scene.bounds_xy()
+        ii, jj = np.meshgrid(np.arange(grid.shape[0]), np.arange(grid.shape[1]), indexing="ij")
+        u, v = grid.index_to_world(ii, jj)
+        in_bounds = (u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)
+        passable = (clearance >= pass_radius) & in_bounds
+        labels, n = ndimage.label(passable)
+        if n == 0:
+            raise NavigationEnvError(f"scene {scene.name!r}: no free space wide enough for the chair")
+        if anchor is not None:
+            ai, aj = grid.world_to_index(anchor[0], anchor[1])
+            if not bool(grid.contains_index(ai, aj)) or labels[ai, aj] == 0:
+                raise NavigationEnvError(f"scene {scene.name!r}: the point {anchor} is not in free space")
+            chosen = int(labels[ai, aj])
+        else:
+            chosen = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
+        return cls(grid, occupied, clearance, labels == chosen)
+
+    def candidates(self, min_clearance: float) -> npt.NDArray[np.float64]:
+        """(K, 2) world (x, y) of the region's cell centres with at least ``min_clearance`` metres."""
+        i, j = np.nonzero(self.region & (self.clearance >= min_clearance))
+        u, v = self.grid.index_to_world(i, j)
+        return np.stack([u, v], axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# the environment
+# --------------------------------------------------------------------------------------------
+
+
+def _load_scene_arg(scene: Scene | str | Path) -> Scene:
+    if isinstance(scene, Scene):
+        return scene
+    from robchair.paths import SCENES
+
+    path = Path(scene)
+    if not path.is_file():
+        path = SCENES / f"{scene}.toml"
+    if not path.is_file():
+        raise NavigationEnvError(f"scene={scene!r}: no such file and no scene of that name in {SCENES}")
+    return load_scene(path)
+
+
+def _pose_arg(value: Any, n: int, name: str) -> tuple[float, ...]:
+    try:
+        t = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise NavigationEnvError(f"{name}={value!r}: expected {n} numbers") from None
+    if len(t) != n or not all(math.isfinite(v) for v in t):
+        raise NavigationEnvError(f"{name}={value!r}: expected {n} finite numbers")
+    return t
+
+
+class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
+    """Drive the simulated RobChair to a goal without touching anything, seeing only its own sensors.
+
+    ## Description
+
+    The PyBullet twin of the RobChair Storm wheelchair (SPEC section 4) stands in a scene from
+    ``assets/scenes`` (default: the office with a corridor, a doorway and a table the chair must not
+    drive under). Each episode samples a goal position (and, unless fixed, a start pose) in the scene's
+    free space; the agent must bring ``base_link`` within ``goal_tolerance`` of the goal. Physics runs
+    at 240 Hz; the agent acts at ``agent_hz`` (10 Hz by default). The agent's command goes through
+    the differential-drive kinematics to motor RPM set points of the simulated Roboteq channels, i.e.
+    through the identified motor plant and its PID (thesis Appendix B), so speed follows with the real
+    chair's rise time and overshoot. After every agent step the simulated sensors (a Kinect at reduced
+    resolution and/or the two three-sonar arrays) are inserted into a variable-height-voxel map of the
+    episode, whose 2D occupancy in the chair's height band gives the observation.
+
+    ## Action Space
+
+    ``Box(-1, 1, (2,), float32)``: ``[v, w]`` normalised; ``v * max_speed`` m/s forward speed and
+    ``w * max_yaw_rate`` rad/s yaw rate (counter-clockwise), both by default the kinematic limits of
+    :class:`robchair.kinematics.DiffDrive` (0.62 m/s, 2.14 rad/s); the pair is then scaled down
+    uniformly so no motor exceeds its maximum RPM. Actions outside the box are clipped; non-finite
+    actions raise :class:`NavigationEnvError`.
+
+    ## Observation Space
+
+    ``Dict``:
+
+    | key         | space                                 | meaning                                        |
+    |-------------|---------------------------------------|------------------------------------------------|
+    | occupancy   | Box(0, 1, patch_shape, uint8)         | egocentric occupancy patch, 1 = occupied       |
+    | goal        | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m) and bearing (rad), robot frame|
+    | velocity    | Box(-1.5 limits, +1.5 limits)         | measured (v m/s, w rad/s) from the wheel speeds |
+    | sonar       | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max    |
+
+    The occupancy patch (default 64x64 cells of 10 cm) has row ``i`` forward (row 0 is 1.6 m behind
+    ``base_link``) and column ``j`` to the left (centred), see :func:`egocentric_patch`. A cell is
+    occupied when the episode's map holds a structure overlapping [0.10 m, chair height]: a table top
+    counts, the floor does not. Cells never observed are 0. The map and the observed goal/bearing use
+    ``pose_source``: the physics' ground truth (default) or the chair's wheel odometry.
+
+    ## Rewards
+
+    :func:`navigation_reward`: ``progress * (d_prev - d) - time - collision * [contact] + success *
+    [reached]`` with the default :class:`RewardWeights` ``(1.0 per m, 10.0, 0.01, 10.0)``; ``d`` is the
+    true distance from ``base_link`` to the goal. ``info["reward_terms"]`` holds the parts.
+
+    ## Starting State
+
+    The chair stands still at the start pose, motors and controllers reset. Unless ``start`` is given,
+    the start is a free-space cell where the chair can turn on the spot, with a uniform heading; the
+    goal is a free cell at a straight-line distance in ``goal_distance`` from the start, in the same
+    connected region. Both come from ``self.np_random``, as does the seed of every sensor's noise.
+    ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes them for one episode.
+
+    ## Episode End
+
+    1. Termination: the goal is reached (distance <= ``goal_tolerance``; ``info["is_success"]``).
+    2. Termination: collision, any contact between the chair and a scene body during the step
+       (``info["collision"]``).
+    3. Truncation: ``max_episode_steps`` (300 for the registered ids).
+
+    ## Arguments
+
+    ``gymnasium.make("RobChair/Navigation-v0", render_mode="rgb_array", **kwargs)`` with keyword
+    arguments ``scene`` (name or path or :class:`sim.scene.Scene`), ``sensor`` (``"kinect2"``,
+    ``"kinect1"`` or None), ``kinect_decimation`` (4: 512x424 -> 128x106 rays, same field of view),
+    ``sonars`` (bool), ``noise`` (sensor noise), ``agent_hz``, ``start`` ((x, y, yaw) or None),
+    ``goal`` ((x, y) or None), ``goal_distance`` ((min, max) m), ``goal_tolerance`` (m),
+    ``pose_source``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
+    ``max_yaw_rate``, ``reward_weights`` (:class:`RewardWeights`), ``spec`` (platform spec or TOML
+    path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``). ``render()`` returns a top-down
+    picture of the episode's map, the scene, the path, the chair and the goal.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": AGENT_HZ}  # noqa: RUF012
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        *,
+        scene: Scene | str | Path = "office",
+        sensor: str | None = "kinect2",
+        kinect_decimation: int = 4,
+        sonars: bool = False,
+        noise: bool = True,
+        agent_hz: int = AGENT_HZ,
+        start: tuple[float, float, float] | None = None,
+        goal: tuple[float, float] | None = None,
+        goal_distance: tuple[float, float] = (1.0, 5.0),
+        goal_tolerance: float = 0.3,
+        pose_source: str = "ground_truth",
+        patch_shape: tuple[int, int] = PATCH_SHAPE,
+        patch_cell: float = PATCH_CELL,
+        patch_behind: float = PATCH_BEHIND,
+        max_speed: float | None = None,
+        max_yaw_rate: float | None = None,
+        reward_weights: RewardWeights | None = None,
+        spec: RobChairSpec | str | Path | None = None,
+        camera_backend: str = "raycast",
+    ) -> None:
+        from sim.world import PHYSICS_HZ
+
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise NavigationEnvError(
+                f"render_mode={render_mode!r}: expected None or one of {self.metadata['render_modes']}"
+            )
+        self.render_mode = render_mode
+        if sensor is not None and sensor not in SENSORS:
+            raise NavigationEnvError(f"sensor={sensor!r}: expected one of {SENSORS} or None")
+        if sensor is None and not sonars:
+            raise NavigationEnvError("sensor=None and sonars=False: the chair would see nothing")
+        if (
+            isinstance(kinect_decimation, bool)
+            or not isinstance(kinect_decimation, int)
+            or kinect_decimation < 1
+        ):
+            raise NavigationEnvError(f"kinect_decimation={kinect_decimation!r}: expected an integer >= 1")
+        if (
+            isinstance(agent_hz, bool)
+            or not isinstance(agent_hz, int)
+            or agent_hz <= 0
+            or PHYSICS_HZ % agent_hz
+        ):
+            raise NavigationEnvError(f"agent_hz={agent_hz!r}: expected a positive divisor of {PHYSICS_HZ}")
+        if pose_source not in POSE_SOURCES:
+            raise NavigationEnvError(f"pose_source={pose_source!r}: expected one of {POSE_SOURCES}")
+        lo, hi = _pose_arg(goal_distance, 2, "goal_distance")
+        if not 0 <= lo <= hi:
+            raise NavigationEnvError(f"goal_distance={goal_distance!r}: expected 0 <= min <= max")
+        for name, val, least in (
+            ("goal_tolerance", goal_tolerance, 0.0),
+            ("patch_cell", patch_cell, 0.0),
+            ("patch_behind", patch_behind, None),
+        ):
+            ok = isinstance(val, int | float) and not isinstance(val, bool) and math.isfinite(val)
+            if not ok or (least is not None and val <= least) or val < 0:
+                raise NavigationEnvError(f"{name}={val!r}: expected a finite number > 0 (patch_behind: >= 0)")
+        ps = _pose_arg(patch_shape, 2, "patch_shape")
+        if not all(v >= 1 and v == int(v) for v in ps):
+            raise NavigationEnvError(f"patch_shape={patch_shape!r}: expected two positive integers")
+        if camera_backend not in ("raycast", "pybullet"):
+            raise NavigationEnvError(f"camera_backend={camera_backend!r}: expected 'raycast' or 'pybullet'")
+
+        if render_mode is not None:
+            self.metadata = {**self.metadata, "render_fps": agent_hz}
+        self.spec_robot = spec if isinstance(spec, RobChairSpec) else load_spec(spec)
+        self.drive = DiffDrive(self.spec_robot)
+        self.scene = _load_scene_arg(scene)
+        self.sensor, self.sonars_on, self.noise = sensor, bool(sonars), bool(noise)
+        self.agent_hz = agent_hz
+        self.substeps = PHYSICS_HZ // agent_hz
+        self.goal_distance = (lo, hi)
+        self.goal_tolerance = float(goal_tolerance)
+        self.pose_source = pose_source
+        self.patch_shape = (int(ps[0]), int(ps[1]))
+        self.patch_cell, self.patch_behind = float(patch_cell), float(patch_behind)
+        self.max_speed = float(max_speed) if max_speed is not None else self.drive.max_speed
+        self.max_yaw_rate = float(max_yaw_rate) if max_yaw_rate is not None else self.drive.max_yaw_rate
+        for name, val in (("max_speed", self.max_speed), ("max_yaw_rate", self.max_yaw_rate)):
+            if not (math.isfinite(val) and val > 0):
+                raise NavigationEnvError(f"{name}={val!r}: expected a finite number > 0")
+        self.weights = reward_weights if reward_weights is not None else RewardWeights()
+        self.fixed_start = _pose_arg(start, 3, "start") if start is not None else None
+        self.fixed_goal = _pose_arg(goal, 2, "goal") if goal is not None else None
+        self.band = (OCC_Z_MIN, float(self.spec_robot.body.height))
+
+        x0, y0, x1, y1 = self.scene.bounds_xy()
+        cs = self.patch_cell
+        nx = math.ceil((x1 - x0 + 2 * MAP_MARGIN) / cs)
+        ny = math.ceil((y1 - y0 + 2 * MAP_MARGIN) / cs)
+        self.grid = GridSpec(
+            cell_size=cs, size_x=nx * cs, size_y=ny * cs, centre=((x0 + x1) / 2, (y0 + y1) / 2)
+        )
+        from sim.backend import robot_radius
+
+        self.robot_radius = robot_radius(self.spec_robot)
+        anchor = self.fixed_start[:2] if self.fixed_start is not None else None
+        self.free_space = FreeSpace.from_scene(
+            self.scene,
+            self.grid,
+            self.band,
+            self.spec_robot.body.width / 2 + PASS_MARGIN,
+            anchor=anchor,  # type: ignore[arg-type]
+        )
+        self._start_cells = self.free_space.candidates(self.robot_radius + START_MARGIN)
+        if len(self._start_cells) == 0:
+            raise NavigationEnvError(
+                f"scene {self.scene.name!r}: no free cell where the chair can turn on the spot"
+            )
+
+        self._build_chair(kinect_decimation, camera_backend)
+        self._define_spaces()
+        self._map: Any = None
+        self._occ: npt.NDArray[np.bool_] | None = None
+        self._sensor_rng = np.random.default_rng(0)
+        self._path: list[tuple[float, float]] = []
+        self.start_pose = Pose2D()
+        self.goal = (0.0, 0.0)
+        self._prev_distance = 0.0
+        self._odom = Odometry(self.spec_robot)
+        self._sonar_ranges = np.zeros(6, dtype=np.float32)
+
+    # ---- construction ------------------------------------------------------------------------
+
+    def _build_chair(self, decimation: int, camera_backend: str) -> None:
+        import pybullet as p
+
+        from sim.backend import SimChair
+
+        model: Any = None
+        if self.sensor is not None:
+            from sim.kinect import get_model
+
+            base = get_model(self.sensor)
+            # fewer rays over the same field of view: the same camera at a lower resolution
+            model = replace(
+                base,
+                name=f"{base.name}/{decimation}",
+                width=max(1, base.width // decimation),
+                height=max(1, base.height // decimation),
+            )
+        self._chair: Any = SimChair(
+            self.spec_robot,
+            self.scene,
+            (0.0, 0.0, 0.0),
+            sensor=model,
+            sonars=self.sonars_on,
+            seed=0,
+            camera_backend=camera_backend,
+            noise=self.noise,
+        )
+        self.client = self._chair.world.client
+        self.robot = self._chair.robot
+        # every episode starts from this snapshot (contacts and solver caches included), so the same
+        # seed gives the same episode bit for bit, however many episodes ran before
+        self._state_id = p.saveState(physicsClientId=self.client)
+        dyn = p.getDynamicsInfo(self.robot.body, -1, physicsClientId=self.client)
+        self._inertial = (tuple(dyn[3]), tuple(dyn[4]))
+        self._t_base_cam = self.spec_robot.mounts["kinect_link"].transform()
+        if self._chair.kinect is not None:
+            self._t_base_cam = self._t_base_cam @ self._chair.kinect.output_pose(np.eye(4))
+        self._scene_bodies = frozenset(self._chair.bodies.ids.values())
+        self._closed = False
+
+    def _define_spaces(self) -> None:
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        x0, y0, x1, y1 = self.grid.extent
+        self.max_goal_obs = float(math.hypot(x1 - x0, y1 - y0))
+        vmax = SPEED_OBS_FACTOR * self.drive.max_speed
+        wmax = SPEED_OBS_FACTOR * self.drive.max_yaw_rate
+        self._vel_high = np.array([vmax, wmax], np.float32)
+        obs: dict[str, spaces.Space[Any]] = {
+            "occupancy": spaces.Box(0, 1, shape=self.patch_shape, dtype=np.uint8),
+            "goal": spaces.Box(
+                np.array([0.0, -math.pi], np.float32),
+                np.array([self.max_goal_obs, math.pi], np.float32),
+                dtype=np.float32,
+            ),
+            "velocity": spaces.Box(-self._vel_high, self._vel_high, dtype=np.float32),
+        }
+        if self.sonars_on:
+            self.sonar_max_range = float(max(a.model.max_range_m for a in self._chair.sonars.values()))
+            obs["sonar"] = spaces.Box(0.0, self.sonar_max_range, shape=(6,), dtype=np.float32)
+        self.observation_space = spaces.Dict(obs)  # type: ignore[assignment]
+
+    # ---- episode -----------------------------------------------------------------------------
+
+    def _sample_start_goal(self, options: Mapping[str, Any]) -> tuple[Pose2D, tuple[float, float]]:
+        rng = self.np_random
+        start = options.get("start", self.fixed_start)
+        goal = options.get("goal", self.fixed_goal)
+        if start is not None:
+            start = Pose2D(*_pose_arg(start, 3, "start"))
+        if goal is not None:
+            goal = _pose_arg(goal, 2, "goal")
+            if start is None:
+                start = self._sample_start(rng, np.array(goal))
+        elif start is not None:
+            goal = self._sample_goal(rng, start)
+        else:
+            for _ in range(100):
+                cand = self._sample_start(rng, None)
+                try:
+                    goal = self._sample_goal(rng, cand)
+                except NavigationEnvError:
+                    continue
+                start = cand
+                break
+            else:
+                raise NavigationEnvError(
+                    f"scene {self.scene.name!r}: found no start with a goal at {self.goal_distance} m "
+                    "in 100 tries"
+                )
+        for name, xy in (("start", (start.x, start.y)), ("goal", goal)):
+            i, j = self.grid.world_to_index(xy[0], xy[1])
+            if not bool(self.grid.contains_index(i, j)):
+                raise NavigationEnvError(f"{name} {xy} lies outside the scene's map {self.grid.extent}")
+        return start, goal  # type: ignore[return-value]
+
+    def _sample_start(self, rng: np.random.Generator, goal: npt.NDArray[np.float64] | None) -> Pose2D:
+        cells = self._start_cells
+        if goal is not None:
+            d = np.hypot(*(cells - goal).T)
+            cells = cells[(d >= self.goal_distance[0]) & (d <= self.goal_distance[1])]
+            if len(cells) == 0:
+                raise NavigationEnvError(
+                    f"no free start at {self.goal_distance} m from the goal {tuple(goal)}"
+                )
+        x, y = cells[int(rng.integers(len(cells)))]
+        return Pose2D(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
+
+    def _sample_goal(self, rng: np.random.Generator, start: Pose2D) -> tuple[float, float]:
+        cells = self._start_cells
+        d = np.hypot(cells[:, 0] - start.x, cells[:, 1] - start.y)
+        cells = cells[(d >= self.goal_distance[0]) & (d <= self.goal_distance[1])]
+        if len(cells) == 0:
+            raise NavigationEnvError(f"no free goal at {self.goal_distance} m from the start {start}")
+        x, y = cells[int(rng.integers(len(cells)))]
+        return float(x), float(y)
+
+    def _place_chair(self, start: Pose2D) -> None:
+        import pybullet as p
+
+        self._check_not_closed()
+        p.restoreState(self._state_id, physicsClientId=self.client)
+        q = p.getQuaternionFromEuler((0.0, 0.0, start.theta))
+        # PyBullet's base frame is the inertial frame: place base_link by composing the offset
+        pos, orn = p.multiplyTransforms((start.x, start.y, 0.0), q, *self._inertial)
+        p.resetBasePositionAndOrientation(self.robot.body, pos, orn, physicsClientId=self.client)
+        p.resetBaseVelocity(self.robot.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=self.client)
+        for motor in (self.robot.left, self.robot.right):
+            motor.reset()
+        self.robot.set_motor_rpm(0.0, 0.0)
+        world = self._chair.world
+        world.steps = 0  # scripted people restart their walks; stamps restart at 0
+        if self._chair.bodies.moving:
+            self._chair.bodies.update(self.client, 0.0)
+        self._chair.step(SETTLE_STEPS)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Start an episode: place the chair, pick the goal, clear the map, take the first sensor frame.
+
+        Args:
+            seed: Seeds ``self.np_random`` (start, goal, sensor noise).
+            options: ``{"start": (x, y, yaw), "goal": (x, y)}`` (either optional) for this episode.
+        """
+        super().reset(seed=seed)
+        opts = dict(options or {})
+        unknown = set(opts) - {"start", "goal"}
+        if unknown:
+            raise NavigationEnvError(f"reset options {sorted(unknown)}: unknown (allowed: 'start', 'goal')")
+        start, goal = self._sample_start_goal(opts)
+        self.start_pose, self.goal = start, goal
+        # one child stream for all sensor noise, drawn after start and goal so they stay put
+        self._sensor_rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
+        self._place_chair(start)
+        from mapping.vhv import VHVMap
+
+        self._map = VHVMap(self.grid, tolerance=self.patch_cell)
+        self._odom = Odometry(self.spec_robot, start)
+        self._odom.update(*self.robot.encoder_counts())
+        self._path = []
+        self._steps = 0
+        pose = self._pose()
+        self._sense(pose)
+        self._prev_distance = self._true_distance()
+        return self._observation(pose), self._info(pose, False, False, None)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
+        """Apply ``action`` for one agent period (``240 / agent_hz`` physics steps), sense, reward.
+
+        Raises:
+            NavigationEnvError: the action is not two finite numbers, or step before reset.
+        """
+        if self._map is None:
+            raise NavigationEnvError("step() called before reset()")
+        self._check_not_closed()
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,) or not np.isfinite(a).all():
+            raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
+        a = np.clip(a, -1.0, 1.0)
+        v, w = self.drive.limit(float(a[0]) * self.max_speed, float(a[1]) * self.max_yaw_rate)
+        self.robot.set_motor_rpm(*self.drive.motor_rpm(v, w))
+        world = self._chair.world
+        odom_every = world.physics_hz // ODOM_HZ
+        collided = False
+        for _ in range(self.substeps):
+            self._chair.step(1)
+            if world.steps % odom_every == 0:
+                self._odom.update(*self.robot.encoder_counts())
+            collided = collided or self._in_collision()
+        self._steps += 1
+        pose = self._pose()
+        self._sense(pose)
+        distance = self._true_distance()
+        reached = distance <= self.goal_tolerance
+        terms = reward_terms(self._prev_distance, distance, collided, reached, self.weights)
+        self._prev_distance = distance
+        obs = self._observation(pose)
+        info = self._info(pose, collided, reached, terms)
+        return obs, float(sum(terms.values())), bool(collided or reached), False, info
+
+    # ---- state -------------------------------------------------------------------------------
+
+    def _pose(self) -> Pose2D:
+        """The pose the chair believes (ground truth or odometry, per ``pose_source``)."""
+        gt = self.robot.pose2d()  # raises SimulationDivergedError on a non-finite pose
+        self._path.append((gt.x, gt.y))
+        return gt if self.pose_source == "ground_truth" else self._odom.pose
+
+    def _true_distance(self) -> float:
+        gt = self.robot.pose2d()
+        return math.hypot(self.goal[0] - gt.x, self.goal[1] - gt.y)
+
+    def _in_collision(self) -> bool:
+        import pybullet as p
+
+        for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client):
+            if c[2] in self._scene_bodies:
+                return True
+        return False
+
+    def contacts(self) -> list[str]:
+        """Names of the scene objects the chair touches now."""
+        import pybullet as p
+
+        names = {v: k for k, v in self._chair.bodies.ids.items()}
+        hit = {
+            names[c[2]]
+            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
+            if c[2] in names
+        }
+        return sorted(hit)
+
+    def _sense(self, pose: Pose2D) -> None:
+        """Read the sensors and insert their points into the episode's map (placed at ``pose``)."""
+        gt = self.pose_source == "ground_truth"
+        chair = self._chair
+        stamp = chair.world.now_ns()
+        if chair.kinect is not None:
+            t_gt = chair.kinect_pose()
+            frame = chair.kinect.capture(t_gt, stamp_ns=stamp, rng=self._sensor_rng)
+            t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
+            pts = frame.points.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
+            self._map.insert(pts, sensor_origin=t[:3, 3])
+        if chair.sonars:
+            from mapping.sonar import array_points
+
+            ranges = []
+            for mount, arr in chair.sonars.items():
+                t_arr = self.robot.link_transform(mount)
+                r = arr.measure(t_arr, 0.0, rng=self._sensor_rng)
+                ranges.extend(r)
+                _, spts = array_points(r)
+                if len(spts):
+                    if not gt:
+                        joint = math.radians(self.robot.servo_deg(mount))
+                        t_arr = planar_transform(pose) @ self.spec_robot.mounts[mount].transform(joint)
+                    self._map.insert(spts @ t_arr[:3, :3].T + t_arr[:3, 3], sensor_origin=t_arr[:3, 3])
+            rr = np.asarray(ranges, dtype=np.float64)
+            self._sonar_ranges = np.where(
+                np.isfinite(rr), np.clip(rr, 0.0, self.sonar_max_range), self.sonar_max_range
+            ).astype(np.float32)
+        from mapping.derived import occupancy_2d
+
+        self._occ = occupancy_2d(self._map, *self.band)
+
+    def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
+        assert self._occ is not None
+        dist, bearing = goal_in_robot_frame(pose, self.goal)
+        v, w = self.drive.twist_from_rpm(*self.robot.wheel_speed_rpm())
+        obs: dict[str, np.ndarray] = {
+            "occupancy": egocentric_patch(
+                self._occ, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
+            ),
+            "goal": np.array([min(dist, self.max_goal_obs), bearing], dtype=np.float32),
+            "velocity": np.clip(np.array([v, w], dtype=np.float32), -self._vel_high, self._vel_high),
+        }
+        if self.sonars_on:
+            obs["sonar"] = self._sonar_ranges.copy()
+        return obs
+
+    def _info(
+        self, pose: Pose2D, collided: bool, reached: bool, terms: dict[str, float] | None
+    ) -> dict[str, Any]:
+        gt = self.robot.pose2d()
+        info: dict[str, Any] = {
+            "distance": self._prev_distance,
+            "collision": collided,
+            "is_success": reached,
+            "pose": (gt.x, gt.y, gt.theta),
+            "pose_estimate": (pose.x, pose.y, pose.theta),
+            "goal": self.goal,
+            "sim_time": self._chair.world.time,
+        }
+        if terms is not None:
+            info["reward_terms"] = terms
+        if collided:
+            info["contacts"] = self.contacts()
+        return info
+
+    # ---- rendering / closing -----------------------------------------------------------------
+
+    def render(self) -> npt.NDArray[np.uint8] | None:
+        """``rgb_array``: top-down picture (uint8, (H, W, 3)) of the scene, the map, path, chair, goal.
+
+        Light grey: the scene's surfaces in the chair's height band (ground truth); black: cells the
+        episode's map holds as occupied; blue: the driven path; red: the chair's footprint; green: the
+        goal and its tolerance circle. North (+y) is up, east (+x) to the right, 3 px per cell.
+        """
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        return self._draw()
+
+    def _draw(self, px: int = 3) -> npt.NDArray[np.uint8]:
+        nx, ny = self.grid.shape
+        img = np.full((nx, ny, 3), 255, dtype=np.uint8)
+        img[self.free_space.occupied] = (200, 200, 200)
+        if self._occ is not None:
+            img[self._occ] = (0, 0, 0)
+        ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+        u, v = self.grid.index_to_world(ii, jj)
+        if self._map is not None:
+            gx, gy = self.goal
+            img[np.hypot(u - gx, v - gy) <= max(self.goal_tolerance, self.grid.cell_size)] = (0, 170, 0)
+            if self._path:
+                path = np.asarray(self._path)
+                pi, pj = self.grid.world_to_index(path[:, 0], path[:, 1])
+                ok = self.grid.contains_index(pi, pj)
+                img[pi[ok], pj[ok]] = (40, 80, 255)
+            gt = self.robot.pose2d()
+            c, s = math.cos(gt.theta), math.sin(gt.theta)
+            lx = c * (u - gt.x) + s * (v - gt.y)
+            ly = -s * (u - gt.x) + c * (v - gt.y)
+            b = self.spec_robot.body
+            foot = (np.abs(lx - b.centre_x) <= b.depth / 2) & (np.abs(ly) <= b.width / 2)
+            img[foot] = (220, 30, 30)
+        # (i along x, j along y) -> rows = -y, columns = x
+        pic = np.ascontiguousarray(np.transpose(img, (1, 0, 2))[::-1])
+        return np.repeat(np.repeat(pic, px, axis=0), px, axis=1)
+
+    def _check_not_closed(self) -> None:
+        if self._closed:
+            raise NavigationEnvError("the environment is closed")
+
+    def close(self) -> None:
+        """Release the PyBullet client (idempotent)."""
+        chair = getattr(self, "_chair", None)
+        if chair is not None and not self._closed:
+            chair.close()
+            self._closed = True

@@ -1,0 +1,344 @@
+"""The Gymnasium navigation environment: contract, determinism, rewards, collisions, observations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from robchair.kinematics import Pose2D
+from sim.envs.navigation import (
+    FreeSpace,
+    NavigationEnvError,
+    RewardWeights,
+    egocentric_patch,
+    goal_in_robot_frame,
+    navigation_reward,
+    reward_terms,
+)
+
+pytest.importorskip("pybullet")
+gymnasium = pytest.importorskip("gymnasium")
+
+import sim.envs  # noqa: E402  (registers the ids)
+
+ENV_ID = "RobChair/Navigation-v0"
+
+
+@pytest.fixture(scope="module")
+def env():
+    from sim.envs.navigation import RobChairNavigationEnv
+
+    e = RobChairNavigationEnv(render_mode="rgb_array")
+    yield e
+    e.close()
+
+
+def _run(env, seed, actions, options=None):
+    obs, _ = env.reset(seed=seed, options=options)
+    out = [obs]
+    rewards = []
+    for a in actions:
+        obs, r, term, trunc, _ = env.step(a)
+        out.append(obs)
+        rewards.append(r)
+        if term or trunc:
+            break
+    return out, rewards
+
+
+# ---- pure functions ---------------------------------------------------------------------------
+
+
+def test_reward_function_matches_hand_computed_values():
+    # 20 cm of progress, 0.01 time cost
+    assert navigation_reward(5.0, 4.8, False, False) == pytest.approx(0.19)
+    # moving away by 10 cm and hitting something
+    assert navigation_reward(2.0, 2.1, True, False) == pytest.approx(-0.1 - 10.0 - 0.01)
+    # the last 25 cm onto the goal
+    assert navigation_reward(0.5, 0.25, False, True) == pytest.approx(0.25 - 0.01 + 10.0)
+    w = RewardWeights(progress=2.0, collision=1.0, time=0.5, success=3.0)
+    assert navigation_reward(1.0, 0.0, True, True, w) == pytest.approx(2.0 - 1.0 - 0.5 + 3.0)
+    assert reward_terms(1.0, 0.0, True, True, w) == {
+        "progress": 2.0,
+        "collision": -1.0,
+        "time": -0.5,
+        "success": 3.0,
+    }
+
+
+def test_goal_bearing_is_measured_counter_clockwise_from_the_robot_heading():
+    north = Pose2D(1.0, 1.0, math.pi / 2)
+    assert goal_in_robot_frame(north, (1.0, 3.0)) == pytest.approx((2.0, 0.0))
+    assert goal_in_robot_frame(north, (0.0, 1.0)) == pytest.approx((1.0, math.pi / 2))  # west is to the left
+    assert goal_in_robot_frame(north, (3.0, 1.0)) == pytest.approx((2.0, -math.pi / 2))
+    assert goal_in_robot_frame(Pose2D(0.0, 0.0, 0.0), (-1.0, 0.0))[1] == pytest.approx(math.pi)
+
+
+def _one_obstacle_grid(x, y):
+    from mapping.grid import GridSpec
+
+    grid = GridSpec(cell_size=0.1, size_x=10.0, size_y=10.0, centre=(0.0, 0.0))
+    occ = np.zeros(grid.shape, dtype=bool)
+    i, j = grid.world_to_index(x, y)
+    occ[i, j] = True
+    return grid, occ
+
+
+def test_egocentric_patch_places_an_obstacle_ahead_and_left_in_the_right_cell():
+    # robot at (1, 1) facing +x; obstacle 1.05 m ahead and 0.05 m to the left
+    grid, occ = _one_obstacle_grid(2.05, 1.05)
+    patch = egocentric_patch(occ, grid, Pose2D(1.0, 1.0, 0.0), (64, 64), 0.1, 1.6)
+    # row = (1.05 + 1.6) / 0.1 - 0.5 = 26, column = 0.05 / 0.1 - 0.5 + 32 = 32
+    assert patch.sum() == 1 and patch[26, 32] == 1
+
+
+def test_egocentric_patch_rotates_with_the_robot():
+    # robot at (1, 1) facing +y (north): 1.05 m ahead, 0.05 m left is world (0.95, 2.05)
+    grid, occ = _one_obstacle_grid(0.95, 2.05)
+    patch = egocentric_patch(occ, grid, Pose2D(1.0, 1.0, math.pi / 2), (64, 64), 0.1, 1.6)
+    assert patch.sum() == 1 and patch[26, 32] == 1
+    # behind the robot (facing south, the same obstacle is 1.05 m behind and 0.05 m to its right)
+    patch = egocentric_patch(occ, grid, Pose2D(1.0, 1.0, -math.pi / 2), (64, 64), 0.1, 1.6)
+    # row = (-1.05 + 1.6) / 0.1 - 0.5 = 5, column = -0.05 / 0.1 - 0.5 + 32 = 31
+    assert patch.sum() == 1 and patch[5, 31] == 1
+
+
+def test_egocentric_patch_is_zero_outside_the_map():
+    grid, occ = _one_obstacle_grid(0.05, 0.05)
+    occ[:] = True
+    patch = egocentric_patch(occ, grid, Pose2D(4.9, 0.0, 0.0), (10, 10), 0.1, 0.0)
+    # row 0 (centre x = 4.95) is the map's last cell; row 1 (x = 5.05) lies outside the 10 m map
+    assert patch[0].all() and not patch[1:].any()
+
+
+def test_free_space_of_the_office_joins_corridor_and_room_through_the_doorway(env):
+    fs: FreeSpace = env.free_space
+    i0, j0 = fs.grid.world_to_index(0.0, 0.0)
+    ir, jr = fs.grid.world_to_index(9.0, -1.0)  # in the room, behind the 1.4 m doorway
+    it, jt = fs.grid.world_to_index(9.2, 1.3)  # under the table
+    assert fs.region[i0, j0] and fs.region[ir, jr] and not fs.region[it, jt]
+    # the corridor is 2.4 m wide with 0.1 m walls: 1.15 m from its centre line to the walls
+    assert 1.0 <= fs.clearance[i0, j0] <= 1.2
+    io, jo = fs.grid.world_to_index(3.0, 2.0)  # outside the building
+    assert not fs.region[io, jo]
+
+
+# ---- the environment --------------------------------------------------------------------------
+
+
+def test_env_checker_accepts_the_environment():
+    from gymnasium.utils.env_checker import check_env
+
+    e = gymnasium.make(ENV_ID)
+    try:
+        check_env(e.unwrapped)
+    finally:
+        e.close()
+
+
+def test_registered_ids_use_lazy_entry_points_and_a_time_limit():
+    for env_id in sim.envs.ENV_IDS:
+        spec = gymnasium.spec(env_id)
+        assert spec.entry_point == "sim.envs.navigation:RobChairNavigationEnv"
+        assert spec.max_episode_steps == 300
+
+
+def test_same_seed_gives_the_same_episode_bit_for_bit(env):
+    actions = [np.array([0.8, 0.3], np.float32), np.array([1.0, -0.5], np.float32)] * 4
+    obs_a, rew_a = _run(env, 11, actions)
+    _run(env, 5, actions[:3])  # another episode in between must leave no trace
+    obs_b, rew_b = _run(env, 11, actions)
+    assert rew_a == rew_b
+    assert len(obs_a) == len(obs_b)
+    for oa, ob in zip(obs_a, obs_b):
+        for k in oa:
+            np.testing.assert_array_equal(oa[k], ob[k])
+    assert any(o["occupancy"].any() for o in obs_a)  # the comparison covered a real map
+
+
+def test_different_seeds_give_different_starts_and_goals(env):
+    _, info_a = env.reset(seed=1)
+    _, info_b = env.reset(seed=2)
+    assert (info_a["pose"], info_a["goal"]) != (info_b["pose"], info_b["goal"])
+
+
+def test_sampled_start_and_goal_lie_in_free_space_at_the_asked_distance(env):
+    for seed in range(5):
+        _, info = env.reset(seed=seed)
+        x, y, _ = info["pose"]
+        gx, gy = info["goal"]
+        assert 1.0 <= math.hypot(gx - x, gy - y) <= 5.0
+        for px, py in ((x, y), (gx, gy)):
+            i, j = env.grid.world_to_index(px, py)
+            assert env.free_space.region[i, j]
+            assert env.free_space.clearance[i, j] >= env.robot_radius
+
+
+def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(env):
+    # facing the corridor's left wall at y = 1.2; the footrest is 0.58 m ahead of base_link
+    env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
+    for _ in range(40):
+        _, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0], np.float32))
+        if terminated:
+            break
+    assert terminated and not truncated
+    assert info["collision"] and not info["is_success"]
+    assert info["contacts"] == ["corridor_wall_left"]
+    assert info["reward_terms"]["collision"] == -10.0
+    assert reward < -9.0
+    # the chair stopped at the wall: base_link at about 1.2 - 0.58 from the corridor's centre line
+    assert 0.5 < info["pose"][1] < 0.7
+
+
+def test_the_wall_ahead_shows_in_the_forward_rows_of_the_occupancy_patch(env):
+    obs, _ = env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
+    occ = obs["occupancy"]
+    # the wall is 1.2 m ahead: rows (1.2 + 1.6) / 0.1 = 28 (its near face, minus noise) and beyond
+    rows = np.nonzero(occ.any(axis=1))[0]
+    assert rows.size and 26 <= rows.min() <= 30
+    assert not occ[:26].any()  # nothing between the chair and the wall
+
+
+def test_driving_toward_the_goal_earns_progress_reward(env):
+    env.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (4.0, 0.0)})
+    progress, rewards, distances = [], [], []
+    for _ in range(10):
+        obs, reward, terminated, _, info = env.step(np.array([1.0, 0.0], np.float32))
+        progress.append(info["reward_terms"]["progress"])
+        rewards.append(reward)
+        distances.append(info["distance"])
+        assert not terminated
+    assert all(p > 0 for p in progress)
+    assert sum(rewards) > 0.3  # about 0.5 m covered in 1 s (motor rise time included)
+    assert distances == sorted(distances, reverse=True)
+    assert abs(obs["goal"][1]) < 0.1  # still heading at the goal
+
+
+def test_reaching_the_goal_terminates_with_the_success_bonus(env):
+    env.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (1.0, 0.0)})
+    for _ in range(40):
+        _, reward, terminated, _, info = env.step(np.array([0.5, 0.0], np.float32))
+        if terminated:
+            break
+    assert terminated and info["is_success"] and not info["collision"]
+    assert info["distance"] <= 0.3
+    assert info["reward_terms"]["success"] == 10.0 and reward > 9.0
+
+
+def test_observations_lie_inside_the_observation_space(env):
+    obs, _ = env.reset(seed=3)
+    assert env.observation_space.contains(obs)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs, *_ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        assert env.observation_space.contains(obs)
+
+
+def test_out_of_range_actions_are_clipped_like_the_unit_box(env):
+    actions_big = [np.array([5.0, 0.0])] * 3
+    actions_one = [np.array([1.0, 0.0])] * 3
+    _, ra = _run(env, 4, actions_big)
+    _, rb = _run(env, 4, actions_one)
+    assert ra == rb
+
+
+def test_bad_actions_and_options_are_refused_with_a_clear_error(env):
+    env.reset(seed=0)
+    with pytest.raises(NavigationEnvError, match="action"):
+        env.step(np.array([np.nan, 0.0]))
+    with pytest.raises(NavigationEnvError, match="action"):
+        env.step(np.array([1.0, 0.0, 0.0]))
+    with pytest.raises(NavigationEnvError, match="unknown"):
+        env.reset(options={"stat": (0, 0, 0)})
+    with pytest.raises(NavigationEnvError, match="outside"):
+        env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (500.0, 0.0)})
+
+
+def test_bad_constructor_arguments_are_refused_before_anything_is_built():
+    from sim.envs.navigation import RobChairNavigationEnv
+
+    with pytest.raises(NavigationEnvError, match="render_mode"):
+        RobChairNavigationEnv(render_mode="human")
+    with pytest.raises(NavigationEnvError, match="sensor"):
+        RobChairNavigationEnv(sensor="kinect2-hd")
+    with pytest.raises(NavigationEnvError, match="see nothing"):
+        RobChairNavigationEnv(sensor=None, sonars=False)
+    with pytest.raises(NavigationEnvError, match="agent_hz"):
+        RobChairNavigationEnv(agent_hz=7)
+    with pytest.raises(NavigationEnvError, match="scene"):
+        RobChairNavigationEnv(scene="no_such_scene")
+
+
+def test_render_draws_the_chair_and_the_goal_where_they_are(env):
+    env.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (4.0, 0.0)})
+    img = env.render()
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    red = np.argwhere((img == (220, 30, 30)).all(axis=2))
+    green = np.argwhere((img == (0, 170, 0)).all(axis=2))
+    assert len(red) and len(green)
+    # same row band (both at y ~ 0), goal 4 m = 40 cells = 120 px east of the chair's footprint centre
+    px_per_m = 3 / env.grid.cell_size
+    dx = green[:, 1].mean() - red[:, 1].mean()
+    assert dx == pytest.approx((4.0 - env.spec_robot.body.centre_x) * px_per_m, abs=4)
+    assert green[:, 0].mean() == pytest.approx(red[:, 0].mean(), abs=4)
+
+
+def test_a_random_policy_runs_until_the_time_limit_truncates(env):
+    e = gymnasium.wrappers.TimeLimit(env, max_episode_steps=5)
+    obs, _ = e.reset(seed=9)
+    e.action_space.seed(9)
+    done = False
+    n = 0
+    while not done:
+        assert e.observation_space.contains(obs)
+        obs, _, terminated, truncated, _ = e.step(e.action_space.sample())
+        n += 1
+        done = terminated or truncated
+    assert n <= 5 and (truncated or terminated)
+
+
+def test_close_is_idempotent_and_a_closed_env_refuses_to_step():
+    from sim.envs.navigation import RobChairNavigationEnv
+
+    e = RobChairNavigationEnv(sensor=None, sonars=True)
+    e.reset(seed=0)
+    e.close()
+    e.close()
+    with pytest.raises(NavigationEnvError, match="closed"):
+        e.step(np.zeros(2))
+
+
+@pytest.mark.slow
+def test_sonar_only_variant_observes_six_ranges_and_is_deterministic():
+    e = gymnasium.make("RobChair/NavigationSonar-v0")
+    try:
+        actions = [np.array([0.6, 0.2], np.float32)] * 6
+        obs_a, rew_a = _run(e, 2, actions)
+        obs_b, rew_b = _run(e, 2, actions)
+        assert rew_a == rew_b
+        for oa, ob in zip(obs_a, obs_b):
+            assert e.observation_space.contains(oa)
+            assert oa["sonar"].shape == (6,)
+            for k in oa:
+                np.testing.assert_array_equal(oa[k], ob[k])
+    finally:
+        e.close()
+
+
+@pytest.mark.slow
+def test_odometry_pose_source_stays_close_to_ground_truth_over_a_short_drive():
+    from sim.envs.navigation import RobChairNavigationEnv
+
+    e = RobChairNavigationEnv(pose_source="odometry")
+    try:
+        e.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (4.0, 0.0)})
+        for _ in range(15):
+            _, _, _, _, info = e.step(np.array([0.8, 0.2], np.float32))
+        (x, y, th), (ex, ey, eth) = info["pose"], info["pose_estimate"]
+        assert math.hypot(x - ex, y - ey) < 0.1
+        assert abs(th - eth) < 0.05
+        assert (x, y) != (ex, ey)  # it is an estimate, not the ground truth
+    finally:
+        e.close()
