@@ -9,11 +9,18 @@ Structures leave the kernels as three parallel arrays: cell key ``i * ny + j`` (
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
 
-_JIT = {"cache": True, "nogil": True, "nopython": True, "error_model": "numpy", "boundscheck": False}
+_JIT: dict[str, Any] = {
+    "cache": True,
+    "nogil": True,
+    "nopython": True,
+    "error_model": "numpy",
+    "boundscheck": False,
+}
 
 
 @numba.jit(**_JIT)

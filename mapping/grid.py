@@ -170,7 +170,7 @@ class GridSpec:
         cs = self.cell_size
         u = (np.asarray(i, dtype=np.int64) + ou + 0.5) * cs
         v = (np.asarray(j, dtype=np.int64) + ov + 0.5) * cs
-        return u, v
+        return np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
 
     def contains_index(self, i: ArrayLike, j: ArrayLike) -> NDArray[np.bool_]:
         """True where ``(i, j)`` addresses a cell of this (bounded) grid."""

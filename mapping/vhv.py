@@ -21,7 +21,7 @@ This gives exactly the sort + unique + cluster result:
   non-empty bin of the same cell are *consecutive* sorted values, and the test on them is the thesis's
   test (4.2.4) on the same two float64 numbers.
 
-The dense (cell, bin) table spans only the frame's bounding box, guessed from every 8th point and
+The dense (cell, bin) table spans only the frame's bounding box, guessed from every 32nd point and
 widened by a margin; points outside the guess are not lost but clustered by the sort path and merged
 in (exactly, see below). When the table would exceed the size of the input array (or 4 MiB for small
 clouds) or would be mostly empty (more entries than twice the points) — small or sparse clouds,
@@ -384,7 +384,7 @@ def _box_range(lo: float, hi: float, ics: float, origin: int, n: int) -> tuple[i
 # Points sampled to guess the frame's box (every _SAMPLE_STEP-th); the guess is widened by a margin and
 # points that still fall outside it are handled exactly by the sort path, so the guess never changes
 # the result, only the speed.
-_SAMPLE_STEP = 8
+_SAMPLE_STEP = 32
 _MARGIN_CELLS = 4
 
 

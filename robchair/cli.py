@@ -57,7 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
         mod = _load(name)
         if mod is not None:
             mod.register(bench_sub)
-    bench.set_defaults(func=lambda _args: (bench.print_help(), 2)[1])
+
+    def _bench_help(_args: argparse.Namespace) -> int:
+        bench.print_help()
+        return 2
+
+    bench.set_defaults(func=_bench_help)
     return parser
 
 

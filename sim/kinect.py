@@ -367,41 +367,6 @@ def render_pybullet(
 # --------------------------------------------------------------------------------------------
 
 
-def _splat_kernel():  # type: ignore[no-untyped-def]
-    from numba import njit
-
-    @njit(cache=True)
-    def splat(uc, vc, zc, half_w, width, height):  # pragma: no cover - compiled
-        zbuf = np.full(height * width, np.inf)
-        src = np.full(height * width, -1, dtype=np.int64)
-        for k in range(uc.shape[0]):
-            hw = half_w[k]
-            u0 = math.ceil(uc[k] - hw - 0.5)
-            u1 = math.floor(uc[k] + hw - 0.5)
-            v0 = math.ceil(vc[k] - hw - 0.5)
-            v1 = math.floor(vc[k] + hw - 0.5)
-            if u0 < 0:
-                u0 = 0
-            if v0 < 0:
-                v0 = 0
-            if u1 > width - 1:
-                u1 = width - 1
-            if v1 > height - 1:
-                v1 = height - 1
-            for v in range(v0, v1 + 1):
-                for u in range(u0, u1 + 1):
-                    i = v * width + u
-                    if zc[k] < zbuf[i]:
-                        zbuf[i] = zc[k]
-                        src[i] = k
-        return src
-
-    return splat
-
-
-_SPLAT: Any = None
-
-
 def register_depth(
     points_d: FloatArray,
     normals_d: FloatArray,
@@ -420,9 +385,8 @@ def register_depth(
         ``(points_c, source)``: (H, W, 3) points in the colour camera frame (NaN where no depth
         sample covers the pixel) and (H, W) flat index of the depth pixel each came from (-1).
     """
-    global _SPLAT
-    if _SPLAT is None:
-        _SPLAT = _splat_kernel()
+    from sim._kinect_kernels import splat
+
     ic = reg.intrinsics
     flat = points_d.reshape(-1, 3)
     valid = np.flatnonzero(np.all(np.isfinite(flat), axis=1))
@@ -435,7 +399,7 @@ def register_depth(
     # one depth pixel spans (z_d / fx_d) metres; in the colour image that is fx_c * (z_d/fx_d) / x_c
     zd = flat[valid, 0]
     half_w = 0.5 * np.maximum(ic.fx / intr_d.fx, ic.fy / intr_d.fy) * zd / x * 1.05
-    src_k = _SPLAT(uc, vc, x, half_w, ic.width, ic.height)
+    src_k = splat(uc, vc, x, half_w, ic.width, ic.height)
     src = np.where(src_k >= 0, valid[np.maximum(src_k, 0)], -1).reshape(ic.height, ic.width)
     out = np.full((ic.height, ic.width, 3), np.nan)
     hit = src >= 0
@@ -458,76 +422,8 @@ def register_depth(
 # noise + quantisation + range cut, fused (one pass over the image instead of ~20 numpy passes)
 # --------------------------------------------------------------------------------------------
 
-_NOISE_CODES = {"nguyen2012": 0, "fankhauser2015": 1}
-_QUANT_CODES = {None: 0, "mm": 1, "disparity": 2}
-_FINISH: Any = None
-
-
-def _finish_kernel():  # type: ignore[no-untyped-def]
-    """Compile (once, cached on disk) the per-pixel noise kernel; same formulas as the functions above."""
-    global _FINISH
-    if _FINISH is not None:
-        return _FINISH
-    from numba import njit
-
-    half_pi = math.pi / 2
-    theta_max = _THETA_MAX
-    k_disp = KINECT1_FOCAL_PX * KINECT1_BASELINE_M * KINECT1_SUBPIXEL
-
-    @njit(cache=True)
-    def angle(normals, rays, inv_norm, v, u):  # pragma: no cover - compiled
-        c = abs(
-            normals[v, u, 0] * rays[v, u, 0]
-            + normals[v, u, 1] * rays[v, u, 1]
-            + normals[v, u, 2] * rays[v, u, 2]
-        )
-        c *= inv_norm[v, u]
-        if not c == c:  # NaN normal (unknown): treat the surface as facing the camera
-            return 0.0
-        if c > 1.0:
-            c = 1.0
-        th = math.acos(c)
-        return th if th < theta_max else theta_max
-
-    @njit(cache=True)
-    def finish(depth, normals, rays, inv_norm, rnd, noise, model, quant, zmin, zmax):  # pragma: no cover
-        h, w = depth.shape
-        z_out = np.empty((h, w))
-        src = np.empty((h, w), dtype=np.int64)
-        for v in range(h):
-            for u in range(w):
-                if noise:
-                    th = angle(normals, rays, inv_norm, v, u)
-                    sl = 0.8 + 0.035 * th / (half_pi - th) if model == 0 else 1.6
-                    su = int(np.rint(u + rnd[0, v, u] * sl))
-                    sv = int(np.rint(v + rnd[1, v, u] * sl))
-                    su = min(max(su, 0), w - 1)
-                    sv = min(max(sv, 0), h - 1)
-                    z = depth[sv, su]
-                    ts = angle(normals, rays, inv_norm, sv, su)
-                    a = ts * ts / ((half_pi - ts) * (half_pi - ts))
-                    if model == 0:
-                        sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
-                    else:
-                        sz = 1e-3 * (1.5 - 0.5 * z + 0.3 * z * z + 0.1 * z**1.5 * a)
-                    z = z + rnd[2, v, u] * sz
-                    if quant == 1:
-                        z = np.rint(z * 1000.0) / 1000.0
-                    elif quant == 2:
-                        steps = np.rint(k_disp / z)
-                        z = k_disp / steps if steps > 0 else np.nan
-                    s = sv * w + su
-                else:
-                    z = depth[v, u]
-                    s = v * w + u
-                if not (z >= zmin and z <= zmax):
-                    z = np.nan
-                z_out[v, u] = z
-                src[v, u] = s
-        return z_out, src
-
-    _FINISH = finish
-    return finish
+_NOISE_CODES = {"nguyen2012": 0, "fankhauser2015": 1}  # sim._kinect_kernels.NGUYEN2012, FANKHAUSER2015
+_QUANT_CODES = {None: 0, "mm": 1, "disparity": 2}  # sim._kinect_kernels.QUANT_*
 
 
 # --------------------------------------------------------------------------------------------
@@ -650,7 +546,9 @@ class KinectSim:
             rnd = (rng or self.rng).standard_normal((3, h, w), dtype=np.float32)
         else:
             rnd = np.zeros((3, 1, 1), dtype=np.float32)
-        z, src = _finish_kernel()(
+        from sim._kinect_kernels import finish
+
+        z, src = finish(
             img.depth,
             img.normals,
             self._rays,

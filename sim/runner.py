@@ -839,9 +839,10 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
     s = m.structures()
     fig = plt.figure(figsize=(10, 7), dpi=110)
     ax3 = fig.add_subplot(projection="3d")
-    if len(s):
+    if len(s) and np.any(np.asarray(s.top) >= OCC_BAND[0]):
         cx, cy = grid.index_to_world(np.asarray(s.i), np.asarray(s.j))
-        keep = np.arange(len(s))
+        # the floor is most of the structures and hides everything else; draw what stands on it
+        keep = np.flatnonzero(np.asarray(s.top) >= OCC_BAND[0])
         if len(keep) > 40000:  # the picture cannot show more; the choice is deterministic
             keep = keep[:: math.ceil(len(keep) / 40000)]
         segs = np.stack(
@@ -860,8 +861,10 @@ def write_pictures(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
         ax3.set_zlim(0, max(2.5, float(top.max())))
         span = (extent[1] - extent[0], extent[3] - extent[2], 3.0)
         ax3.set_box_aspect(span)
-    ax3.set_title(f"{scenario.name}: variable-height voxel structures ({len(s)})")
-    ax3.view_init(elev=35, azim=-120)
+    ax3.set_title(
+        f"{scenario.name}: variable-height voxel structures above {OCC_BAND[0]:.2f} m (map total {len(s)})"
+    )
+    ax3.view_init(elev=40, azim=-65)
     fig.tight_layout()
     fig.savefig(out / "structures_3d.png")
     plt.close(fig)

@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["DEFAULT_FIRMWARE", "ManualClock", "RoboteqEmulator", "StopEvent", "SyncedClock"]
 
+IDLE_WAKE_S = 0.02
 DEFAULT_FIRMWARE = "Roboteq v1.3 MDC2230 07/24/2013"
 
 
@@ -345,8 +346,14 @@ class RoboteqEmulator:
             master = self._master
             if master is None:
                 break
+            # Motor state is stepped lazily (on each command, query and clock move), so the thread
+            # only needs to wake for input, for a delayed reply falling due, and every 20 ms to keep
+            # the real-time catch-up (done inside a reply) short.
+            wait = IDLE_WAKE_S
+            if self._pending:
+                wait = max(0.0, min(wait, min(p[0] for p in self._pending) - time.monotonic()))
             try:
-                ready, _, _ = select.select([master], [], [], 0.002)
+                ready, _, _ = select.select([master], [], [], wait)
             except (OSError, ValueError):
                 break
             with self._lock:

@@ -215,7 +215,11 @@ _MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 
 
 def marker_array_cdr(
-    boxes: np.ndarray, colors: np.ndarray, frame_id: str = "map", stamp_ns: int = 0, min_thickness: float = 1e-3
+    boxes: np.ndarray,
+    colors: np.ndarray,
+    frame_id: str = "map",
+    stamp_ns: int = 0,
+    min_thickness: float = 1e-3,
 ) -> bytes:
     """The CDR bytes of :func:`marker_array_msg`, built with numpy instead of one object per box.
 
@@ -234,7 +238,9 @@ def marker_array_cdr(
     cols = np.asarray(colors, dtype=np.float64).reshape(-1, 4)
 
     def ser(bx: np.ndarray, cl: np.ndarray) -> bytes:
-        return bytes(store.serialize_cdr(marker_array_msg(bx, cl, frame_id, stamp_ns, min_thickness), _MARKER_ARRAY))
+        return bytes(
+            store.serialize_cdr(marker_array_msg(bx, cl, frame_id, stamp_ns, min_thickness), _MARKER_ARRAY)
+        )
 
     # Sentinels: exact binary values unlikely to occur elsewhere in a marker.
     sentinel_box = np.array([[[1001.0, 2002.0, 3003.0], [1001.0 + 0.5, 2002.0 + 0.25, 3003.0 + 0.125]]])
@@ -244,24 +250,21 @@ def marker_array_cdr(
     two = ser(np.repeat(sentinel_box, 2, axis=0), np.repeat(sentinel_col, 2, axis=0))
     stride = len(two) - len(one)
     chunk = one[len(base) :]
-    if stride != len(chunk) or stride % 8:
-        # Not the fixed layout this fast path relies on: let rosbags serialize every marker.
-        return bytes(store.serialize_cdr(marker_array_msg(b, cols, frame_id, stamp_ns, min_thickness), _MARKER_ARRAY))
 
     def offset(value: bytes) -> int:
         k = chunk.find(value)
-        if k < 0 or chunk.find(value, k + 1) >= 0:
-            raise MappingError("marker template: a sentinel is missing or not unique")
-        return k
+        return k if k >= 0 and chunk.find(value, k + 1) < 0 else -1
 
     pos = [offset(np.float64(v).tobytes()) for v in sentinel_box.mean(axis=1)[0]]
     scl = [offset(np.float64(v).tobytes()) for v in (sentinel_box[0, 1] - sentinel_box[0, 0])]
     col = [offset(np.float32(v).tobytes()) for v in sentinel_col[0]]
     # The two markers of ``two`` differ only in their id (1 and 2): that locates the id field.
     diff = np.flatnonzero(np.frombuffer(two[len(one) :], np.uint8) != np.frombuffer(chunk, np.uint8))
-    if diff.shape[0] != 1:
-        raise MappingError("marker template: consecutive markers differ in more than their id")
-    ident = int(diff[0]) // 4 * 4 - (len(base) % 4 if False else 0)
+    if stride != len(chunk) or stride % 8 or min(pos + scl + col) < 0 or diff.shape[0] != 1:
+        # Not the fixed layout this fast path relies on: let rosbags serialize every marker.
+        msg = marker_array_msg(b, cols, frame_id, stamp_ns, min_thickness)
+        return bytes(store.serialize_cdr(msg, _MARKER_ARRAY))
+    ident = int(diff[0])  # little-endian: ids 1 and 2 differ in the first byte of the field
     out = np.tile(np.frombuffer(chunk, dtype=np.uint8), (n, 1))
     out[:, ident : ident + 4] = np.arange(1, n + 1, dtype="<i4").view(np.uint8).reshape(n, 4)
     for k in range(3):
@@ -295,7 +298,7 @@ def write_ros2_map_bag(
 
     stamp = int(stamp_ns) if stamp_ns > 0 else 1  # rosbag2 tools dislike a zero receive time
     grid = occupancy_grid_msg(codes, resolution, origin_xy, frame_id, stamp)
-    markers = marker_array_msg(boxes, colors, frame_id, stamp)
+    markers = marker_array_cdr(boxes, colors, frame_id, stamp)
     return write_bag(
         path,
         [

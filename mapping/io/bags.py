@@ -212,7 +212,8 @@ def write_bag(
 
     Args:
         path: Target (a folder for ROS 2, a ``.bag`` file for ROS 1); must not exist.
-        messages: (topic, msgtype, stamp_ns, message object of the matching type store) in order.
+        messages: (topic, msgtype, stamp_ns, message) in order; a message is an object of the matching
+            type store, or ``bytes`` already serialized (CDR for ROS 2, ROS 1 wire format for ROS 1).
         ros2: ROS 2 (Humble types, bag version 8) or ROS 1 (Noetic types).
         storage: ROS 2 storage plugin, ``sqlite3`` or ``mcap``.
         compression: ROS 1 chunk compression, ``None``, ``"bz2"`` or ``"lz4"``.
@@ -235,7 +236,8 @@ def write_bag(
                     conns[topic] = writer.add_connection(
                         topic, msgtype, typestore=store, offered_qos_profiles=qos
                     )
-                writer.write(conns[topic], int(stamp), store.serialize_cdr(msg, msgtype))
+                raw = msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype)
+                writer.write(conns[topic], int(stamp), raw)
     else:
         from rosbags.rosbag1 import Writer as Writer1
 
@@ -250,5 +252,6 @@ def write_bag(
                 if topic not in conns:
                     latching = 1 if topic in latched_topics else None
                     conns[topic] = writer.add_connection(topic, msgtype, typestore=store, latching=latching)
-                writer.write(conns[topic], int(stamp), store.serialize_ros1(msg, msgtype))
+                raw = msg if isinstance(msg, bytes) else store.serialize_ros1(msg, msgtype)
+                writer.write(conns[topic], int(stamp), raw)
     return path

@@ -201,7 +201,7 @@ def _bench(args: argparse.Namespace, pinned: str) -> int:
         nan_frac = float(np.isnan(flat[:, 0]).mean())
         row: dict[str, Any] = {"height": h, "width": w, "points": n, "nan_fraction": nan_frac}
 
-        def vhv(method: str, cloud: Any = cloud) -> Any:
+        def vhv(method: Any, cloud: Any = cloud) -> Any:
             m = VHVMap(spec, args.tolerance)
             stats = m.insert(cloud, sensor_origin=origin, method=method)
             return m, stats

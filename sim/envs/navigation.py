@@ -172,6 +172,43 @@ def egocentric_patch(
     return out
 
 
+def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> npt.NDArray[np.float64]:
+    """Axial depth noise and quantisation for a clean organized cloud from a reduced-resolution Kinect.
+
+    Each valid pixel's depth ``z`` (its x coordinate, REP-103 camera frame) moves along its own ray by
+    ``N(0, sigma_z(z, theta)^2)`` with the model's axial noise (:func:`sim.kinect.fankhauser2015_axial_sigma_m`
+    for the v2, :func:`sim.kinect.nguyen2012_axial_sigma_m` for the v1), ``theta`` the angle between
+    the ray and the surface normal estimated from the cloud itself (0 where undefined), then is
+    rounded like the device's output. Lateral noise (1.6 px of the full 512x424 image for the v2, i.e.
+    under half a pixel once decimated 4x) is left out. NaN pixels stay NaN.
+
+    Args:
+        points: ``(H, W, 3)`` clean cloud in the camera frame.
+        model: The :class:`sim.kinect.KinectModel` (noise model and quantisation).
+        rng: Generator; draws one standard normal per pixel.
+    """
+    from sim.kinect import (
+        fankhauser2015_axial_sigma_m,
+        nguyen2012_axial_sigma_m,
+        organized_normals,
+        quantize_depth,
+    )
+
+    p = np.asarray(points, dtype=np.float64)
+    z = p[..., 0]
+    normals = organized_normals(p)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_t = np.abs(np.einsum("...k,...k->...", normals, p)) / np.linalg.norm(p, axis=-1)
+    theta = np.where(np.isfinite(cos_t), np.arccos(np.clip(cos_t, 0.0, 1.0)), 0.0)
+    axial = (
+        fankhauser2015_axial_sigma_m if model.noise_model == "fankhauser2015" else nguyen2012_axial_sigma_m
+    )
+    noise = rng.standard_normal(z.shape)
+    with np.errstate(invalid="ignore"):
+        zn = quantize_depth(z + axial(np.where(np.isfinite(z), z, 1.0), theta) * noise, model.quantization)
+        return p * (zn / z)[..., None]
+
+
 def planar_transform(pose: Pose2D) -> npt.NDArray[np.float64]:
     """4x4 world <- base_link for a pose on the floor."""
     t = np.eye(4)
@@ -516,6 +553,13 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         )
         self.client = self._chair.world.client
         self.robot = self._chair.robot
+        # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
+        # to a decimated image it would be `decimation` times too wide and smear the floor into
+        # obstacles. A decimated camera therefore renders clean geometry and gets the axial noise here
+        # (see _decimated_depth_noise); at full resolution the model's own noise applies unchanged.
+        self._own_noise = self.noise and model is not None and decimation > 1
+        if self._own_noise:
+            self._chair.kinect.noise = False
         # every episode starts from this snapshot (contacts and solver caches included), so the same
         # seed gives the same episode bit for bit, however many episodes ran before
         self._state_id = p.saveState(physicsClientId=self.client)
@@ -727,8 +771,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if chair.kinect is not None:
             t_gt = chair.kinect_pose()
             frame = chair.kinect.capture(t_gt, stamp_ns=stamp, rng=self._sensor_rng)
+            pts = frame.points
+            if self._own_noise:
+                pts = decimated_depth_noise(pts, chair.kinect.model, self._sensor_rng)
             t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
-            pts = frame.points.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
+            pts = pts.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
             self._map.insert(pts, sensor_origin=t[:3, 3])
         if chair.sonars:
             from mapping.sonar import array_points

@@ -141,3 +141,20 @@ def test_pictures_are_png_files_and_the_3d_view_caps_its_boxes(tmp_path, codes):
     assert drawn == 20
     for name in ("o.png", "e.png", "b.png"):
         assert (tmp_path / name).read_bytes()[:8] == PNG_MAGIC
+
+
+@pytest.mark.parametrize("frame_id", ["map", "", "a_longer_frame_name"])
+@pytest.mark.parametrize("n", [0, 1, 7])
+def test_vectorised_marker_bytes_equal_rosbags_serialization(frame_id, n):
+    from mapping.export.rosmap import marker_array_cdr
+
+    rng = np.random.default_rng(n)
+    lo = rng.normal(size=(n, 3))
+    boxes = np.stack([lo, lo + rng.uniform(0, 1, size=(n, 3))], axis=1)
+    boxes[:1, 1, 2] = boxes[:1, 0, 2]  # a zero-height structure gets the minimum thickness
+    colors = height_colors(boxes[:, 1, 2])
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    expected = ts.serialize_cdr(
+        marker_array_msg(boxes, colors, frame_id, 1_000_000_007), "visualization_msgs/msg/MarkerArray"
+    )
+    assert marker_array_cdr(boxes, colors, frame_id, 1_000_000_007) == bytes(expected)

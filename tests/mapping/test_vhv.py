@@ -338,19 +338,22 @@ def test_a_wall_keeps_its_depth_with_kept_axis_x() -> None:
 
 
 def test_sample_box_misses_outliers_and_the_result_stays_exact() -> None:
-    # Every 8th point (the sampled ones) sits in one cell; the others spread over the grid and far up,
-    # so they overflow the guessed box: first a few (overflow list), then very many (full re-scan).
+    # The sampled points (every 8th, hence every 32nd) sit in one cell; the others spread over the grid
+    # and far up, so they overflow the guessed box: first a few thousand (overflow list), then very
+    # many (exact re-selection of the points outside the box).
     rng = np.random.default_rng(11)
-    for n in (1024, 40_000):
+    for n in (4096, 40_000):
         pts = rng.uniform(-0.5, 0.5, (n, 3))
         pts[:, 2] = rng.choice([0.0, 0.3, 5.0, -7.0, 100.0], n) + rng.uniform(0, 0.01, n)
         pts[::8] = [0.01, 0.01, 0.5]
-        if n == 1024:
-            pts[1::8] = [0.01, 0.01, 0.5]
+        if n == 4096:
+            pts[1::2] = [0.01, 0.01, 0.5]
             pts[3::64] = [0.3, -0.2, 250.0]
+            pts[5::64, 2] = np.nan  # in-grid points with a non-finite height overflow too
         m = VHVMap(SPEC, 0.05)
-        m.insert(pts, method="bins")
+        stats = m.insert(pts, method="bins")
         assert as_tuples(m.structures()) == reference_structures(pts, SPEC, 0.05)
+        assert stats.points_dropped_nonfinite == int(np.isnan(pts).any(axis=1).sum())
 
 
 def test_from_structures_rebuilds_the_same_map() -> None:

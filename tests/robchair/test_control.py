@@ -456,15 +456,18 @@ def test_quantised_gains_poles_are_recomputed_and_close_to_the_design():
         d = design_pid(identify_from_step_metrics(*MOTORS[name]).plant)
         g2 = roboteq_gains(d, 2)
         assert g2.max_pole_shift < 2e-3  # 1e-6 gain resolution (the double pole splits as sqrt)
-        expected = np.sort_complex(
-            np.asarray(ct.poles(ct.feedback(ct.tf([0.3, 1.4, 3.7], [1, 0]) * d.plant.tf(), 1)))
-        )
     g1 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant), 1)
+    # motor 1 on firmware 1.x: KP 14, KI 37, KD 3 -> the PID 0.3 s + 1.4 + 3.7 / s
     expected = np.sort_complex(
         np.asarray(ct.poles(ct.feedback(ct.tf([0.3, 1.4, 3.7], [1, 0]) * g1.quantised.plant.tf(), 1)))
     )
     np.testing.assert_allclose(np.sort_complex(g1.quantised.achieved_poles), expected, rtol=1e-9)
     assert g1.max_pole_shift < 0.1  # 0.1 resolution of firmware 1.x still keeps motor 1 within 10 %
+    # motor 2 on firmware 1.x: K_d = 0.249 rounds to 0.2, which moves the poles by up to 96 %
+    g1_m2 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 2"]).plant), 1)
+    assert (g1_m2.kp, g1_m2.ki, g1_m2.kd) == (11, 32, 2)
+    assert 0.5 < g1_m2.max_pole_shift < 1.0
+    assert np.all(g1_m2.quantised.achieved_poles.real < 0)
 
 
 def test_gain_outside_firmware_range_is_refused():

@@ -8,6 +8,8 @@ import tomllib
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from robchair.errors import ConfigError, RobChairError
 from robchair.spec import DEFAULT_SPEC_PATH, load_spec, spec_from_dict
@@ -161,3 +163,25 @@ def test_spec_file_round_trips_through_its_own_text(tmp_path):
     p = tmp_path / "copy.toml"
     p.write_text(text)
     assert load_spec(p) == load_spec()
+
+
+@given(
+    rpy=st.tuples(*[st.floats(-math.pi, math.pi)] * 3),
+    angle=st.floats(-math.pi / 2, math.pi / 2),
+)
+def test_mount_transforms_are_proper_rigid_motions(rpy, angle):
+    from robchair.spec import Joint, Mount
+
+    m = Mount("base_link", (0.1, 0.2, 0.3), rpy, Joint("j", (0.0, 0.0, 1.0), -2.0, 2.0))
+    r = m.transform(angle)[:3, :3]
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+    # the joint turns about the mount's own z axis: that axis is unchanged by the joint angle
+    np.testing.assert_allclose(r[:, 2], m.rotation()[:, 2], atol=1e-12)
+
+
+def test_unknown_top_level_table_is_refused(raw):
+    d = copy.deepcopy(raw)
+    d["wheels"] = {"radius": 0.2}
+    with pytest.raises(ConfigError, match="wheels: unknown key"):
+        spec_from_dict(d)

@@ -343,3 +343,18 @@ def test_any_plane_seen_from_any_pose_comes_out_on_the_plane(client, d, wall_yaw
     # every valid point is within the model's depth range along the optical axis
     depth = (world - pose_matrix(pose)[:3, 3]) @ pose_matrix(pose)[:3, 0]
     assert depth.min() >= 0.5 - 1e-6 and depth.max() <= 4.5 + 1e-6
+
+
+def test_lateral_noise_moves_a_depth_edge_as_the_kinect2_model_says(client):
+    # a wall covering exactly the left half of the image (world y >= 0): columns 0..255 see it
+    box(client, [0.05, 4.0, 8.0], [2.05, 4.0, 1.0])
+    tall = dataclasses.replace(MODELS["kinect2"], name="tall", height=2120)  # more rows, same noise model
+    k = KinectSim(client, tall, noise=True, rng=np.random.default_rng(11))
+    valid = np.isfinite(k.capture(cam_pose()).points[..., 0])
+    rows = slice(100, 2020)  # away from the top and bottom, where vertical jitter clips
+    assert valid[rows, :246].all() and not valid[rows, 266:].any()  # 6 sigma either side
+    # pixel k columns right of the edge takes the wall's depth iff rint(k + 1.6 n) <= 0,
+    # i.e. n < (0.5 - k) / 1.6 with n standard normal (Fankhauser 2015: sigma_L = 1.6 px)
+    for offset in (1, 2, 3):
+        expected = 0.5 * math.erfc(-((0.5 - offset) / 1.6) / math.sqrt(2))
+        assert valid[rows, 255 + offset].mean() == pytest.approx(expected, rel=0.1)
