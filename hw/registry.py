@@ -29,6 +29,7 @@ Config keys (all optional unless stated; unknown keys are an error naming the al
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -119,14 +120,20 @@ def _spec(cfg: Mapping[str, Any]) -> Any:
 
 def design_pid_configs(spec: Any) -> tuple[PIDConfig, PIDConfig]:
     """The SPEC 5 pole-placement PID of each motor (left = channel 1, right = channel 2)."""
-    from robchair.control import design_pid, identify_from_step_metrics
-
     out = []
     for ch in (1, 2):
         step = spec.step_for_channel(ch)
-        d = design_pid(identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant)
-        out.append(PIDConfig(d.kp, d.ki, d.kd))
+        out.append(_design(step.t_r, step.t_p, step.M_p))
     return out[0], out[1]
+
+
+@functools.lru_cache(maxsize=16)
+def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
+    # cached: the design (with its closed-loop checks) takes a noticeable fraction of a second
+    from robchair.control import design_pid, identify_from_step_metrics
+
+    d = design_pid(identify_from_step_metrics(t_r, t_p, M_p).plant)
+    return PIDConfig(d.kp, d.ki, d.kd)
 
 
 def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
@@ -230,9 +237,9 @@ def _real(cfg: dict[str, Any]) -> Backend:
     joystick = None
     try:
         if cfg.get("i2c_bus") is not None:
-            from hw.srf08 import _open_smbus
+            from hw.srf08 import open_bus
 
-            bus = _open_smbus(_int(cfg, "i2c_bus", 1, where))
+            bus = open_bus(_int(cfg, "i2c_bus", 1, where))
             on_close.append(bus.close)
             addresses = cfg.get("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
             arrays = _sonar_arrays(

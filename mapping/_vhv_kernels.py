@@ -153,66 +153,6 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def keys_and_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, n_finite):  # type: ignore[no-untyped-def]
-    """Compact the finite in-grid points into (cell key, height) arrays (height in the input dtype)."""
-    keys = np.empty(n_finite, np.int64)
-    hs = np.empty(n_finite, pts.dtype)
-    m = 0
-    for k in range(pts.shape[0]):
-        u = np.float64(pts[k, cu])
-        v = np.float64(pts[k, cv])
-        h = np.float64(pts[k, ch])
-        if not (math.isfinite(u) and math.isfinite(v) and math.isfinite(h)):
-            continue
-        fi = np.floor(u * ics) - ou
-        fj = np.floor(v * ics) - ov
-        if fi < 0.0 or fi >= nx or fj < 0.0 or fj >= ny:
-            continue
-        keys[m] = np.int64(fi) * ny + np.int64(fj)
-        hs[m] = pts[k, ch]
-        m += 1
-    return keys[:m], hs[:m]
-
-
-@numba.jit(**_JIT)
-def cluster_sorted_groups(keys, hs, order, tol):  # type: ignore[no-untyped-def]
-    """Thesis pipeline per cell: sort heights, drop duplicates, cluster with gap <= tol.
-
-    ``order`` sorts ``keys``; the heights of each cell are sorted here, cell by cell.
-    """
-    n = order.shape[0]
-    out_key = np.empty(n, np.int64)
-    out_b = np.empty(n, np.float64)
-    out_t = np.empty(n, np.float64)
-    scratch = np.empty(n, np.float64)
-    n_out = 0
-    s = 0
-    while s < n:
-        key = keys[order[s]]
-        e = s + 1
-        while e < n and keys[order[e]] == key:
-            e += 1
-        m = e - s
-        for q in range(m):
-            scratch[q] = hs[order[s + q]]
-        z = np.sort(scratch[:m])
-        out_key[n_out] = key
-        out_b[n_out] = z[0]
-        out_t[n_out] = z[0]
-        n_out += 1
-        for q in range(1, m):
-            if z[q] - out_t[n_out - 1] <= tol:
-                out_t[n_out - 1] = z[q]
-            else:
-                out_key[n_out] = key
-                out_b[n_out] = z[q]
-                out_t[n_out] = z[q]
-                n_out += 1
-        s = e
-    return out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
-
-
-@numba.jit(**_JIT)
 def merge_structures(k1, b1, t1, k2, b2, t2, tol):  # type: ignore[no-untyped-def]
     """Merge two structure lists (each sorted by key then bottom, disjoint per cell) into one.
 

@@ -158,7 +158,7 @@ class GridSpec:
         Non-finite inputs give meaningless indices; filter them first.
         """
         ou, ov = self.origin
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):
             ics = self.inv_cell_size
             i = np.floor(np.asarray(u, dtype=np.float64) * ics).astype(np.int64) - ou
             j = np.floor(np.asarray(v, dtype=np.float64) * ics).astype(np.int64) - ov

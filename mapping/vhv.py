@@ -61,6 +61,11 @@ _METHODS = ("auto", "bins", "sort", "numpy")
 _BIN_SHRINK = 1.0 - 1e-6
 
 
+def _middle(bottom: NDArray[np.float64], top: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(top + bottom) / 2`` written so that it never overflows, nor leaves ``[bottom, top]``."""
+    return np.asarray(bottom + (top - bottom) / 2.0)
+
+
 @dataclass(frozen=True)
 class InsertStats:
     """What one :meth:`VHVMap.insert` did with its points.
@@ -113,7 +118,7 @@ class Structures:
         """Build from cell indices and bounds (computes ``middle``; does not sort)."""
         b = np.asarray(bottom, dtype=np.float64)
         t = np.asarray(top, dtype=np.float64)
-        return cls(np.asarray(i, dtype=np.int32), np.asarray(j, dtype=np.int32), b, (t + b) / 2.0, t)
+        return cls(np.asarray(i, dtype=np.int32), np.asarray(j, dtype=np.int32), b, _middle(b, t), t)
 
     def equals(self, other: Structures) -> bool:
         """True when both hold exactly the same structures in the same order."""
@@ -205,9 +210,10 @@ class VHVMap:
             raise MappingError("VHVMap.from_structures: every structure needs finite bottom <= top")
         key = i * ny + j
         order = np.lexsort((b, key))
-        m._key, m._bottom, m._top = _merge_numpy(
-            np.empty(0, np.int64), np.empty(0), np.empty(0), key[order], b[order], t[order], m.tolerance
-        )
+        with np.errstate(over="ignore"):
+            m._key, m._bottom, m._top = _merge_numpy(
+                np.empty(0, np.int64), np.empty(0), np.empty(0), key[order], b[order], t[order], m.tolerance
+            )
         return m
 
     # ------------------------------------------------------------------ insertion
@@ -247,9 +253,11 @@ class VHVMap:
         pts = as_points(points)
         n_in = int(pts.shape[0])
         if method == "numpy":
-            key, bot, top, n_nonfinite, n_outside = _build_numpy(pts, self.spec, self.tolerance)
+            # Gaps between heights near the float64 limit overflow to inf, which compares correctly.
+            with np.errstate(over="ignore"):
+                key, bot, top, n_nonfinite, n_outside = _build_numpy(pts, self.spec, self.tolerance)
+                merged = _merge_numpy(self._key, self._bottom, self._top, key, bot, top, self.tolerance)
             used = "numpy"
-            merged = _merge_numpy(self._key, self._bottom, self._top, key, bot, top, self.tolerance)
         else:
             key, bot, top, n_nonfinite, n_outside, used = _build_compiled(
                 pts, self.spec, self.tolerance, method
@@ -281,7 +289,7 @@ class VHVMap:
             ny = self.spec.shape[1]
             i = (self._key // ny).astype(np.int32)
             j = (self._key % ny).astype(np.int32)
-            s = Structures(i, j, self._bottom, (self._top + self._bottom) / 2.0, self._top)
+            s = Structures(i, j, self._bottom, _middle(self._bottom, self._top), self._top)
             for a in (s.i, s.j, s.bottom, s.middle, s.top):
                 a.setflags(write=False)
             self._cache = s
@@ -376,9 +384,14 @@ def _dense_budget_bytes(pts: NDArray[np.floating]) -> int:
 
 def _box_range(lo: float, hi: float, ics: float, origin: int, n: int) -> tuple[int, int]:
     """Index range [first, last] of the grid cells that the coordinate range [lo, hi] can touch."""
-    first = max(math.floor(lo * ics) - origin, 0)
-    last = min(math.floor(hi * ics) - origin, n - 1)
+    first = max(_floor(lo * ics) - origin, 0)
+    last = min(_floor(hi * ics) - origin, n - 1)
     return first, last
+
+
+def _floor(x: float) -> int:
+    """``floor`` that survives coordinates near the float64 limit (``x`` may be +-inf after scaling)."""
+    return math.floor(min(max(x, -(2.0**62)), 2.0**62))
 
 
 # Points sampled to guess the frame's box (every _SAMPLE_STEP-th); the guess is widened by a margin and
@@ -394,8 +407,8 @@ def _sort_path(
     """Thesis pipeline (compiled): group heights by cell, sort each cell, unique, cluster.
 
     Grouping is a counting sort over the cells of the frame's exact bounding box (two passes, one
-    height per point of extra memory); only when that box has far more cells than there are points does
-    it fall back to an argsort of the cell keys.
+    height per point of extra memory); only when that box has far more cells than there are points
+    (a sparse frame) does it sort (cell key, height) pairs with numpy instead.
 
     Returns:
         (key, bottom, top, n_nonfinite, n_outside_grid).
@@ -419,16 +432,26 @@ def _sort_path(
         _, n_outside = K.cell_counts(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, counts)
         offsets = np.cumsum(counts)
         del counts
-        hs = np.empty(int(offsets[-1]), pts.dtype)
+        # float64 whatever the input: one compiled variant of the clustering kernel, and exact.
+        hs = np.empty(int(offsets[-1]), np.float64)
         fill = offsets[:-1].copy()
         K.scatter_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, nj, fill, hs)
         del fill
         key, bot, top = K.cluster_cells(hs, offsets, i0, j0, nj, ny, tol)
         return key, bot, top, n_nonfinite, int(n_outside)
-    keys, hs = K.keys_and_heights(pts, ics, ou, ov, nx, ny, cu, cv, ch, n - n_nonfinite)
-    order = np.argsort(keys, kind="stable")
-    key, bot, top = K.cluster_sorted_groups(keys, hs, order, tol)
-    return key, bot, top, n_nonfinite, n - n_nonfinite - int(keys.shape[0])
+    # Sparse frame in a huge box: vectorised sort of (cell key, height) pairs.
+    ok = np.isfinite(pts).all(axis=1)
+    i, j = spec.world_to_index(pts[ok, cu], pts[ok, cv])
+    inside = spec.contains_index(i, j)
+    key = i[inside] * ny + j[inside]
+    h = pts[ok, ch][inside].astype(np.float64)
+    order = np.lexsort((h, key))
+    key, h = key[order], h[order]
+    start = np.ones(key.shape[0], bool)
+    start[1:] = (key[1:] != key[:-1]) | (h[1:] - h[:-1] > tol)
+    s = np.flatnonzero(start)
+    ends = np.r_[s[1:], key.shape[0]] - 1
+    return key[s], h[s], h[ends], n_nonfinite, n - n_nonfinite - int(key.shape[0])
 
 
 def _build_compiled(
@@ -458,8 +481,8 @@ def _build_compiled(
         i0, i1, j0, j1 = 0, 0, 0, 0
     i0, i1 = max(i0 - m, 0), min(i1 + m, nx - 1)
     j0, j1 = max(j0 - m, 0), min(j1 + m, ny - 1)
-    b0 = math.floor(h0 * iw) - m
-    nb = math.floor(h1 * iw) + m - b0 + 1
+    b0 = _floor(h0 * iw) - m
+    nb = _floor(h1 * iw) + m - b0 + 1
     ni, nj = i1 - i0 + 1, j1 - j0 + 1
     dense = ni * nj * nb
     entry = 2 * pts.dtype.itemsize
@@ -536,23 +559,23 @@ def _build_numpy(
     finite = np.isfinite(pts).all(axis=1)
     n_nonfinite = n - int(np.count_nonzero(finite))
     kept = pts[finite] if n_nonfinite else pts
-    i = np.floor(kept[:, cu].astype(np.float64) * ics).astype(np.int64) - ou
-    j = np.floor(kept[:, cv].astype(np.float64) * ics).astype(np.int64) - ov
-    inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+    with np.errstate(over="ignore"):  # huge finite coordinates scale to +-inf: outside, or sorted below
+        fi = np.floor(kept[:, cu].astype(np.float64) * ics) - ou
+        fj = np.floor(kept[:, cv].astype(np.float64) * ics) - ov
+    inside = (fi >= 0) & (fi < nx) & (fj >= 0) & (fj < ny)
     n_outside = int(kept.shape[0]) - int(np.count_nonzero(inside))
     e = np.empty(0, np.float64)
-    if n_outside:
-        i, j, h = i[inside], j[inside], kept[inside, ch]
-    else:
-        h = kept[:, ch]
+    i, j, h = fi[inside].astype(np.int64), fj[inside].astype(np.int64), kept[inside, ch]
+    del fi, fj
     if h.shape[0] == 0:
         return np.empty(0, np.int64), e, e.copy(), n_nonfinite, n_outside
     iw = 1.0 / (tol * _BIN_SHRINK)
-    hb = np.floor(h.astype(np.float64) * iw)
+    with np.errstate(over="ignore"):
+        hb = np.floor(h.astype(np.float64) * iw)
     i0, j0 = int(i.min()), int(j.min())
     nj = int(j.max()) - j0 + 1
     b_lo, b_hi = float(hb.min()), float(hb.max())
-    dense = (int(i.max()) - i0 + 1) * nj * (b_hi - b_lo + 1)
+    dense = (int(i.max()) - i0 + 1) * nj * (b_hi - b_lo + 1) if math.isfinite(b_hi - b_lo) else math.inf
     if dense * 16 > max(8 * pts.nbytes, 1 << 24):
         # Far too sparse for a dense table: sort (the thesis's pipeline, vectorised).
         key = i * ny + j

@@ -447,6 +447,9 @@ class RunResult:
     stops: list[dict[str, Any]] = field(default_factory=list)
     driver_fault: str | None = None
     limited_cycles: int = 0
+    min_sonar_distance_m: float | None = None  # nearest obstacle ahead the sonars reported
+    min_map_distance_m: float | None = None  # nearest obstacle ahead in the local 2D map
+    map_frames: int = 0
     poses: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, x, y, theta)
 
     def metrics(self) -> dict[str, Any]:
@@ -468,11 +471,12 @@ class Runtime:
         config: loop settings.
         safety: the safety layer (default: limits from the spec).
         recorder: optional :class:`BagRecorder`.
+        start_pose: pose of the odometry at the start (e.g. a scenario's start in the world frame).
     """
 
     def __init__(self, backend: Backend, source: CommandSource, *, spec: Any = None,
                  config: RuntimeConfig | None = None, safety: SafetyLayer | None = None,
-                 recorder: BagRecorder | None = None) -> None:  # fmt: skip
+                 recorder: BagRecorder | None = None, start_pose: Pose2D | None = None) -> None:  # fmt: skip
         from robchair.spec import load_spec
 
         self.backend = backend
@@ -482,7 +486,7 @@ class Runtime:
         self.drive = DiffDrive(self.spec)
         self.safety = safety if safety is not None else SafetyLayer(SafetyLimits.from_spec(self.spec))
         self.recorder = recorder
-        self.odometry = Odometry(self.spec)
+        self.odometry = Odometry(self.spec, start_pose)
         self.corridor = Corridor.from_spec(self.spec)
         self.mapper = LocalMapper(self.spec, self.corridor) if backend.depth_camera is not None else None
         self.period_ns = round(1e9 / self.config.rate_hz)
@@ -581,8 +585,11 @@ class Runtime:
                     assert self.backend.depth_camera is not None
                     self._map_distance = self.mapper.distance(self.backend.depth_camera.read())
                     self._last_fresh[DEPTH_CAMERA] = now
+                    res.map_frames += 1
                 except HardwareError as exc:
                     log.info("depth camera: %s", exc)
+            res.min_sonar_distance_m = _min_or(res.min_sonar_distance_m, sonar_dist)
+            res.min_map_distance_m = _min_or(res.min_map_distance_m, self._map_distance)
             dists = [d for d in (sonar_dist, self._map_distance) if d is not None]
             obs = Observation(
                 now, pose, state, tuple(r for _, r in sonar_readings), min(dists) if dists else None
@@ -654,7 +661,7 @@ class Runtime:
 
 def run_to_dir(backend: Backend, source: CommandSource, duration_s: float, out_dir: Path | None, *,
                spec: Any = None, config: RuntimeConfig | None = None,
-               safety: SafetyLayer | None = None) -> RunResult:  # fmt: skip
+               safety: SafetyLayer | None = None, start_pose: Pose2D | None = None) -> RunResult:  # fmt: skip
     """Open the backend, run, close it, and (with ``out_dir``) write ``run_bag/`` and ``metrics.json``.
 
     The output folder is written all-or-nothing (:func:`robchair.outdir.staged_output_dir`).
@@ -662,7 +669,9 @@ def run_to_dir(backend: Backend, source: CommandSource, duration_s: float, out_d
     from robchair.outdir import staged_output_dir
 
     def go(rec: BagRecorder | None) -> RunResult:
-        rt = Runtime(backend, source, spec=spec, config=config, safety=safety, recorder=rec)
+        rt = Runtime(
+            backend, source, spec=spec, config=config, safety=safety, recorder=rec, start_pose=start_pose
+        )
         try:
             return rt.run(duration_s)
         finally:
@@ -683,6 +692,13 @@ def run_to_dir(backend: Backend, source: CommandSource, duration_s: float, out_d
             np.savetxt(stage / "odometry.csv", np.asarray(result.poses).reshape(-1, 4), delimiter=",",
                        header="t_s,x_m,y_m,theta_rad", comments="")  # fmt: skip
         return result
+
+
+def _min_or(a: float | None, b: float | None) -> float | None:
+    """min of two optional values (None = no value)."""
+    if a is None:
+        return b
+    return a if b is None else min(a, b)
 
 
 def _json_default(o: Any) -> Any:

@@ -14,7 +14,9 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
 
 Stopping distance grows with speed: ``d_stop(v) = margin + v * reaction_time + v**2 / (2 * brake_decel)``.
 Obstacle distances are measured from the front of the chair (sonar ranges from the sonar face, map
-distances from the footprint's front edge), so ``margin`` is the gap left when stopped.
+distances from the footprint's front edge), so ``margin`` is the gap left when stopped. The chair's
+sonars and camera look forward only: obstacle stops apply while the wanted or current speed is
+forward; reversing and turning in place are bounded by the speed and acceleration limits alone.
 
 A stop is logged (``logging.warning``) and recorded in :attr:`SafetyLayer.stops` once when it starts,
 with its reason and a detail text; it is not logged again while the same reason persists.
@@ -83,7 +85,10 @@ class SafetyLimits:
             raise ConfigError(
                 f"safety: unknown keys {sorted(unknown)}; expected {sorted(cls.__dataclass_fields__)}"
             )
-        base.update({k: float(v) for k, v in overrides.items()})
+        for k, v in overrides.items():
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ConfigError(f"safety.{k} = {v!r}: expected a number")
+            base[k] = float(v)
         if base["max_speed"] > drive.max_speed or base["max_yaw_rate"] > drive.max_yaw_rate:
             raise ConfigError(
                 f"safety.max_speed/max_yaw_rate = {base['max_speed']}/{base['max_yaw_rate']}: above the "

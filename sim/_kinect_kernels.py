@@ -26,39 +26,54 @@ K_DISPARITY = KINECT1_FOCAL_PX * KINECT1_BASELINE_M * KINECT1_SUBPIXEL
 
 
 @numba.njit(cache=True)
-def _angle(normals, rays, inv_norm, v, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    c = abs(
-        normals[v, u, 0] * rays[v, u, 0] + normals[v, u, 1] * rays[v, u, 1] + normals[v, u, 2] * rays[v, u, 2]
-    )
-    c *= inv_norm[v, u]
-    if not c == c:  # NaN normal (unknown): treat the surface as facing the camera
-        return 0.0
-    if c > 1.0:
-        c = 1.0
-    th = math.acos(c)
-    return th if th < THETA_MAX else THETA_MAX
+def _angles(normals, rays, inv_norm):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Angle (rad) between surface normal and viewing ray per pixel, held at THETA_MAX; 0 if unknown."""
+    h, w = inv_norm.shape
+    out = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            c = abs(
+                normals[v, u, 0] * rays[v, u, 0]
+                + normals[v, u, 1] * rays[v, u, 1]
+                + normals[v, u, 2] * rays[v, u, 2]
+            )
+            c *= inv_norm[v, u]
+            if not c == c:  # NaN normal (unknown): treat the surface as facing the camera
+                out[v, u] = 0.0
+                continue
+            th = math.acos(min(c, 1.0))
+            out[v, u] = th if th < THETA_MAX else THETA_MAX
+    return out
 
 
 @numba.njit(cache=True)
-def finish(depth, normals, rays, inv_norm, rnd, noise, model, quant, zmin, zmax):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Noisy (or clean) depth with the range cut, and the flat index of the pixel each value came from.
+def finish(depth, normals, body, link, rays, inv_norm, rnd, noise, model, quant, zmin, zmax):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Noise, quantisation and range cut in one pass; the organized cloud and labels of the result.
 
     ``rnd`` holds three standard-normal draws per pixel: lateral u, lateral v, axial.
+
+    Returns:
+        ``(z, src, points, body, link)``: depth (NaN invalid), flat index of the pixel each value came
+        from, float32 points ``z * ray``, and the (body, link) labels of the source pixel (-1 invalid).
     """
     h, w = depth.shape
     z_out = np.empty((h, w))
     src = np.empty((h, w), dtype=np.int64)
+    pts = np.empty((h, w, 3), dtype=np.float32)
+    body_out = np.empty((h, w), dtype=np.int64)
+    link_out = np.empty((h, w), dtype=np.int64)
+    theta = _angles(normals, rays, inv_norm) if noise else np.zeros((1, 1))
     for v in range(h):
         for u in range(w):
             if noise:
-                th = _angle(normals, rays, inv_norm, v, u)
+                th = theta[v, u]
                 sl = 0.8 + 0.035 * th / (HALF_PI - th) if model == NGUYEN2012 else 1.6
                 su = int(np.rint(u + rnd[0, v, u] * sl))
                 sv = int(np.rint(v + rnd[1, v, u] * sl))
                 su = min(max(su, 0), w - 1)
                 sv = min(max(sv, 0), h - 1)
                 z = depth[sv, su]
-                ts = _angle(normals, rays, inv_norm, sv, su)
+                ts = theta[sv, su]
                 a = ts * ts / ((HALF_PI - ts) * (HALF_PI - ts))
                 if model == NGUYEN2012:
                     sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
@@ -70,15 +85,23 @@ def finish(depth, normals, rays, inv_norm, rnd, noise, model, quant, zmin, zmax)
                 elif quant == QUANT_DISPARITY:
                     steps = np.rint(K_DISPARITY / z)
                     z = K_DISPARITY / steps if steps > 0 else np.nan
-                s = sv * w + su
             else:
+                sv, su = v, u
                 z = depth[v, u]
-                s = v * w + u
-            if not (z >= zmin and z <= zmax):
-                z = np.nan
-            z_out[v, u] = z
+            s = sv * w + su
             src[v, u] = s
-    return z_out, src
+            if z >= zmin and z <= zmax:
+                z_out[v, u] = z
+                for c in range(3):
+                    pts[v, u, c] = z * rays[v, u, c]
+                body_out[v, u] = body[sv, su]
+                link_out[v, u] = link[sv, su]
+            else:
+                z_out[v, u] = np.nan
+                pts[v, u, 0] = pts[v, u, 1] = pts[v, u, 2] = np.nan
+                body_out[v, u] = -1
+                link_out[v, u] = -1
+    return z_out, src, pts, body_out, link_out
 
 
 @numba.njit(cache=True)

@@ -258,7 +258,7 @@ class DepthImage:
     """A clean rendered depth image: NaN where nothing was hit."""
 
     depth: FloatArray  # (H, W) metres along the optical axis
-    normals: FloatArray  # (H, W, 3) unit normals in the camera frame facing the camera; NaN where no hit
+    normals: FloatArray  # (H, W, 3) unit normals in the camera frame (either orientation); NaN: no hit
     body: npt.NDArray[np.int64]  # (H, W) body unique id, -1 where no hit
     link: npt.NDArray[np.int64]  # (H, W) link index (-1 base), -1 where no hit
 
@@ -280,8 +280,9 @@ def render_raycast(
     r = t_world_cam[:3, :3]
     dirs = rays_cam @ r.T  # forward component 1 in the camera frame -> t_hit is the depth
     hits = mirror.cast(t_world_cam[:3, 3], dirs, max_range=far_m, normals=normals)
-    depth = np.where(np.isfinite(hits.distance), hits.distance, np.nan)
-    nrm = hits.normal @ r if normals else hits.normal  # world -> camera
+    depth = hits.distance  # a fresh array: turn misses into NaN in place
+    depth[np.isinf(depth)] = np.nan
+    nrm = hits.normal @ r.astype(np.float32) if normals else hits.normal  # world -> camera
     return DepthImage(depth, nrm, mirror.body_of(hits.geometry), mirror.link_of(hits.geometry))
 
 
@@ -548,9 +549,11 @@ class KinectSim:
             rnd = np.zeros((3, 1, 1), dtype=np.float32)
         from sim._kinect_kernels import finish
 
-        z, src = finish(
+        z, src, pts, body, link = finish(
             img.depth,
             img.normals,
+            img.body,
+            img.link,
             self._rays,
             self._inv_ray_norm,
             rnd,
@@ -560,17 +563,14 @@ class KinectSim:
             m.min_range_m,
             m.max_range_m,
         )
-        pts = z[..., None] * self._rays
-        valid = np.isfinite(z)
-        body = np.where(valid, img.body.reshape(-1)[src], -1)
-        link = np.where(valid, img.link.reshape(-1)[src], -1)
-        normals = img.normals.reshape(-1, 3)[src]
         if m.registration is not None:
-            pts, hd_src = register_depth(pts, normals, m.intrinsics, m.registration)
+            normals = img.normals.reshape(-1, 3)[src]
+            hd_pts, hd_src = register_depth(pts.astype(np.float64), normals, m.intrinsics, m.registration)
+            pts = hd_pts.astype(np.float32)
             flat_b, flat_l = body.reshape(-1), link.reshape(-1)
             body = np.where(hd_src >= 0, flat_b[np.maximum(hd_src, 0)], -1)
             link = np.where(hd_src >= 0, flat_l[np.maximum(hd_src, 0)], -1)
-        frame = DepthFrame(stamp_ns=int(stamp_ns), frame_id=self.frame_id, points=pts.astype(np.float32))
+        frame = DepthFrame(stamp_ns=int(stamp_ns), frame_id=self.frame_id, points=pts)
         return KinectCapture(frame, z, body, link)
 
     def capture(

@@ -296,8 +296,9 @@ class RayHits:
         distance: (N,) ray parameter of the first hit, in units of each direction's length
             (metres for unit directions); ``inf`` where nothing was hit within ``max_range``.
         geometry: (N,) index into :attr:`MeshMirror.keys` of the (body, link) that was hit, or -1.
-        normal: (N, 3) unit normal of the hit triangle in the world frame, facing the ray origin
-            (NaN where nothing was hit).
+        normal: (N, 3) float32 unit normal of the hit triangle in the world frame, oriented as the
+            triangle is wound (use the absolute value of its dot product with the ray; flipping it
+            towards the origin would cost a pass over every ray); NaN where nothing was hit.
     """
 
     distance: FloatArray
@@ -579,13 +580,10 @@ class MeshMirror:
         g = gid.astype(np.int32)
         g[miss] = NO_HIT
         if normals:
-            nrm = res["primitive_normals"].numpy().astype(np.float64)
-            # face the normal towards the ray origin (meshes may be wound either way)
-            flip = np.einsum("ij,ij->i", nrm, rays[:, 3:]) > 0
-            nrm[flip] *= -1
+            nrm = res["primitive_normals"].numpy()
             nrm[miss] = np.nan
         else:
-            nrm = np.full((n_rays, 3), np.nan)
+            nrm = np.full((n_rays, 3), np.nan, dtype=np.float32)
         return RayHits(dist.reshape(shape), g.reshape(shape), nrm.reshape((*shape, 3)))
 
     def body_of(self, geometry: Any) -> npt.NDArray[np.int64]:

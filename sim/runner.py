@@ -199,6 +199,7 @@ class RunResult:
     maps: dict[str, Any] = field(default_factory=dict)
     paths: dict[str, np.ndarray] = field(default_factory=dict)
     error: BaseException | None = None
+    sonar_ranges: list[tuple[int, str, tuple[float, float, float]]] = field(default_factory=list)
 
 
 def default_out_dir(scenario: Scenario) -> Path:
@@ -308,8 +309,13 @@ def _grid_for(scenario: Scenario) -> Any:
     x0, y0 = min(x0, pts[:, 0].min()), min(y0, pts[:, 1].min())
     x1, y1 = max(x1, pts[:, 0].max()), max(y1, pts[:, 1].max())
     x0, y0, x1, y1 = x0 - GRID_MARGIN, y0 - GRID_MARGIN, x1 + GRID_MARGIN, y1 + GRID_MARGIN
+    # a whole (even) number of cells each way, as GridSpec requires
+    nx, ny = (2 * math.ceil((b - a) / (2 * CELL_SIZE) - 1e-9) for a, b in ((x0, x1), (y0, y1)))
     return GridSpec(
-        cell_size=CELL_SIZE, size_x=x1 - x0, size_y=y1 - y0, centre=((x0 + x1) / 2, (y0 + y1) / 2)
+        cell_size=CELL_SIZE,
+        size_x=nx * CELL_SIZE,
+        size_y=ny * CELL_SIZE,
+        centre=((x0 + x1) / 2, (y0 + y1) / 2),
     )
 
 
@@ -524,10 +530,13 @@ def _simulate(
     )
     metrics["camera_backend"] = camera_backend
     metrics["tyre_radius_scale"] = list(chair.wheel_radius_scale)
+    metrics["odometry_drift"]["source"] = (
+        "the simulated tyres' true radii differ from the spec's by tyre_radius_scale (seeded, 0.2 % sd); "
+        "the odometry assumes the spec's radius, plus wheel slip from the physics"
+    )
     metrics["wall_time_s"]["setup"] = setup_wall
     metrics["wall_time_s"]["main_thread"] = timing
-    res = RunResult(None, metrics, maps, arr_paths, error)
-    res.sonar_ranges = sonar_ranges  # type: ignore[attr-defined]
+    res = RunResult(None, metrics, maps, arr_paths, error, sonar_ranges)
     if rec is not None:
         metrics["bag"] = {
             "path": "bag",

@@ -11,9 +11,15 @@ that the beam keeps the apertures it has at 1 m (the sensor still echoes up to i
 fusion in ``mapping.sonar`` rejects readings over 1 m, the simulation does not pre-empt that).
 
 Echo rule: ultrasound reflects specularly off smooth surfaces, so a ray only produces an echo when
-the surface faces the sonar: the angle between the surface normal and the reversed ray must be below
-``max_incidence_deg`` (default 15 deg). Without this every sonar mounted 30-50 cm above the floor
-would read the floor at the bottom edge of its cone (incidence >= 50 deg there). The reading is the
+the surface faces the sonar: the angle between the surface normal and the reversed ray must be at
+most ``max_incidence_deg``. Without this every sonar mounted 30-50 cm above the floor would read the
+floor at the bottom edge of its cone. The default, 40 deg, sits between two facts: Appendix A
+detected a flat obstacle *facing along the sonar's axis* anywhere in the measured area, i.e. up to
+~37 deg off the axis (so the limit must be above that, or the measured cone would shrink to the
+limit for flat things), and a level sonar sees the floor at >= 52.6 deg incidence (90 deg minus the
+widest vertical half-aperture), which leaves ~12 deg of margin for the chair pitching. A large wall
+turned more than ~77 deg from the axis (40 + 37) gives no echo, the classic specular blind spot.
+The reading is the
 *first* echo: the smallest accepted distance, rounded to whole centimetres as the SRF08 reports
 ``range_cm``; NaN when there is no echo or the echo is outside [min, max] range (the ROS Range
 convention: such values are not measurements).
@@ -154,7 +160,10 @@ class _Beam:
         mirror.sync()
         hits = mirror.cast(origins, dirs, max_range=self.model.max_range_m)
         r = hits.distance.reshape(len(poses), n)
-        facing = (np.einsum("ij,ij->i", hits.normal, -dirs) >= self.cos_incidence).reshape(len(poses), n)
+        # |cos| of the incidence angle: triangles may be wound either way
+        facing = (np.abs(np.einsum("ij,ij->i", hits.normal, dirs)) >= self.cos_incidence).reshape(
+            len(poses), n
+        )
         left, right = self.apertures(np.where(np.isfinite(r), r, 1.0))
         vert = 0.5 * (left + right)
         h = np.where(self.bearing_deg >= 0, left, right)
@@ -199,7 +208,7 @@ class SonarSim:
         noise_std_m: float = 0.0,
         rng: np.random.Generator | int | None = None,
         ray_spacing_deg: float = 1.0,
-        max_incidence_deg: float = 15.0,
+        max_incidence_deg: float = 40.0,
         name: str = "sonar",
     ) -> None:
         self.model = get_sonar_model(model)
@@ -247,7 +256,7 @@ class SonarArraySim:
         noise_std_m: float = 0.0,
         rng: np.random.Generator | int | None = None,
         ray_spacing_deg: float = 1.0,
-        max_incidence_deg: float = 15.0,
+        max_incidence_deg: float = 40.0,
         name: str = "sonar_array",
     ) -> None:
         self.model = get_sonar_model(model)

@@ -73,6 +73,8 @@ class RoboteqMDC2230(Device):
         release_on_open: send ``!MG`` in ``open()``, leaving an emergency stop latched by an earlier
             session (the controller holds ``!EX`` until released). Off by default: releasing a stop
             is the operator's decision.
+        check_motor_flags: also query ``?FM`` in :meth:`read_state` and treat a motor stall, a
+            closed-loop error (e.g. a broken encoder) or a safety stop as a fault.
     """
 
     name = "roboteq-mdc2230"
@@ -91,6 +93,7 @@ class RoboteqMDC2230(Device):
         clock: Any = None,
         configure: bool = True,
         release_on_open: bool = False,
+        check_motor_flags: bool = True,
     ) -> None:
         if not isinstance(watchdog_ms, int) or not 1 <= watchdog_ms <= 65000:
             raise CommandError(
@@ -116,6 +119,7 @@ class RoboteqMDC2230(Device):
         self._clock = clock
         self._configure_on_open = configure
         self._release_on_open = release_on_open
+        self.check_motor_flags = check_motor_flags
         self._port: SerialLike | None = None
         self._owns_port = False
         self._rx = b""
@@ -213,12 +217,34 @@ class RoboteqMDC2230(Device):
         self._command(codec.set_speed(1, round(left_rpm)))
         self._command(codec.set_speed(2, round(right_rpm)))
 
+    def set_commands(self, left: int, right: int) -> None:
+        """``!G 1 left`` and ``!G 2 right``: motor commands -1000..1000 (in closed-loop speed mode a
+        fraction of ``^MXRPM``; in open loop a fraction of full power). Refreshes the watchdog."""
+        self._check_open()
+        for label, v in (("left", left), ("right", right)):
+            if isinstance(v, bool) or not isinstance(v, int) or not -1000 <= v <= 1000:
+                self._fail(CommandError(f"!G {label}={v!r} is not an integer in -1000..1000"))
+        if self.stop_reason is not None and (left != 0 or right != 0):
+            raise DeviceFaultError(
+                f"Roboteq is stopped after a fault ({self.stop_reason}); call release_stop() first"
+            )
+        self._command(codec.go(1, left))
+        self._command(codec.go(2, right))
+
     def read_state(self) -> MotorState:
-        """``?C``, ``?S`` and ``?FF``; a set fault flag stops the motors and raises DeviceFaultError."""
+        """``?C``, ``?S``, ``?FF`` (and ``?FM`` with ``check_motor_flags``).
+
+        A set fault flag, or a motor flag meaning the motor is not following (stall, closed-loop
+        error, safety stop), stops the motors and raises DeviceFaultError.
+        """
         self._check_open()
         counts = self._ints(codec.query("C"), 2)
         speeds = self._ints(codec.query("S"), 2)
         faults = self.read_faults()
+        if self.check_motor_flags:
+            for side, flags in zip(("left", "right"), self.read_motor_flags()):
+                if flags.any_fault:
+                    self._fail(DeviceFaultError(f"Roboteq {side} motor flags {flags.names()} (?FM)"))
         stamp = self._clock.now_ns() if self._clock is not None else time.monotonic_ns()
         return MotorState(stamp, (counts[0], counts[1]), (float(speeds[0]), float(speeds[1])), faults)
 

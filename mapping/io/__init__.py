@@ -1,8 +1,8 @@
 """Point-cloud input and output: PCD, PLY, KITTI .bin, .npy and ROS 1 / ROS 2 bags.
 
-:func:`read_clouds` picks the reader from the file extension and yields :class:`CloudFrame` objects; a
-file holds one frame, a bag one per PointCloud2 message on the selected topic. :func:`open_clouds`
-does the same but also says how many frames to expect (for progress bars).
+:func:`read_clouds` picks the reader from the file extension and yields :class:`CloudFrame` objects;
+a file holds one frame, a bag one per PointCloud2 (or PointCloud) message on the selected topic.
+:func:`open_clouds` does the same but also says how many frames to expect (for progress bars).
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def open_clouds(path: Path | str, topic: str | None = None) -> CloudSource:
     Args:
         path: A .pcd, .ply, KITTI .bin, .npy file, a ROS 1 .bag, or a ROS 2 bag (folder with
             metadata.yaml, or its .db3 / .mcap file).
-        topic: PointCloud2 topic of a bag (default: the only one); ignored for plain files so one
+        topic: Point-cloud topic of a bag (default: the only one); ignored for plain files so one
             ``--topic`` can serve a mix of files and bags.
 
     Raises:

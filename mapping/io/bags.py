@@ -1,12 +1,14 @@
-"""ROS bags through the ``rosbags`` library: read ``sensor_msgs/PointCloud2`` frames, write messages.
+"""ROS bags through the ``rosbags`` library: read ``sensor_msgs/PointCloud2`` (and the older
+``sensor_msgs/PointCloud``) frames, write messages.
 
 ROS 1 ``.bag`` files (any chunk compression rosbags reads: none, bz2, lz4) use the ROS 1 Noetic type
 store; ROS 2 bags (a folder with ``metadata.yaml``, or a bare ``.db3`` / ``.mcap`` file) use ROS 2
-Humble's. Topic selection: the named topic, or the only PointCloud2 topic when none is named.
+Humble's. Topic selection: the named topic, or the only point-cloud topic when none is named.
 """
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +21,8 @@ from mapping.io.frame import CloudFrame
 from mapping.pointcloud2 import decode
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+POINTCLOUD = "sensor_msgs/msg/PointCloud"  # the older message, one Point32 per point (thesis inputs)
+CLOUD_TYPES = (POINTCLOUD2, POINTCLOUD)
 
 
 def is_ros2_bag(path: Path) -> bool:
@@ -64,19 +68,23 @@ def select_topic(path: Path | str, topics: dict[str, str], topic: str | None) ->
         BagTopicError: The topic is absent or not PointCloud2, or there is no / more than one
             PointCloud2 topic to choose from; the message lists the bag's topics.
     """
-    clouds = sorted(t for t, ty in topics.items() if ty == POINTCLOUD2)
+    clouds = sorted(t for t, ty in topics.items() if ty in CLOUD_TYPES)
     listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
     if topic is not None:
         if topic not in topics:
             raise BagTopicError(f"{path}: bag has no topic {topic!r}; available topics: {listing}")
-        if topics[topic] != POINTCLOUD2:
-            raise BagTopicError(f"{path}: topic {topic!r} is {topics[topic]}, not {POINTCLOUD2}")
+        if topics[topic] not in CLOUD_TYPES:
+            raise BagTopicError(
+                f"{path}: topic {topic!r} is {topics[topic]}, not {POINTCLOUD2} or PointCloud"
+            )
         return topic
     if not clouds:
-        raise BagTopicError(f"{path}: bag has no {POINTCLOUD2} topic; available topics: {listing}")
+        raise BagTopicError(
+            f"{path}: bag has no {POINTCLOUD2} (or PointCloud) topic; available topics: {listing}"
+        )
     if len(clouds) > 1:
         raise BagTopicError(
-            f"{path}: bag has several PointCloud2 topics, choose one with --topic: {', '.join(clouds)}"
+            f"{path}: bag has several point-cloud topics, choose one with --topic: {', '.join(clouds)}"
         )
     return clouds[0]
 
@@ -102,13 +110,17 @@ class BagClouds:
             conns = [c for c in reader.connections if c.topic == self.topic]
             try:
                 for conn, bag_stamp, raw in reader.messages(connections=conns):
-                    msg = self._deserialize(store, ros2, raw, conn)
-                    points = decode(msg, organized=int(msg.height) > 1)
-                    stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                    if conn.msgtype == POINTCLOUD:
+                        points, stamp, frame_id = decode_pointcloud1(raw, ros2=ros2)
+                    else:
+                        msg = self._deserialize(store, ros2, raw, conn)
+                        points = decode(msg, organized=int(msg.height) > 1)
+                        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                        frame_id = str(msg.header.frame_id)
                     yield CloudFrame(
                         points=points,
                         stamp_ns=stamp if stamp > 0 else int(bag_stamp),
-                        frame_id=str(msg.header.frame_id),
+                        frame_id=frame_id,
                         source=f"{self.path}:{self.topic}",
                     )
             except PointCloudFormatError as exc:
@@ -173,6 +185,52 @@ def to_ros_pointcloud2(cloud: Any, *, ros2: bool = True) -> Any:
         data=np.asarray(cloud.data, dtype=np.uint8),
         is_dense=bool(cloud.is_dense),
     )
+
+
+def decode_pointcloud1(raw: bytes | memoryview, *, ros2: bool) -> tuple[np.ndarray, int, str]:
+    """Points (N, 3) float32, stamp_ns and frame_id of a serialized ``sensor_msgs/PointCloud``.
+
+    The points array sits right after the header in both wire formats, so it is read in place with
+    numpy instead of deserializing one Point32 object per point. ROS 1: ``seq, sec, nsec`` (uint32),
+    ``frame_id`` (uint32 length + bytes), point count (uint32), then x y z float32 per point. ROS 2
+    CDR: a 4-byte encapsulation header (byte 1 = 1 for little-endian), then ``sec`` (int32),
+    ``nanosec`` (uint32), ``frame_id`` (uint32 length including the NUL + bytes), padding to a
+    multiple of 4 from the start of the body, the count (uint32) and the points.
+
+    Raises:
+        PointCloudFormatError: The message is shorter than its declared sizes.
+    """
+    buf = bytes(raw)
+
+    def u32(fmt: str, pos: int) -> int:
+        if pos + 4 > len(buf):
+            raise PointCloudFormatError("PointCloud message is truncated")
+        return int(struct.unpack_from(fmt, buf, pos)[0])
+
+    if ros2:
+        if len(buf) < 4:
+            raise PointCloudFormatError("PointCloud message is truncated")
+        order = "<" if buf[1] == 1 else ">"
+        body = 4
+        sec, nsec = u32(order + "i", body), u32(order + "I", body + 4)
+        slen = u32(order + "I", body + 8)
+        frame = buf[body + 12 : body + 12 + max(slen - 1, 0)]
+        pos = body + 12 + slen
+        pos = body + (pos - body + 3) // 4 * 4
+    else:
+        order = "<"
+        sec, nsec = u32("<I", 4), u32("<I", 8)
+        slen = u32("<I", 12)
+        frame = buf[16 : 16 + slen]
+        pos = 16 + slen
+    n = u32(order + "I", pos)
+    pos += 4
+    if pos + 12 * n > len(buf):
+        raise PointCloudFormatError(
+            f"PointCloud message declares {n} points but holds {(len(buf) - pos) // 12}"
+        )
+    points = np.frombuffer(buf, dtype=order + "f4", count=3 * n, offset=pos).reshape(n, 3).astype(np.float32)
+    return points, sec * 1_000_000_000 + nsec, frame.decode("utf-8", errors="replace")
 
 
 def _latched_qos() -> Any:

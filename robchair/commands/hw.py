@@ -96,9 +96,9 @@ def _check(args: argparse.Namespace) -> int:
     with RoboteqMDC2230(args.port, baudrate=args.baudrate, configure=False) as motors:
         if args.i2c is None:
             return hw_check(motors)
-        from hw.srf08 import _open_smbus
+        from hw.srf08 import open_bus
 
-        bus = _open_smbus(args.i2c)
+        bus = open_bus(args.i2c)
         try:
             return hw_check(motors, bus)
         finally:

@@ -1,10 +1,11 @@
 """`robchair map`: build variable-height-voxel maps from point-cloud files or bags and write their outputs.
 
 Each INPUT (a .pcd, .ply, KITTI .bin, .npy file, a ROS 1 .bag or a ROS 2 bag) becomes one map; all
-the PointCloud2 messages of a bag are accumulated into that input's map. For every input one table row
-compares the VHV structures with the standard voxels of the same map (the columns of the thesis's
-Table 5.2). Outputs go to ``--out`` (per-input sub-folders when there are several inputs), written
-all-or-nothing. Without INPUT (or with ``--sample``) a small synthetic indoor cloud is mapped.
+the PointCloud2 (or PointCloud) messages of a bag's topic are accumulated into that input's map. For
+every input one table row compares the VHV structures with the standard voxels of the same map (the
+columns of the thesis's Table 5.2). Outputs go to ``--out`` (per-input sub-folders when there are
+several inputs), written all-or-nothing. Without INPUT (or with ``--sample``) a small synthetic
+indoor cloud is mapped.
 
 Outputs: occupancy.png, elevation.png, vhv_3d.png, map.pgm + map.yaml (map_server), vhv_boxes.ply and
 voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid, /vhv_markers MarkerArray) and
@@ -52,7 +53,11 @@ def register(subparsers: Any) -> None:
         default=None,
         help="kept-axis band (m) that makes a cell occupied in the 2D map (default 0.10 1.50)",
     )
-    p.add_argument("--topic", default=None, help="PointCloud2 topic of bag inputs (default: the only one)")
+    p.add_argument(
+        "--topic",
+        default=None,
+        help="point-cloud topic of bag inputs, PointCloud2 or PointCloud (default: the only one)",
+    )
     p.add_argument(
         "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); replaced on success"
     )
@@ -334,6 +339,14 @@ def _run(args: argparse.Namespace) -> int:
             }
             total["inputs"] = [{"name": n, "folder": n, **s} for n, s in results]
             (stage / "summary.json").write_text(json.dumps(total, indent=2) + "\n", encoding="utf-8")
+    for name, summary in results:
+        p = summary["parameters"]
+        where = "" if len(results) == 1 else f"{name}/: "
+        print(
+            f"{where}grid {p['grid_shape'][0]} x {p['grid_shape'][1]} cells of {p['cell_size']:g} m "
+            f"({p['grid_size_source']}), {summary['points_dropped_nonfinite']:,d} non-finite and "
+            f"{summary['points_outside_grid']:,d} out-of-grid points dropped"
+        )
     print(
         f"wrote {Path(args.out)}/ (pictures, map.pgm + map.yaml, PLY meshes, ROS 2 bag map_bag/, "
         "summary.json)"

@@ -5,7 +5,9 @@
 The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
 keys of :mod:`hw.registry`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
 (:class:`robchair.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route file).
-The command source is the route (``--route`` wins over ``[route]``), else the backend's joystick.
+The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
+backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
+the backend's joystick.
 With ``--out`` the run is written as a ROS 2 bag (``run_bag/``), ``metrics.json`` and ``odometry.csv``.
 """
 
@@ -56,6 +58,19 @@ def load_run_config(path: Path | None) -> dict[str, Any]:
     return data
 
 
+def _scenario_route(name: str, spec: Any) -> tuple[Any, Any]:
+    """The route of a sim scenario as a runtime Route starting at the scenario's start pose."""
+    from robchair.kinematics import Pose2D
+    from robchair.runtime import Route
+    from sim.backend import robot_radius
+    from sim.scene import load_scenario
+
+    sc = load_scenario(name, robot_radius=robot_radius(spec))
+    x, y, yaw = sc.start
+    route = Route(((x, y), *sc.route.waypoints), speed=sc.route.speed, lookahead_m=sc.route.lookahead)
+    return route, Pose2D(x, y, yaw)
+
+
 def _run(args: argparse.Namespace) -> int:
     from hw.registry import get_backend
     from robchair.errors import ConfigError
@@ -82,6 +97,9 @@ def _run(args: argparse.Namespace) -> int:
         route = Route.load(args.route)
     elif "route" in cfg:
         route = Route.from_dict(cfg["route"], f"{args.config} [route]")
+    start_pose = None
+    if route is None and args.backend == "sim" and backend_cfg.get("scenario"):
+        route, start_pose = _scenario_route(str(backend_cfg["scenario"]), spec)
     if args.release_stop and args.backend != "sim":
         backend_cfg["release_stop"] = True
     backend = get_backend(args.backend, backend_cfg)
@@ -95,7 +113,14 @@ def _run(args: argparse.Namespace) -> int:
             "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
         )
     result = run_to_dir(
-        backend, source, args.duration, args.out, spec=spec, config=runtime_config, safety=safety
+        backend,
+        source,
+        args.duration,
+        args.out,
+        spec=spec,
+        config=runtime_config,
+        safety=safety,
+        start_pose=start_pose,
     )
     print(json.dumps(result.metrics(), indent=2))
     return 0 if result.driver_fault is None else 1

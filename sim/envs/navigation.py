@@ -55,6 +55,7 @@ START_MARGIN = 0.10  # m of extra clearance around the chair's turning circle at
 PASS_MARGIN = 0.05  # m each side of the chair's width for two free regions to count as connected
 SENSORS = ("kinect2", "kinect1")
 POSE_SOURCES = ("ground_truth", "odometry")
+MAP_MEMORIES = ("episode", "frame")
 SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the command limits
 
 
@@ -176,8 +177,9 @@ def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> 
     """Axial depth noise and quantisation for a clean organized cloud from a reduced-resolution Kinect.
 
     Each valid pixel's depth ``z`` (its x coordinate, REP-103 camera frame) moves along its own ray by
-    ``N(0, sigma_z(z, theta)^2)`` with the model's axial noise (:func:`sim.kinect.fankhauser2015_axial_sigma_m`
-    for the v2, :func:`sim.kinect.nguyen2012_axial_sigma_m` for the v1), ``theta`` the angle between
+    ``N(0, sigma_z(z, theta)^2)`` with the model's axial noise
+    (:func:`sim.kinect.fankhauser2015_axial_sigma_m` for the v2,
+    :func:`sim.kinect.nguyen2012_axial_sigma_m` for the v1), ``theta`` the angle between
     the ray and the surface normal estimated from the cloud itself (0 where undefined), then is
     rounded like the device's output. Lateral noise (1.6 px of the full 512x424 image for the v2, i.e.
     under half a pixel once decimated 4x) is left out. NaN pixels stay NaN.
@@ -347,18 +349,20 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
 
     ``Dict``:
 
-    | key         | space                                 | meaning                                        |
-    |-------------|---------------------------------------|------------------------------------------------|
-    | occupancy   | Box(0, 1, patch_shape, uint8)         | egocentric occupancy patch, 1 = occupied       |
-    | goal        | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m) and bearing (rad), robot frame|
-    | velocity    | Box(-1.5 limits, +1.5 limits)         | measured (v m/s, w rad/s) from the wheel speeds |
-    | sonar       | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max    |
+    | key       | space                                 | meaning                                          |
+    |-----------|---------------------------------------|--------------------------------------------------|
+    | occupancy | Box(0, 1, patch_shape, uint8)         | egocentric occupancy patch, 1 = occupied         |
+    | goal      | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m), bearing (rad), robot frame    |
+    | velocity  | Box(-1.5 x limits, 1.5 x limits)      | measured (v m/s, w rad/s) from the wheel speeds  |
+    | sonar     | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max      |
 
     The occupancy patch (default 64x64 cells of 10 cm) has row ``i`` forward (row 0 is 1.6 m behind
     ``base_link``) and column ``j`` to the left (centred), see :func:`egocentric_patch`. A cell is
     occupied when the episode's map holds a structure overlapping [0.10 m, chair height]: a table top
-    counts, the floor does not. Cells never observed are 0. The map and the observed goal/bearing use
-    ``pose_source``: the physics' ground truth (default) or the chair's wheel odometry.
+    counts, the floor does not. Cells never observed are 0. The map keeps every frame of the episode
+    (``map_memory="episode"``; people who walk leave trails) or only the latest one (``"frame"``). The
+    map and the observed goal/bearing use ``pose_source``: the physics' ground truth (default) or the
+    chair's wheel odometry.
 
     ## Rewards
 
@@ -385,10 +389,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
 
     ``gymnasium.make("RobChair/Navigation-v0", render_mode="rgb_array", **kwargs)`` with keyword
     arguments ``scene`` (name or path or :class:`sim.scene.Scene`), ``sensor`` (``"kinect2"``,
-    ``"kinect1"`` or None), ``kinect_decimation`` (4: 512x424 -> 128x106 rays, same field of view),
+    ``"kinect1"`` or None), ``kinect_decimation`` (4: 512x424 -> 128x106 rays, same field of view;
+    a decimated camera gets the model's axial noise only, see :func:`decimated_depth_noise`),
     ``sonars`` (bool), ``noise`` (sensor noise), ``agent_hz``, ``start`` ((x, y, yaw) or None),
     ``goal`` ((x, y) or None), ``goal_distance`` ((min, max) m), ``goal_tolerance`` (m),
-    ``pose_source``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
+    ``pose_source``, ``map_memory``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
     ``max_yaw_rate``, ``reward_weights`` (:class:`RewardWeights`), ``spec`` (platform spec or TOML
     path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``). ``render()`` returns a top-down
     picture of the episode's map, the scene, the path, the chair and the goal.
@@ -411,6 +416,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         goal_distance: tuple[float, float] = (1.0, 5.0),
         goal_tolerance: float = 0.3,
         pose_source: str = "ground_truth",
+        map_memory: str = "episode",
         patch_shape: tuple[int, int] = PATCH_SHAPE,
         patch_cell: float = PATCH_CELL,
         patch_behind: float = PATCH_BEHIND,
@@ -446,6 +452,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             raise NavigationEnvError(f"agent_hz={agent_hz!r}: expected a positive divisor of {PHYSICS_HZ}")
         if pose_source not in POSE_SOURCES:
             raise NavigationEnvError(f"pose_source={pose_source!r}: expected one of {POSE_SOURCES}")
+        if map_memory not in MAP_MEMORIES:
+            raise NavigationEnvError(f"map_memory={map_memory!r}: expected one of {MAP_MEMORIES}")
         lo, hi = _pose_arg(goal_distance, 2, "goal_distance")
         if not 0 <= lo <= hi:
             raise NavigationEnvError(f"goal_distance={goal_distance!r}: expected 0 <= min <= max")
@@ -463,8 +471,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if camera_backend not in ("raycast", "pybullet"):
             raise NavigationEnvError(f"camera_backend={camera_backend!r}: expected 'raycast' or 'pybullet'")
 
-        if render_mode is not None:
-            self.metadata = {**self.metadata, "render_fps": agent_hz}
+        self.metadata = {**self.metadata, "render_fps": agent_hz}
         self.spec_robot = spec if isinstance(spec, RobChairSpec) else load_spec(spec)
         self.drive = DiffDrive(self.spec_robot)
         self.scene = _load_scene_arg(scene)
@@ -474,6 +481,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self.goal_distance = (lo, hi)
         self.goal_tolerance = float(goal_tolerance)
         self.pose_source = pose_source
+        self.map_memory = map_memory
         self.patch_shape = (int(ps[0]), int(ps[1]))
         self.patch_cell, self.patch_behind = float(patch_cell), float(patch_behind)
         self.max_speed = float(max_speed) if max_speed is not None else self.drive.max_speed
@@ -767,6 +775,10 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         """Read the sensors and insert their points into the episode's map (placed at ``pose``)."""
         gt = self.pose_source == "ground_truth"
         chair = self._chair
+        if self.map_memory == "frame":
+            from mapping.vhv import VHVMap
+
+            self._map = VHVMap(self.grid, tolerance=self.patch_cell)
         stamp = chair.world.now_ns()
         if chair.kinect is not None:
             t_gt = chair.kinect_pose()

@@ -274,6 +274,24 @@ def test_a_fault_flag_stops_the_motors_and_raises_with_the_flag_names(drv, emu, 
     assert_stopped(emu)
 
 
+def test_a_motor_flag_meaning_the_motor_does_not_follow_stops_and_raises(drv, emu, clock) -> None:
+    drive_for(drv, clock, 300, 300, 0.5)
+    emu.set_motor_flags(2, codec.MotorFlags(amps_limit=True))  # informational: no fault
+    drv.read_state()
+    emu.set_motor_flags(2, codec.MotorFlags(loop_error=True))  # e.g. the right encoder came off
+    with pytest.raises(DeviceFaultError, match=r"right motor flags \['loop_error'\]"):
+        drv.read_state()
+    assert_stopped(emu)
+
+
+def test_go_commands_are_a_fraction_of_max_rpm_in_closed_loop(drv, emu) -> None:
+    drv.set_commands(500, -250)
+    assert emu.setpoints_rpm == (500.0, -250.0)  # ^MXRPM = 1000
+    with pytest.raises(CommandError, match="1001"):
+        drv.set_commands(1001, 0)
+    assert_stopped(emu)
+
+
 def test_non_finite_or_too_fast_speed_stops_then_raises(drv, emu, clock) -> None:
     drive_for(drv, clock, 300, 300, 0.5)
     with pytest.raises(CommandError, match="right_rpm=nan"):

@@ -61,6 +61,13 @@ def test_hw_check_on_a_missing_port_fails_with_one_line(capsys) -> None:
     assert "/dev/no-such-roboteq" in capsys.readouterr().err
 
 
+def test_hw_check_with_a_missing_i2c_bus_fails_with_one_line_naming_it(capsys) -> None:
+    with RoboteqEmulator(clock=ManualClock()) as emu:
+        assert main(["hw", "check", "--port", emu.device_path, "--i2c", "97"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "97" in err
+
+
 def test_hw_emulate_roboteq_prints_a_device_path_the_driver_can_use() -> None:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen(

@@ -158,3 +158,56 @@ def test_vectorised_marker_bytes_equal_rosbags_serialization(frame_id, n):
         marker_array_msg(boxes, colors, frame_id, 1_000_000_007), "visualization_msgs/msg/MarkerArray"
     )
     assert marker_array_cdr(boxes, colors, frame_id, 1_000_000_007) == bytes(expected)
+
+
+def _small_map():
+    from mapping.grid import GridSpec
+    from mapping.vhv import VHVMap
+
+    m = VHVMap(GridSpec(cell_size=0.1, size_x=1.0, size_y=1.0), tolerance=0.05)
+    # cell of (0.05, 0.05): floor only; cell of (0.25, 0.05): a table top at 0.71 m; (0.45, 0.05): floor
+    m.insert([[0.05, 0.05, 0.0], [0.25, 0.05, 0.71], [0.25, 0.05, 0.73], [0.45, 0.05, 0.01]])
+    return m
+
+
+def test_map_codes_mark_band_hits_occupied_seen_cells_free_and_the_rest_unknown():
+    from mapping.export import map_codes
+
+    m = _small_map()
+    codes = map_codes(m, (0.1, 1.5))
+    i, j = m.spec.world_to_index(np.array([0.05, 0.25, 0.45, 0.05]), np.array([0.05, 0.05, 0.05, 0.45]))
+    assert [int(codes[a, b]) for a, b in zip(i, j)] == [FREE, OCCUPIED, FREE, UNKNOWN]
+    assert np.count_nonzero(codes == OCCUPIED) == 1 and np.count_nonzero(codes == FREE) == 2
+
+
+def test_free_space_from_the_sensor_clears_cells_between_it_and_an_obstacle():
+    from mapping.export import map_codes
+
+    m = _small_map()
+    codes = map_codes(m, (0.1, 1.5), sensor_origin=(-0.35, 0.05, 1.0))
+    i, j = m.spec.world_to_index(np.array([-0.15]), np.array([0.05]))
+    assert codes[int(i[0]), int(j[0])] == FREE  # never hit by a point, but crossed by the rays
+    assert np.count_nonzero(codes == OCCUPIED) == 1
+
+
+def test_voxel_boxes_are_cubes_around_the_derived_voxel_centres():
+    from mapping.derived import voxel_centres
+    from mapping.export import voxel_boxes
+
+    m = _small_map()
+    boxes = voxel_boxes(m)
+    assert boxes.shape == (m.n_voxels, 2, 3)
+    np.testing.assert_allclose(boxes.mean(axis=1), voxel_centres(m), atol=1e-12)
+    np.testing.assert_allclose(boxes[:, 1] - boxes[:, 0], 0.1, atol=1e-12)
+
+
+def test_write_map_outputs_summary_counts_equal_the_map(tmp_path):
+    from mapping.export import write_map_outputs
+
+    m = _small_map()
+    s = write_map_outputs(m, tmp_path, band=(0.1, 1.5), build_ms=1.5)
+    assert (s["points_in"], s["structures"], s["cells_occupied"], s["voxels"]) == (4, 3, 3, m.n_voxels)
+    assert s["cells_occupied_2d"] == 1 and s["build_ms"] == 1.5
+    assert read_ply_mesh(tmp_path / "vhv_boxes.ply").faces.shape == (36, 3)
+    with pytest.raises(MappingError, match="expected min <= max"):
+        write_map_outputs(m, tmp_path, band=(1.0, 0.0))

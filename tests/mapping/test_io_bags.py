@@ -128,7 +128,7 @@ def test_named_topic_is_selected_among_several_cloud_topics(tmp_path):
     _ros2_bag(path, ["padded_f32"], StoragePlugin.SQLITE3, topics=("/front/points", "/rear/points"))
     with pytest.raises(
         BagTopicError,
-        match="several PointCloud2 topics, choose one with --topic: /front/points, /rear/points",
+        match="several point-cloud topics, choose one with --topic: /front/points, /rear/points",
     ):
         open_clouds(path)
     src = open_clouds(path, topic="/rear/points")
@@ -164,7 +164,8 @@ def test_bag_without_any_cloud_topic_is_refused(tmp_path):
             c, 1, ts.serialize_ros1(ts.types["std_msgs/msg/String"](data="x"), "std_msgs/msg/String")
         )
     with pytest.raises(
-        BagTopicError, match="bag has no sensor_msgs/msg/PointCloud2 topic; available topics: /chatter"
+        BagTopicError,
+        match=r"bag has no sensor_msgs/msg/PointCloud2 \(or PointCloud\) topic; available topics: /chatter",
     ):
         open_clouds(path2)
 
@@ -206,3 +207,62 @@ def test_bag_written_by_the_project_writer_round_trips(tmp_path):
         (frame,) = list(read_clouds(tmp_path / name))
         np.testing.assert_array_equal(frame.points, pts)  # organized clouds keep their shape
         assert (frame.stamp_ns, frame.frame_id) == (7, "f")
+
+
+def _pointcloud1(ts, ros2: bool, frame_id: str, xyz: np.ndarray, stamp_s: int):
+    t = ts.types
+    stamp = t["builtin_interfaces/msg/Time"](sec=stamp_s, nanosec=9)
+    header = (
+        t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+        if ros2
+        else t["std_msgs/msg/Header"](seq=3, stamp=stamp, frame_id=frame_id)
+    )
+    pts = [t["geometry_msgs/msg/Point32"](x=float(a), y=float(b), z=float(c)) for a, b, c in xyz]
+    chan = t["sensor_msgs/msg/ChannelFloat32"](name="intensity", values=np.arange(len(xyz), dtype=np.float32))
+    return t["sensor_msgs/msg/PointCloud"](header=header, points=pts, channels=[chan])
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_old_pointcloud_messages_decode_whatever_the_frame_id_length(tmp_path, kind):
+    msgtype = "sensor_msgs/msg/PointCloud"
+    ros2 = kind != "ros1"
+    ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    rng = np.random.default_rng(8)
+    # Frame ids of 1 to 4 characters move the CDR padding before the point count through every case.
+    frames = [
+        (fid, rng.normal(size=(k + 2, 3)).astype(np.float32))
+        for k, fid in enumerate(["a", "ab", "abc", "abcd"])
+    ]
+    serialize = ts.serialize_cdr if ros2 else ts.serialize_ros1
+    if ros2:
+        path = tmp_path / "pc1"
+        plugin = StoragePlugin.SQLITE3 if kind == "sqlite3" else StoragePlugin.MCAP
+        with Writer2(path, version=8, storage_plugin=plugin) as writer:
+            conn = writer.add_connection("/sonar_cloud", msgtype, typestore=ts)
+            for k, (fid, xyz) in enumerate(frames):
+                writer.write(conn, k + 1, serialize(_pointcloud1(ts, True, fid, xyz, 10 + k), msgtype))
+    else:
+        path = tmp_path / "pc1.bag"
+        with Writer1(path) as writer:
+            conn = writer.add_connection("/sonar_cloud", msgtype, typestore=ts)
+            for k, (fid, xyz) in enumerate(frames):
+                writer.write(conn, k + 1, serialize(_pointcloud1(ts, False, fid, xyz, 10 + k), msgtype))
+    got = list(read_clouds(path))
+    assert [f.frame_id for f in got] == ["a", "ab", "abc", "abcd"]
+    assert [f.stamp_ns for f in got] == [(10 + k) * 10**9 + 9 for k in range(4)]
+    for frame, (_, xyz) in zip(got, frames):
+        np.testing.assert_array_equal(frame.points, xyz)
+
+
+def test_truncated_old_pointcloud_message_is_refused():
+    from mapping.io.bags import decode_pointcloud1
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    raw = ts.serialize_cdr(
+        _pointcloud1(ts, True, "cam", np.ones((5, 3), np.float32), 1), "sensor_msgs/msg/PointCloud"
+    )
+    points, _, frame = decode_pointcloud1(raw, ros2=True)
+    assert points.shape == (5, 3) and frame == "cam"
+    cut = bytes(raw)[: 4 + 8 + 4 + 4 + 4 + 12 * 3 + 4]  # CDR header, stamp, "cam", count, 3 points + 4 bytes
+    with pytest.raises(PointCloudFormatError, match="declares 5 points but holds 3"):
+        decode_pointcloud1(cut, ros2=True)

@@ -313,3 +313,35 @@ def test_ascii_with_a_non_number_is_refused(tmp_path):
     path = _simple(tmp_path, _header("x y z", "4 4 4", "F F F", "1 1 1", 1, 1, "ascii"), b"1 two 3\n")
     with pytest.raises(PointCloudFormatError, match="field 'y' holds a non-number"):
         read_pcd(path)
+
+
+def test_big_organized_compressed_cloud_with_rgb_and_nan_rows(tmp_path):
+    """A 640 x 480 Kinect-like frame: x y z rgb, field-major LZF payload, invalid rows and pixels as NaN."""
+    h, w = 480, 640
+    rng = np.random.default_rng(11)
+    xyz = rng.uniform(-4, 4, size=(h * w, 3)).astype("<f4")
+    xyz[rng.random(h * w) < 0.1] = np.nan
+    xyz[: w * 3] = np.nan  # the first three image rows saw nothing
+    rgb = rng.integers(0, 2**24, size=h * w).astype("<u4")
+    raw = xyz[:, 0].tobytes() + xyz[:, 1].tobytes() + xyz[:, 2].tobytes() + rgb.tobytes()
+    packed = _literal_lzf(raw)
+    head = _header("x y z rgb", "4 4 4 4", "F F F U", "1 1 1 1", w, h, "binary_compressed")
+    path = _simple(tmp_path, head, struct.pack("<II", len(packed), len(raw)) + packed)
+    got = read_pcd(path, organized=True)
+    assert got.shape == (h, w, 3)
+    np.testing.assert_array_equal(got.reshape(-1, 3), xyz)  # NaN positions compare equal too
+    assert np.isnan(got[:3]).all() and not np.isnan(got[3:]).all()
+    np.testing.assert_array_equal(read_pcd_cloud(path).data["rgb"], rgb)
+
+
+def test_open3d_compressed_large_cloud_decodes_with_back_references(tmp_path):
+    o3d = import_open3d()
+    # A regular lattice compresses well, so Open3D's LZF stream is full of back-references.
+    g = np.stack(np.meshgrid(np.arange(100), np.arange(100), np.arange(10), indexing="ij"), -1).reshape(-1, 3)
+    pts = (g * 0.05).astype(np.float64)
+    path = tmp_path / "lattice.pcd"
+    assert o3d.io.write_point_cloud(
+        str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)), compressed=True
+    )
+    assert path.stat().st_size < pts.size * 4 / 2  # really compressed
+    np.testing.assert_array_equal(read_pcd(path), pts.astype(np.float32))

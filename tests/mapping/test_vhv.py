@@ -28,8 +28,11 @@ def reference_structures(
     for p in np.asarray(points).reshape(-1, 3).tolist():
         if not all(math.isfinite(c) for c in p):
             continue
-        i = math.floor(p[cu] * ics) - ou
-        j = math.floor(p[cv] * ics) - ov
+        fu, fv = p[cu] * ics, p[cv] * ics
+        if not (math.isfinite(fu) and math.isfinite(fv)):  # |coordinate| near 1.8e308: off any grid
+            continue
+        i = math.floor(fu) - ou
+        j = math.floor(fv) - ov
         if 0 <= i < nx and 0 <= j < ny:
             cells[(i, j)].append(p[ch])
     out = []
@@ -53,7 +56,9 @@ def as_tuples(s: Structures) -> list[tuple[int, int, float, float]]:
 SPEC = GridSpec(cell_size=0.05, size_x=1.0, size_y=1.0, centre=(0.0, 0.0))
 
 # Coordinates with many exact collisions, cell edges and gaps of exactly `tolerance`.
-special = st.sampled_from([0.0, 0.05, 0.1, -0.05, 0.02, 0.04, 0.07, 0.15, 0.2, -0.5, 0.49, 0.5, 1e-9])
+special = st.sampled_from(
+    [0.0, 0.05, 0.1, -0.05, 0.02, 0.04, 0.07, 0.15, 0.2, -0.5, 0.49, 0.5, 1e-9, 1.5e308, -1.5e308]
+)
 coord = st.one_of(special, st.floats(-0.6, 0.6, allow_nan=False, width=64))
 height = st.one_of(special, st.floats(-1.0, 2.0, allow_nan=False))
 point = st.tuples(coord, coord, height)
@@ -141,6 +146,8 @@ def test_nonfinite_and_out_of_grid_points_are_dropped_and_counted(method: str) -
             [0.6, 0.0, 0.0],  # outside (grid spans [-0.5, 0.5))
             [0.0, -0.51, 0.0],
             [0.0, 0.0, 1e300],  # finite: kept
+            [1e308, 0.0, 0.0],  # finite, far outside (u * (1 / cell_size) overflows to inf)
+            [0.0, 0.0, -1.7e308],  # finite: kept (h * (1 / bin width) overflows to -inf)
         ]
     )
     stats = m.insert(pts, method=method)
@@ -150,13 +157,17 @@ def test_nonfinite_and_out_of_grid_points_are_dropped_and_counted(method: str) -
         stats.points_outside_grid,
         stats.points_inserted,
     ) == (
-        7,
+        9,
         3,
-        2,
-        2,
+        3,
+        3,
     )
-    assert as_tuples(m.structures()) == [(10, 10, 0.0, 0.0), (10, 10, 1e300, 1e300)]
-    assert (m.points_dropped_nonfinite, m.points_outside_grid, m.points_inserted) == (3, 2, 2)
+    assert as_tuples(m.structures()) == [
+        (10, 10, -1.7e308, -1.7e308),
+        (10, 10, 0.0, 0.0),
+        (10, 10, 1e300, 1e300),
+    ]
+    assert (m.points_dropped_nonfinite, m.points_outside_grid, m.points_inserted) == (3, 3, 3)
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -38,7 +38,7 @@ def test_quick_bench_writes_json_whose_counts_match_an_independent_build(tmp_pat
         assert row["structures"] == m.n_structures and row["voxels"] == m.n_voxels
         assert row["points_dropped_nonfinite"] == stats.points_dropped_nonfinite
         assert len(row["vhv_fast"]["times_ms"]) == 2 and len(row["vhv_numpy"]["times_ms"]) >= 1
-        for key in ("vhv_fast", "vhv_numpy"):
+        for key in ("vhv_fast", "vhv_numpy", "vhv_sort"):
             assert row[key]["median_ms"] > 0 and row[key]["cpu_median_ms"] >= 0
         assert row["vhv_fast"]["peak_extra_bytes"] > 0
         assert "open3d_voxelgrid" not in row and "octomap_insert" not in row

@@ -123,7 +123,8 @@ def test_several_inputs_get_one_row_and_one_folder_each_with_totals(tmp_path, ca
     assert total["points_in"] == 320 == sa["points_in"] + sb["points_in"]
     assert total["structures"] == sa["structures"] + sb["structures"]
     rows = capsys.readouterr().out.splitlines()
-    assert len(rows) == 5  # header, three inputs, the closing line
+    assert len(rows) == 8  # header, one row per input, one grid line per input, the closing line
+    assert rows[5].startswith("b/: grid ") and "(data extent + margin)" in rows[5]
     assert "a.pcd" in rows[1] and "b.bag [/pts]" in rows[2] and "empty.pcd" in rows[3]
 
 
@@ -169,7 +170,7 @@ def _bad_inputs(tmp_path):
     return {
         "trunc.pcd": "binary data truncated",
         "type.pcd": "unknown PCD TYPE 'Z'",
-        "strings.bag": "no sensor_msgs/msg/PointCloud2 topic",
+        "strings.bag": "no sensor_msgs/msg/PointCloud2 (or PointCloud) topic",
         "noz.bag": "PointCloud2 has no z field",
         "scan.xyz": "unknown point-cloud format",
         "missing.pcd": "no such file",

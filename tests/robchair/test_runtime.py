@@ -138,6 +138,7 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
     out = tmp_path / "run"
     res = run_to_dir(emulated(), PurePursuit(ROUTE, DiffDrive(spec)), 20.0, out, spec=spec)
     assert res.route_completed and res.driver_fault is None and res.stops == []
+    assert res.min_sonar_distance_m is None and res.map_frames == 0  # the sonars heard nothing
     assert math.hypot(res.final_pose[0] - 2.5, res.final_pose[1] - 1.0) < 0.15
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["cycles"] == res.cycles and metrics["route_completed"] is True
@@ -241,6 +242,7 @@ def test_an_obstacle_heard_by_the_sonars_keeps_the_chair_from_driving_into_it(sp
     res = run_to_dir(emulated(sonar_range_m=0.25), PurePursuit(ROUTE, DiffDrive(spec)), 3.0, None, spec=spec)
     assert res.stops and res.stops[0]["reason"] == "obstacle_sonar"
     assert res.distance_m < 0.02
+    assert res.min_sonar_distance_m is not None and res.min_sonar_distance_m < 0.25 - 0.58 + 0.55 + 1e-9
 
 
 def test_a_sonar_array_failing_for_longer_than_the_stale_limit_stops_the_chair(spec) -> None:
@@ -443,3 +445,14 @@ def test_simulated_kinect_map_stops_the_chair_before_a_wall(tmp_path: Path, spec
     front = res.final_pose[0] + 0.58
     gap = 2.45 - front  # the wall's near face is at x = 2.45
     assert 0.15 <= gap < 0.6  # at least the safety margin kept, and it did get near
+
+
+@pytest.mark.slow
+def test_robchair_run_sim_follows_a_scenario_route_in_the_world_frame(tmp_path: Path, capsys) -> None:
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('[sim]\nscenario = "office_corridor"\nsensor = "none"\nsonars = false\n')
+    assert main(["run", "--backend", "sim", "--config", str(cfg), "--duration", "40"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["route_completed"] is True
+    # the scenario's last waypoint is (10.0, -0.8) in the world frame; odometry starts at the start pose
+    assert math.hypot(m["final_pose"][0] - 10.0, m["final_pose"][1] + 0.8) < 0.15

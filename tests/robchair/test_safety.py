@@ -160,6 +160,8 @@ def test_limits_from_spec_use_the_platform_maximum_and_reject_faster_caps() -> N
         SafetyLimits.from_spec(spec, max_speed=1.0)
     with pytest.raises(ConfigError, match="unknown keys"):
         SafetyLimits.from_spec(spec, top_speed=0.1)
+    with pytest.raises(ConfigError, match="margin_m = 'wide'"):
+        SafetyLimits.from_spec(spec, margin_m="wide")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])

@@ -12,6 +12,7 @@ from sim.envs.navigation import (
     FreeSpace,
     NavigationEnvError,
     RewardWeights,
+    decimated_depth_noise,
     egocentric_patch,
     goal_in_robot_frame,
     navigation_reward,
@@ -113,6 +114,24 @@ def test_egocentric_patch_is_zero_outside_the_map():
     assert patch[0].all() and not patch[1:].any()
 
 
+def test_decimated_depth_noise_has_the_kinect2_axial_sigma_and_keeps_points_on_their_rays():
+    from dataclasses import replace
+
+    from sim.kinect import MODELS
+
+    model = replace(MODELS["kinect2"], width=128, height=106)
+    rays = model.intrinsics.rays()
+    clean = 2.0 * rays  # a wall facing the camera 2 m away
+    clean[0, 0] = np.nan  # no return stays no return
+    noisy = decimated_depth_noise(clean, model, np.random.default_rng(0))
+    assert np.isnan(noisy[0, 0]).all()
+    z = noisy[..., 0][1:-1, 1:-1]  # interior: normals defined, theta ~ 0 for the lateral rays nearby
+    # Fankhauser 2015 at z = 2 m, theta = 0: 1.5 - 0.5 * 2 + 0.3 * 4 = 1.7 mm; 1 mm rounding adds 1/12 mm^2
+    assert np.std(z - 2.0) == pytest.approx(math.sqrt(1.7e-3**2 + 1e-6 / 12), rel=0.06)
+    assert np.allclose(np.round(noisy[..., 0][1:] * 1000), noisy[..., 0][1:] * 1000)  # whole millimetres
+    np.testing.assert_allclose(noisy[1:] / noisy[1:, :, :1], rays[1:], rtol=1e-9)  # same ray, new depth
+
+
 def test_free_space_of_the_office_joins_corridor_and_room_through_the_doorway(env):
     fs: FreeSpace = env.free_space
     i0, j0 = fs.grid.world_to_index(0.0, 0.0)
@@ -156,6 +175,15 @@ def test_same_seed_gives_the_same_episode_bit_for_bit(env):
         for k in oa:
             np.testing.assert_array_equal(oa[k], ob[k])
     assert any(o["occupancy"].any() for o in obs_a)  # the comparison covered a real map
+    fresh = gymnasium.make("sim.envs:" + ENV_ID)  # the module:id form imports sim.envs by itself
+    try:
+        obs_c, rew_c = _run(fresh, 11, actions)
+    finally:
+        fresh.close()
+    assert rew_c == rew_a
+    for oa, oc in zip(obs_a, obs_c, strict=True):
+        for k in oa:
+            np.testing.assert_array_equal(oa[k], oc[k])
 
 
 def test_different_seeds_give_different_starts_and_goals(env):
@@ -199,6 +227,39 @@ def test_the_wall_ahead_shows_in_the_forward_rows_of_the_occupancy_patch(env):
     rows = np.nonzero(occ.any(axis=1))[0]
     assert rows.size and 26 <= rows.min() <= 30
     assert not occ[:26].any()  # nothing between the chair and the wall
+
+
+def test_the_open_corridor_floor_ahead_stays_free_in_the_occupancy_patch(env):
+    # the decimated Kinect sees 4 m of corridor floor; floor noise must not turn into obstacles
+    env.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (4.0, 0.0)})
+    occ = None
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.2, 0.0], np.float32))
+        occ = obs["occupancy"]
+    # robot frame x in [1, 4] m -> rows 26..55; |y| < 0.4 m -> columns 28..35 (the plant is at y = -0.85)
+    assert not occ[26:56, 28:36].any()
+    assert occ.any()  # while the corridor walls do show
+
+
+@pytest.mark.parametrize("memory", ["episode", "frame"])
+def test_map_memory_decides_whether_a_wall_left_behind_stays_in_the_patch(env, memory):
+    # face the corridor's left wall, then turn on the spot to face the right one
+    env.map_memory = memory
+    try:
+        env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
+        for _ in range(40):
+            obs, _, terminated, _, info = env.step(np.array([0.0, -1.0], np.float32))
+            assert not terminated
+            if abs(info["pose"][2] + math.pi / 2) < 0.2:
+                break
+        for _ in range(4):
+            obs, *_ = env.step(np.array([0.0, 0.0], np.float32))
+    finally:
+        env.map_memory = "episode"
+    occ = obs["occupancy"]
+    # the right wall 1.2 m ahead (row 28) is seen either way; the left wall is now 1.2 m behind (row 4)
+    assert occ[26:31].any()
+    assert occ[:10].any() == (memory == "episode")
 
 
 def test_driving_toward_the_goal_earns_progress_reward(env):
@@ -299,12 +360,17 @@ def test_a_random_policy_runs_until_the_time_limit_truncates(env):
     assert n <= 5 and (truncated or terminated)
 
 
-def test_close_is_idempotent_and_a_closed_env_refuses_to_step():
+def test_close_releases_the_pybullet_client_and_is_idempotent():
+    import pybullet as p
+
     from sim.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(sensor=None, sonars=True)
     e.reset(seed=0)
+    client = e.client
+    assert p.getConnectionInfo(physicsClientId=client)["isConnected"] == 1
     e.close()
+    assert p.getConnectionInfo(physicsClientId=client)["isConnected"] == 0
     e.close()
     with pytest.raises(NavigationEnvError, match="closed"):
         e.step(np.zeros(2))

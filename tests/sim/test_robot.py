@@ -151,3 +151,28 @@ def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the
     with pytest.raises(SimError, match="unknown key"):
         make_sim_backend({"colour": "red"})
     del DepthCamera, SonarArray
+
+
+def test_sim_sensors_behind_the_interfaces_see_the_office_where_it_is():
+    from hw.interfaces import DepthCamera, SonarArray
+    from sim.backend import make_sim_backend
+
+    backend = make_sim_backend({"scenario": "office_corridor", "seed": 3})
+    with backend:
+        cam = backend.depth_camera
+        assert isinstance(cam, DepthCamera)
+        frame = cam.read()
+        assert frame.points.shape == (424, 512, 3) and frame.frame_id == "kinect_link"
+        assert np.isfinite(frame.points).all(axis=-1).mean() > 0.5
+        left = backend.sonar_arrays[0]
+        assert isinstance(left, SonarArray) and left.mount == "sonar_array_left"
+        # hardware convention: 180 deg turns the array to face left (+y), at the corridor wall whose inner
+        # face is at y = 1.20 m; the array sits at y = 0.29 m, so the middle sonar reads 0.91 m
+        left.set_servo_deg(180.0)
+        backend.clock.sleep_until_ns(backend.clock.now_ns() + 1_000_000_000)
+        reading = left.read()
+        assert reading.servo_angle_deg == pytest.approx(180.0, abs=0.5)
+        wall_y = 1.25 - 0.05
+        assert reading.ranges_m[1] == pytest.approx(
+            wall_y - backend.chair.spec.mounts["sonar_array_left"].xyz[1], abs=0.02
+        )

@@ -14,7 +14,7 @@ from sim.runner import PurePursuit, dilate, run_scenario
 
 pytest.importorskip("pybullet")
 
-SHORT = 0.25  # simulated seconds: 8 Kinect frames and 6 readings per sonar array
+SHORT = 0.2  # simulated seconds: 7 Kinect frames and 5 readings per sonar array
 
 
 def test_pure_pursuit_curvature_is_two_y_over_l_squared():
@@ -182,3 +182,18 @@ def test_cli_lists_scenarios_and_reports_bad_input_with_exit_code_2(tmp_path, ca
     err = capsys.readouterr().err
     assert "bad.toml:3" in err and "overlaps object 'table'" in err
     assert math.isfinite(1.0)
+
+
+def test_every_shipped_scenario_gets_a_whole_cell_grid_covering_scene_and_route():
+    from sim.runner import _grid_for
+    from sim.scene import list_scenarios, load_scenario
+
+    for path in list_scenarios():
+        sc = load_scenario(path)
+        grid = _grid_for(sc)
+        pts = np.array([*sc.route.waypoints, sc.start[:2]])
+        i, j = grid.world_to_index(pts[:, 0], pts[:, 1])
+        assert ((i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])).all(), path.name
+        x0, y0, x1, y1 = sc.scene.bounds_xy()
+        i, j = grid.world_to_index(np.array([x0, x1]), np.array([y0, y1]))
+        assert ((i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])).all(), path.name

@@ -55,9 +55,34 @@ def test_a_wall_turned_within_the_beam_reads_its_perpendicular_distance(client):
     )
 
 
-def test_a_wall_turned_beyond_the_beam_gives_no_echo(client):
-    wall(client, 1.2, yaw=math.radians(60))
+def test_a_wall_turned_beyond_the_beam_plus_the_incidence_limit_gives_no_echo(client):
+    # beam edge ~37 deg + incidence limit 40 deg: at 80 deg no ray meets the wall steeply enough
+    wall(client, 1.2, yaw=math.radians(80))
     assert math.isnan(SonarSim(client).measure(([0, 0, 0.4], LEVEL)))
+    # with a 15 deg limit already a wall turned 60 deg is invisible
+    wall_60 = SonarSim(client, max_incidence_deg=15.0)
+    p.removeBody(p.getBodyUniqueId(0, physicsClientId=client), physicsClientId=client)
+    wall(client, 1.2, yaw=math.radians(60))
+    assert math.isnan(wall_60.measure(([0, 0, 0.4], LEVEL)))
+
+
+# the plates left out have incidence < 40 deg: only the detection area rejects them
+@pytest.mark.parametrize(
+    ("y_cm", "seen"),
+    [
+        (34.0, True),
+        (41.0, False),
+        (-31.0, True),
+        (-38.0, False),
+    ],
+)
+def test_a_plate_facing_the_sonar_is_seen_inside_the_appendix_a_area_and_not_outside(client, y_cm, seen):
+    # Appendix A: at x = 50 cm the area spans y = bottom(50) = -34.4 cm .. top(50) = +38.4 cm
+    box(client, [0.005, 0.015, 0.015], [0.505, y_cm / 100.0, 0.4])
+    r = SonarSim(client, ray_spacing_deg=0.5).measure(([0, 0, 0.4], LEVEL))
+    assert math.isfinite(r) == seen
+    if seen:
+        assert r == pytest.approx(math.hypot(0.5, y_cm / 100.0), abs=0.011)
 
 
 def test_sonar_ignores_the_floor(client):

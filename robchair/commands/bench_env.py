@@ -1,0 +1,154 @@
+"""`robchair bench env`: agent steps per second of the Gymnasium navigation environments.
+
+Configurations, all measured in the same run with the same seed and the same random actions:
+
+* ``physics only``: the baseline every configuration stands on - one agent period of the chair's
+  physics and motor plants + PIDs (240 Hz / ``agent_hz`` steps) in the same scene, no sensor, no map;
+* ``Navigation-v0``: the registered default, a Kinect v2 decimated 4x (128x106 rays) mapped every step;
+* ``Navigation-v0, full Kinect``: the same at the Kinect v2's full 512x424 (decimation 1);
+* ``NavigationSonar-v0``: the two three-sonar arrays instead of the Kinect.
+
+Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup and
+one warm-up episode excluded; episodes that end are reset inside the timed loop, as a training loop
+would), its real-time factor (steps/s divided by the agent rate) and its ratio to the physics-only
+baseline. Wall-clock numbers depend on the machine's load: the JSON records the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+DEFAULT_OUT = "out/bench_env.json"
+
+CONFIGS: tuple[dict[str, Any], ...] = (
+    {"name": "physics only", "physics_only": True},
+    {"name": "Navigation-v0", "id": "RobChair/Navigation-v0", "kwargs": {}},
+    {
+        "name": "Navigation-v0, full Kinect",
+        "id": "RobChair/Navigation-v0",
+        "kwargs": {"kinect_decimation": 1},
+    },
+    {"name": "NavigationSonar-v0", "id": "RobChair/NavigationSonar-v0", "kwargs": {}},
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("env", help="agent steps per second of the Gymnasium navigation environments")
+    p.add_argument("--steps", type=int, default=200, help="agent steps per run (default 200)")
+    p.add_argument("--repeats", type=int, default=3, help="runs per configuration (median; default 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the episodes and actions (default 0)")
+    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    p.set_defaults(func=_run)
+
+
+def _physics_only(steps: int, seed: int) -> float:
+    """Seconds for ``steps`` agent periods of physics + motors with random twists, no sensors."""
+    import numpy as np
+
+    from sim.backend import SimChair
+    from sim.envs.navigation import AGENT_HZ
+    from sim.world import PHYSICS_HZ
+
+    chair = SimChair(scene=_office(), sensor=None, sonars=False, seed=seed)
+    try:
+        rng = np.random.default_rng(seed)
+        drive = chair.robot.drive
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            v, w = rng.uniform(-1, 1, 2)
+            chair.robot.set_motor_rpm(
+                *drive.motor_rpm(*drive.limit(v * drive.max_speed, w * drive.max_yaw_rate))
+            )
+            chair.step(PHYSICS_HZ // AGENT_HZ)
+        return time.perf_counter() - t0
+    finally:
+        chair.close()
+
+
+def _office() -> Any:
+    from robchair.paths import SCENES
+    from sim.scene import load_scene
+
+    return load_scene(SCENES / "office.toml")
+
+
+def _env_run(env: Any, steps: int, seed: int) -> float:
+    """Seconds for ``steps`` agent steps of ``env`` with seeded random actions."""
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    return time.perf_counter() - t0
+
+
+def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict[str, Any]:
+    """Steps per second of one configuration: every run and the median."""
+    import statistics
+
+    if config.get("physics_only"):
+        _physics_only(5, seed)  # warm-up
+        secs = [_physics_only(steps, seed + k) for k in range(repeats)]
+    else:
+        import gymnasium
+
+        import sim.envs  # noqa: F401  (registers the ids)
+
+        env = gymnasium.make(config["id"], **config["kwargs"])
+        try:
+            _env_run(env, 5, seed)  # warm-up: numba kernels, Embree scene
+            secs = [_env_run(env, steps, seed + k) for k in range(repeats)]
+        finally:
+            env.close()
+    rates = [steps / s for s in secs]
+    return {"steps_per_s": rates, "median_steps_per_s": statistics.median(rates)}
+
+
+def _run(args: argparse.Namespace) -> int:
+    from robchair.errors import RobChairError
+    from sim.envs.navigation import AGENT_HZ
+
+    if args.steps < 1 or args.repeats < 1:
+        raise RobChairError(f"--steps and --repeats must be >= 1, got {args.steps}, {args.repeats}")
+    load0 = os.getloadavg()
+    rows = []
+    for cfg in CONFIGS:
+        res = measure(cfg, args.steps, args.repeats, args.seed)
+        rows.append({"config": cfg["name"], **res})
+    load1 = os.getloadavg()
+    base = rows[0]["median_steps_per_s"]
+    print(f"robchair bench env: {args.steps} agent steps at {AGENT_HZ} Hz per run, median of {args.repeats}")
+    head = f"{'configuration':28s} {'steps/s':>9s} {'RTF':>6s} {'vs physics only':>16s}"
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        m = r["median_steps_per_s"]
+        r["real_time_factor"] = m / AGENT_HZ
+        r["ratio_to_physics_only"] = m / base
+        print(f"{r['config']:28s} {m:9.1f} {m / AGENT_HZ:6.2f} {m / base:16.3f}")
+    print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result = {
+        "agent_hz": AGENT_HZ,
+        "steps": args.steps,
+        "repeats": args.repeats,
+        "seed": args.seed,
+        "rows": rows,
+        "load_average_before": load0,
+        "load_average_after": load1,
+        "cpus": os.cpu_count(),
+        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    tmp = out.with_suffix(".json.partial")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(out)
+    print(f"wrote {out}")
+    return 0
