@@ -74,36 +74,40 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     n_outside = 0
     n_over = 0
     cap = overflow.shape[0]
-    uni = np.uint64(ni)
-    unj = np.uint64(nj)
-    unb = np.uint64(nb)
+    # Box offsets as floats: floor() values minus these are exact whenever the result is inside the box
+    # (integers below 2**53, or Sterbenz subtraction), so the fast test below can stay in float64.
+    fi0 = np.float64(ou + i0)
+    fj0 = np.float64(ov + j0)
+    fb0 = np.float64(b0)
+    fni = np.float64(ni)
+    fnj = np.float64(nj)
+    fnb = np.float64(nb)
     for k in range(n):
         u = np.float64(pts[k, cu])
         v = np.float64(pts[k, cv])
+        hv = pts[k, ch]
+        di = np.floor(u * ics) - fi0
+        dj = np.floor(v * ics) - fj0
+        db = np.floor(np.float64(hv) * iw) - fb0
+        # NaN fails every comparison, so this one test screens non-finite, out-of-grid and out-of-box
+        # points, which are then told apart on the rare path.
+        if di >= 0.0 and dj >= 0.0 and db >= 0.0 and di < fni and dj < fnj and db < fnb:
+            idx = 2 * ((np.int64(di) * nj + np.int64(dj)) * nb + np.int64(db))
+            # Branch-free min/max: which point is extreme in its bin is unpredictable.
+            mm[idx] = min(mm[idx], hv)
+            mm[idx + 1] = max(mm[idx + 1], hv)
+            continue
         fi = np.floor(u * ics) - ou
         fj = np.floor(v * ics) - ov
-        # NaN fails every comparison, so one test screens both non-finite and out-of-grid points (and
-        # comparing floats first avoids casting huge values to int64, which is undefined).
         if not (fi >= 0.0 and fj >= 0.0 and fi < nx and fj < ny):
-            h = np.float64(pts[k, ch])
-            if math.isfinite(u) and math.isfinite(v) and math.isfinite(h):
+            if math.isfinite(u) and math.isfinite(v) and math.isfinite(np.float64(hv)):
                 n_outside += 1
             else:
                 n_nonfinite += 1
             continue
-        hv = pts[k, ch]
-        di = np.int64(fi) - i0
-        dj = np.int64(fj) - j0
-        db = np.int64(np.floor(np.float64(hv) * iw)) - b0
-        if np.uint64(di) >= uni or np.uint64(dj) >= unj or np.uint64(db) >= unb:
-            if n_over < cap:
-                overflow[n_over] = k
-            n_over += 1
-            continue
-        idx = 2 * ((di * nj + dj) * nb + db)
-        # Branch-free min/max: which point is extreme in its bin is unpredictable.
-        mm[idx] = min(mm[idx], hv)
-        mm[idx + 1] = max(mm[idx + 1], hv)
+        if n_over < cap:
+            overflow[n_over] = k
+        n_over += 1
     return n_nonfinite, n_outside, n_over
 
 

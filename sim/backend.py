@@ -91,6 +91,7 @@ class SimChair:
             scale = 1.0 + tyre_radius_error * np.random.default_rng(tyre_seed).standard_normal(2)
             self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
             self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
+            self._ghost_people()
             self.mirror: Any = None
             self.kinect: Any = None
             self.sonars: dict[str, Any] = {}
@@ -119,6 +120,16 @@ class SimChair:
         except BaseException:
             self.world.close()
             raise
+
+    def _ghost_people(self) -> None:
+        """Scripted people are teleported along their walks (kinematic, mass 0): a collision with the
+        chair would fling it away. They pass through the chair instead; every sensor still sees them."""
+        import pybullet as p
+
+        c = self.world.client
+        for body, _ in self.bodies.moving:
+            for link in range(-1, p.getNumJoints(self.robot.body, physicsClientId=c)):
+                p.setCollisionFilterPair(self.robot.body, body, link, -1, 0, physicsClientId=c)
 
     def step(self, n: int = 1) -> None:
         """Advance the physics by ``n`` steps, moving the scripted people first."""

@@ -452,7 +452,8 @@ class KinectSim:
         noise: add the model's axial + lateral noise and quantisation.
         rng: ``numpy.random.Generator`` (or an int seed) for the noise; ``None`` means seed 0.
         mirror: a shared :class:`MeshMirror` (for the raycast backend); one is made if ``None``.
-        exclude_bodies: bodies the camera must not see (only used when the mirror is made here).
+        exclude_bodies: bodies the camera must not see: left out of a mirror made here (seen through);
+            the PyBullet backend can only blank their pixels (NaN), it cannot see through them.
         frame_id: ``frame_id`` of the frames (default ``kinect_link``; ``kinect_rgb`` for HD/qHD).
         near_m: near clipping plane of the PyBullet renderer.
 

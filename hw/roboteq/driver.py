@@ -17,9 +17,12 @@ Safety. The controller's serial watchdog (``^RWD``) is always armed: the driver 
 caller must send :meth:`RoboteqMDC2230.set_speeds_rpm` at least once per watchdog period even when
 the speeds do not change; if the caller stalls, the controller stops the motors by itself.
 Every fault path (no answer after the retries, garbled beyond the retries, port gone, a fault flag
-reported) first writes zero speeds and ``!EX`` (best effort), records the reason in
+in ``?FF``, a stall / closed-loop error / safety stop in ``?FM``, a non-finite or out-of-range speed)
+first writes zero speeds and ``!EX`` (best effort, waiting one deadline for the acks), records the reason in
 :attr:`RoboteqMDC2230.stop_reason`, and then raises a :class:`hw.errors.HardwareError` subclass.
 After that, non-zero speed commands are refused until :meth:`release_stop` succeeds.
+
+One thread talks to a driver (the runtime loop); it holds no lock of its own.
 """
 
 from __future__ import annotations

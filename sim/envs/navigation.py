@@ -564,7 +564,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
         # to a decimated image it would be `decimation` times too wide and smear the floor into
         # obstacles. A decimated camera therefore renders clean geometry and gets the axial noise here
-        # (see _decimated_depth_noise); at full resolution the model's own noise applies unchanged.
+        # (see decimated_depth_noise); at full resolution the model's own noise applies unchanged.
         self._own_noise = self.noise and model is not None and decimation > 1
         if self._own_noise:
             self._chair.kinect.noise = False

@@ -145,12 +145,17 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
     ts = get_typestore(Stores.ROS2_HUMBLE)
     with Reader(out / "run_bag") as r:
         counts = {c.topic: c.msgcount for c in r.connections}
+        sonar_conn = [c for c in r.connections if c.topic == "/sonar/sonar_array_right/3"]
+        ranges = [ts.deserialize_cdr(raw, c.msgtype) for c, _, raw in r.messages(sonar_conn)]
         odom = [
             ts.deserialize_cdr(raw, c.msgtype)
             for c, _, raw in r.messages([c for c in r.connections if c.topic == "/odom"])
         ]
     assert counts["/odom"] == counts["/tf"] == res.cycles
     assert counts["/sonar/sonar_array_left/1"] == res.cycles
+    # nothing in front of the emulated sonars: REP-117 "no return" is +inf
+    assert all(m.range == math.inf and m.radiation_type == 0 for m in ranges)
+    assert ranges[0].header.frame_id == "sonar_array_right/sonar3"
     last = odom[-1].pose.pose
     assert (last.position.x, last.position.y) == pytest.approx(res.poses[-1][1:3])
     assert 2 * math.atan2(last.orientation.z, last.orientation.w) == pytest.approx(res.poses[-1][3])
@@ -163,6 +168,14 @@ def test_emulated_backend_also_runs_in_real_time(spec) -> None:
     assert res.driver_fault is None and res.cycles == 15
     assert res.sim_time_s >= 1.5
     assert res.distance_m > 0.05  # it moved (how far depends on how loaded the machine is)
+
+
+def test_two_emulated_runs_of_the_same_route_give_identical_odometry(spec) -> None:
+    runs = [
+        run_to_dir(emulated(sonars=False), PurePursuit(ROUTE, DiffDrive(spec)), 6.0, None, spec=spec).poses
+        for _ in range(2)
+    ]
+    assert runs[0] == runs[1]
 
 
 def test_runtime_stall_lets_the_emulated_controller_watchdog_stop_the_motors(spec) -> None:

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from robchair.kinematics import Pose2D
 from sim.envs.navigation import (
@@ -75,6 +77,45 @@ def test_goal_bearing_is_measured_counter_clockwise_from_the_robot_heading():
     assert goal_in_robot_frame(north, (0.0, 1.0)) == pytest.approx((1.0, math.pi / 2))  # west is to the left
     assert goal_in_robot_frame(north, (3.0, 1.0)) == pytest.approx((2.0, -math.pi / 2))
     assert goal_in_robot_frame(Pose2D(0.0, 0.0, 0.0), (-1.0, 0.0))[1] == pytest.approx(math.pi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    x=st.floats(-50, 50),
+    y=st.floats(-50, 50),
+    theta=st.floats(-math.pi, math.pi),
+    gx=st.floats(-50, 50),
+    gy=st.floats(-50, 50),
+)
+def test_goal_distance_and_bearing_lead_back_to_the_goal(x, y, theta, gx, gy):
+    dist, bearing = goal_in_robot_frame(Pose2D(x, y, theta), (gx, gy))
+    assert -math.pi < bearing <= math.pi
+    assert x + dist * math.cos(theta + bearing) == pytest.approx(gx, abs=1e-9)
+    assert y + dist * math.sin(theta + bearing) == pytest.approx(gy, abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    x=st.floats(-3, 3),
+    y=st.floats(-3, 3),
+    theta=st.floats(-math.pi, math.pi),
+    i=st.integers(0, 31),
+    j=st.integers(0, 31),
+)
+def test_egocentric_patch_sees_a_cell_where_its_pose_puts_it(x, y, theta, i, j):
+    from mapping.grid import GridSpec
+
+    grid = GridSpec(cell_size=0.1, size_x=20.0, size_y=20.0, centre=(0.0, 0.0))
+    occ = np.zeros(grid.shape, dtype=bool)
+    # the patch cell (i, j) is at robot-frame (-1.0 + (i + 0.5) 0.1, (j + 0.5 - 16) 0.1)
+    rx, ry = -1.0 + (i + 0.5) * 0.1, (j + 0.5 - 16) * 0.1
+    wx = x + math.cos(theta) * rx - math.sin(theta) * ry
+    wy = y + math.sin(theta) * rx + math.cos(theta) * ry
+    occ[grid.world_to_index(wx, wy)] = True
+    patch = egocentric_patch(occ, grid, Pose2D(x, y, theta), (32, 32), 0.1, 1.0)
+    assert patch[i, j] == 1
+    # a nearest-cell lookup of a rotated lattice can hit one world cell from at most 4 patch cells
+    assert 1 <= patch.sum() <= 4
 
 
 def _one_obstacle_grid(x, y):
@@ -376,7 +417,6 @@ def test_close_releases_the_pybullet_client_and_is_idempotent():
         e.step(np.zeros(2))
 
 
-@pytest.mark.slow
 def test_sonar_only_variant_observes_six_ranges_and_is_deterministic():
     e = gymnasium.make("RobChair/NavigationSonar-v0")
     try:
@@ -393,7 +433,6 @@ def test_sonar_only_variant_observes_six_ranges_and_is_deterministic():
         e.close()
 
 
-@pytest.mark.slow
 def test_odometry_pose_source_stays_close_to_ground_truth_over_a_short_drive():
     from sim.envs.navigation import RobChairNavigationEnv
 
@@ -408,3 +447,24 @@ def test_odometry_pose_source_stays_close_to_ground_truth_over_a_short_drive():
         assert (x, y) != (ex, ey)  # it is an estimate, not the ground truth
     finally:
         e.close()
+
+
+@pytest.mark.slow
+def test_bench_env_writes_one_row_per_configuration_against_the_physics_only_baseline(tmp_path, capsys):
+    import argparse
+    import json
+
+    from robchair.commands import bench_env
+
+    parser = argparse.ArgumentParser()
+    bench_env.register(parser.add_subparsers())
+    args = parser.parse_args(["env", "--steps", "3", "--repeats", "1", "--out", str(tmp_path / "b.json")])
+    assert args.func(args) == 0
+    result = json.loads((tmp_path / "b.json").read_text())
+    names = [r["config"] for r in result["rows"]]
+    assert names == [c["name"] for c in bench_env.CONFIGS]
+    assert result["rows"][0]["ratio_to_physics_only"] == 1.0
+    for r in result["rows"]:
+        assert r["median_steps_per_s"] > 0 and len(r["steps_per_s"]) == 1
+        assert r["real_time_factor"] == pytest.approx(r["median_steps_per_s"] / 10)
+    assert "Navigation-v0, full Kinect" in capsys.readouterr().out

@@ -358,3 +358,38 @@ def test_lateral_noise_moves_a_depth_edge_as_the_kinect2_model_says(client):
     for offset in (1, 2, 3):
         expected = 0.5 * math.erfc(-((0.5 - offset) / 1.6) / math.sqrt(2))
         assert valid[rows, 255 + offset].mean() == pytest.approx(expected, rel=0.1)
+
+
+def test_excluded_links_and_bodies_are_invisible_to_both_backends(client):
+    wall_at(client, 3.0)
+    near = box(client, [0.1, 3.0, 3.0], [1.5, 0.0, 1.0])
+    # a two-link body: base low on the left, link 0 high on the right
+    col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.1, 0.3, 0.3], physicsClientId=client)
+    two = p.createMultiBody(
+        0,
+        col,
+        -1,
+        basePosition=[1.0, 0.5, 0.7],
+        linkMasses=[0],
+        linkCollisionShapeIndices=[col],
+        linkVisualShapeIndices=[-1],
+        linkPositions=[[0, -1.0, 0.6]],
+        linkOrientations=[[0, 0, 0, 1]],
+        linkInertialFramePositions=[[0, 0, 0]],
+        linkInertialFrameOrientations=[[0, 0, 0, 1]],
+        linkParentIndices=[0],
+        linkJointTypes=[p.JOINT_FIXED],
+        linkJointAxis=[[0, 0, 1]],
+        physicsClientId=client,
+    )
+    m = MeshMirror(client, exclude_bodies=[near], exclude_links=[(two, 0)])
+    cap = KinectSim(client, "kinect2", noise=False, mirror=m).capture_full(cam_pose())
+    assert not np.any(cap.body == near)
+    assert np.any((cap.body == two) & (cap.link == -1))
+    assert not np.any((cap.body == two) & (cap.link == 0))
+    assert np.nanmax(cap.frame.points[..., 0]) == pytest.approx(3.0, abs=1e-4)  # the wall behind shows
+    pb = KinectSim(client, "kinect2", backend="pybullet", noise=False, exclude_bodies=[near]).capture_full(
+        cam_pose()
+    )
+    assert not np.any(pb.body == near)
+    assert np.any((pb.body == two) & (pb.link == 0))
