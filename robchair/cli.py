@@ -28,6 +28,7 @@ BENCHES = (
     "robchair.commands.bench_mapping",
     "robchair.commands.bench_sim",
     "robchair.commands.bench_table52",
+    "robchair.commands.bench_env",
 )
 
 

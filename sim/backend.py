@@ -298,14 +298,27 @@ def backend_from_chair(chair: SimChair) -> SimBackend:
     )
 
 
-_CONFIG_KEYS = {"scene", "scenario", "sensor", "sonars", "seed", "start", "camera_backend", "noise", "spec"}
+_CONFIG_KEYS = {
+    "scene",
+    "scenario",
+    "sensor",
+    "sonars",
+    "seed",
+    "start",
+    "camera_backend",
+    "noise",
+    "spec",
+    "tyre_radius_error",
+}
 
 
 def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of ``hw.registry``).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
-    ``scene`` (name or path), ``sensor`` (Kinect model or None), ``sonars`` (bool), ``seed`` (int),
+    ``scene`` (name or path), ``sensor`` (Kinect model, or None / ``"none"``), ``sonars`` (bool),
+    ``seed`` (int),
+    ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
     (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
 
@@ -329,9 +342,11 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
 
         s = Path(cfg["scene"])
         kw["scene"] = load_scene(s if s.is_file() else SCENES / f"{cfg['scene']}.toml")
-    for k in ("sensor", "sonars", "seed", "camera_backend", "noise"):
+    for k in ("sensor", "sonars", "seed", "camera_backend", "noise", "tyre_radius_error"):
         if k in cfg:
             kw[k] = cfg[k]
+    if isinstance(kw.get("sensor"), str) and kw["sensor"].lower() == "none":
+        kw["sensor"] = None  # TOML has no null: "none" means no depth camera
     if "start" in cfg:
         st = tuple(float(v) for v in cfg["start"])
         if len(st) != 3 or not all(math.isfinite(v) for v in st):

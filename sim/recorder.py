@@ -41,7 +41,7 @@ class BagRecorder:
             raise SimError(f"bag {self.path} already exists")
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         self.t = self.store.types
-        self._writer = Writer(self.path, version=8, storage_plugin=StoragePlugin.SQLITE3)
+        self._writer: Any = Writer(self.path, version=8, storage_plugin=StoragePlugin.SQLITE3)
         self._writer.open()
         self._conns: dict[str, Any] = {}
         self.counts: dict[str, int] = {}

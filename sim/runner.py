@@ -7,8 +7,10 @@ One run:
 2. steps the physics at 240 Hz; at 60 Hz reads the encoders through ``MotorController.read_state``,
    integrates odometry (:class:`robchair.kinematics.Odometry`) and runs a pure-pursuit follower on the
    odometry pose, whose (v, w) goes through :class:`robchair.kinematics.DiffDrive` to motor RPM set
-   points; at 30 Hz reads the Kinect (``DepthCamera.read``); at 20 Hz reads both sonar arrays and turns
-   their servos toward the nearest echo (:func:`mapping.sonar.servo_command_deg`);
+   points (``MotorController.set_speeds_rpm``); at 30 Hz captures a Kinect frame at the camera's
+   physics pose (the call ``DepthCamera.read`` makes, keeping the pose for the ground-truth map); at
+   20 Hz reads both sonar arrays (``SonarArray.read``) and turns their servos toward the nearest echo
+   (:func:`mapping.sonar.servo_command_deg`);
 3. inserts every Kinect frame into two :class:`mapping.vhv.VHVMap` global maps: one placed with the
    chair's odometry (what the real chair would build) and one with the physics' ground-truth camera
    pose (for comparison); sonar readings go through the five-zone fusion and the cone -> points
@@ -336,7 +338,7 @@ def _simulate(
 ) -> RunResult:
     from mapping.sonar import array_points, servo_command_deg
     from mapping.vhv import VHVMap
-    from sim.backend import SimChair, backend_from_chair
+    from sim.backend import SimChair, SimSonarArray, backend_from_chair
 
     wall0 = time.perf_counter()
     chair = SimChair(
@@ -368,7 +370,8 @@ def _simulate(
     cam = chair.kinect
     t_base_cam = spec.mounts["kinect_link"].transform()  # the chair's belief of where its Kinect sits
     t_cam_out = cam.output_pose(np.eye(4)) if cam is not None else np.eye(4)
-    servo_cmd = {m.mount: 90.0 for m in backend.sonar_arrays}
+    arrays: list[SimSonarArray] = [a for a in backend.sonar_arrays if isinstance(a, SimSonarArray)]
+    servo_cmd = {a.mount: 90.0 for a in arrays}
     rec = None
     if write_bag and out is not None:
         from sim.recorder import BagRecorder
@@ -442,10 +445,10 @@ def _simulate(
                         frame.frame_id,
                         frame.points[::BAG_CLOUD_STRIDE, ::BAG_CLOUD_STRIDE],
                     )
-            if backend.sonar_arrays and step % every["sonar"] == 0:
+            if arrays and step % every["sonar"] == 0:
                 ts = time.perf_counter()
                 pose = odom.pose
-                for arr in backend.sonar_arrays:
+                for arr in arrays:
                     reading = arr.read()
                     frame_stats["sonar_readings"] += 1
                     sonar_ranges.append((stamp, arr.mount, reading.ranges_m))
@@ -453,9 +456,10 @@ def _simulate(
                     if fusion.has_obstacle:
                         frame_stats["sonar_fusions_with_obstacle"] += 1
                     if len(spts):
-                        mount = spec.mounts[arr.mount]
                         joint_rad = math.radians(reading.servo_angle_deg - 90.0)
-                        t_arr = planar_transform(pose.x, pose.y, pose.theta) @ mount.transform(joint_rad)
+                        t_arr = planar_transform(pose.x, pose.y, pose.theta) @ spec.mounts[
+                            arr.mount
+                        ].transform(joint_rad)
                         maps["sonar"].insert(
                             spts @ t_arr[:3, :3].T + t_arr[:3, 3], sensor_origin=t_arr[:3, 3]
                         )
@@ -729,7 +733,7 @@ def _write_outputs(res: RunResult, scenario: Scenario, spec: RobChairSpec, out: 
         arrays[f"{name}_top"] = np.asarray(s.top)
     for name, p in res.paths.items():
         arrays[f"path_{name}"] = p
-    np.savez_compressed(out / "maps.npz", **arrays)
+    np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
     files = ["metrics.json", "maps.npz"]
     t0 = time.perf_counter()
     exports = _export_maps(res, out, spec.body.height)

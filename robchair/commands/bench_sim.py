@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 # two-core configurations first: TBB (Embree's thread pool) sizes itself from the CPU affinity it
 # sees the first time it runs, so pinning to one CPU first would cap the later runs at one thread
-CONFIGS = (
+CONFIGS: tuple[dict[str, Any], ...] = (
     {"name": "2 cores", "cpus": 2, "raycast_threads": 2, "mapping_thread": True, "camera_backend": "raycast"},
     {
         "name": "2 cores, pybullet camera",
@@ -117,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
     load0 = os.getloadavg()
     # warm-up (imports, numba kernels, Open3D): not timed
     measure(CONFIGS[0], args.scenario, 0.1)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for cfg in configs:
         if cfg["cpus"] > ncpu:
             print(f"skipping {cfg['name']!r}: only {ncpu} CPU(s) available")

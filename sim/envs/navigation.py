@@ -381,8 +381,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     ## Episode End
 
     1. Termination: the goal is reached (distance <= ``goal_tolerance``; ``info["is_success"]``).
-    2. Termination: collision, any contact between the chair and a scene body during the step
-       (``info["collision"]``).
+    2. Termination: collision, any contact between the chair and a scene body during the step, or
+       an overlap with a walking person (who passes through the chair in the physics, see
+       :meth:`_touching_people`) (``info["collision"]``, names in ``info["contacts"]``).
     3. Truncation: ``max_episode_steps`` (300 for the registered ids).
 
     ## Arguments
@@ -577,6 +578,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if self._chair.kinect is not None:
             self._t_base_cam = self._t_base_cam @ self._chair.kinect.output_pose(np.eye(4))
         self._scene_bodies = frozenset(self._chair.bodies.ids.values())
+        self._people = tuple(body for body, _ in self._chair.bodies.moving)
         self._closed = False
 
     def _define_spaces(self) -> None:
@@ -751,16 +753,31 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         gt = self.robot.pose2d()
         return math.hypot(self.goal[0] - gt.x, self.goal[1] - gt.y)
 
+    def _touching_people(self) -> set[int]:
+        """Walking people the chair overlaps.
+
+        :class:`sim.backend.SimChair` lets scripted people pass through the chair (they are teleported,
+        a contact would fling the chair), so the physics reports no contact; their geometry still
+        overlaps the chair's, which ``getClosestPoints`` (not subject to collision filters) measures.
+        """
+        import pybullet as p
+
+        return {
+            b
+            for b in self._people
+            if p.getClosestPoints(self.robot.body, b, 0.0, physicsClientId=self.client)
+        }
+
     def _in_collision(self) -> bool:
         import pybullet as p
 
         for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client):
             if c[2] in self._scene_bodies:
                 return True
-        return False
+        return bool(self._people) and bool(self._touching_people())
 
     def contacts(self) -> list[str]:
-        """Names of the scene objects the chair touches now."""
+        """Names of the scene objects the chair touches now (walking people included)."""
         import pybullet as p
 
         names = {v: k for k, v in self._chair.bodies.ids.items()}
@@ -769,6 +786,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
             if c[2] in names
         }
+        hit |= {names[b] for b in self._touching_people()}
         return sorted(hit)
 
     def _sense(self, pose: Pose2D) -> None:

@@ -134,6 +134,10 @@ def test_free_space_of_one_wall_cell_seen_from_the_side() -> None:
     np.testing.assert_allclose(free.bottom, 1.0 - mids, atol=1e-12)
     np.testing.assert_allclose(free.top, 1.0, atol=1e-12)
     np.testing.assert_allclose(free.middle, (free.bottom + free.top) / 2)
+    # occupancy probability: the post's cell is occupied, the crossed cells free, the rest unknown
+    p = D.occupancy_probability(m)
+    assert p[14, 10] == 1.0 and np.all(p[10:14, 10] == 0.0)
+    assert np.count_nonzero(np.isfinite(p)) == 5
     # the same post seen diagonally: cells along the diagonal, corners skipped
     m2 = VHVMap(SPEC, 0.06)
     m2.insert([[0.226, 0.226, 0.05 * k] for k in range(21)])

@@ -261,6 +261,29 @@ def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(env):
     assert 0.5 < info["pose"][1] < 0.7
 
 
+def test_a_person_walking_into_the_standing_chair_ends_the_episode_as_a_collision():
+    from sim.envs.navigation import RobChairNavigationEnv
+
+    # outdoor scene: walker_towards leaves (11, 1.5) at 0.8 m/s toward -x, straight at the chair
+    e = RobChairNavigationEnv(scene="outdoor", sensor=None, sonars=True)
+    try:
+        e.reset(seed=0, options={"start": (9.0, 1.5, 0.0), "goal": (9.0, -1.0)})
+        n_steps = 0
+        for _ in range(40):
+            _, reward, terminated, _, info = e.step(np.zeros(2, np.float32))
+            n_steps += 1
+            if terminated:
+                break
+        assert terminated and info["collision"] and "walker_towards" in info["contacts"]
+        assert reward < -9.0
+        # front of the chair at 9.58 m, the person ~0.25 m wide: about (11 - 0.25 - 9.58) / 0.8 = 1.5 s
+        assert 10 <= n_steps <= 20
+        # the person passed through; the chair was not flung away
+        assert math.hypot(info["pose"][0] - 9.0, info["pose"][1] - 1.5) < 0.05
+    finally:
+        e.close()
+
+
 def test_the_wall_ahead_shows_in_the_forward_rows_of_the_occupancy_patch(env):
     obs, _ = env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
     occ = obs["occupancy"]

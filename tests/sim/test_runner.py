@@ -197,3 +197,24 @@ def test_every_shipped_scenario_gets_a_whole_cell_grid_covering_scene_and_route(
         x0, y0, x1, y1 = sc.scene.bounds_xy()
         i, j = grid.world_to_index(np.array([x0, x1]), np.array([y0, y1]))
         assert ((i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])).all(), path.name
+
+
+@pytest.mark.slow
+def test_default_cli_run_writes_the_whole_run_folder(tmp_path):
+    from robchair.cli import main
+
+    out = tmp_path / "default"
+    assert main(["sim", "--out", str(out), "--no-progress"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["scenario"] == "office_corridor" and m["status"] == "ok"
+    assert m["frames"]["kinect_frames"] == 301
+    assert m["map"]["iou_odometry_vs_ground_truth_pose"] > 0.5
+
+
+def test_bad_duration_and_seed_are_refused():
+    from sim.errors import SimError
+
+    with pytest.raises(SimError, match="duration must be a positive number"):
+        run_scenario("office_corridor", duration=-1.0, write=False)
+    with pytest.raises(SimError, match="seed must be >= 0"):
+        run_scenario("office_corridor", seed=-3, write=False)
