@@ -112,39 +112,23 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
 
 
 @numba.jit(**_JIT)
-def extract_bins(mm, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
+def extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t):  # type: ignore[no-untyped-def]
     """Merge consecutive non-empty bins of each cell into structures (gap <= tol joins).
 
-    Two passes over the dense table (count, then fill) so that the output is allocated at its exact
-    size: the table is small next to the points, the structures smaller still.
+    Writes into ``out_*`` (capacity: at least the number of non-empty bins; pages never written are
+    never touched) and returns the number of structures.
     """
     n_cells = mm.shape[0] // (2 * nb)
     n_out = 0
     for c in range(n_cells):
-        base = c * nb
-        have = False
-        last_top = 0.0
-        for b in range(nb):
-            lo = np.float64(mm[2 * (base + b)])
-            if lo == np.inf:
-                continue
-            if not (have and lo - last_top <= tol):
-                n_out += 1
-            have = True
-            last_top = np.float64(mm[2 * (base + b) + 1])
-    out_key = np.empty(n_out, np.int64)
-    out_b = np.empty(n_out, np.float64)
-    out_t = np.empty(n_out, np.float64)
-    n_out = 0
-    for c in range(n_cells):
-        base = c * nb
+        base = 2 * c * nb
         open_ = False
         key = (i0 + c // nj) * ny + (j0 + c % nj)
         for b in range(nb):
-            lo = np.float64(mm[2 * (base + b)])
+            lo = np.float64(mm[base + 2 * b])
             if lo == np.inf:
                 continue
-            hi = np.float64(mm[2 * (base + b) + 1])
+            hi = np.float64(mm[base + 2 * b + 1])
             if open_ and lo - out_t[n_out - 1] <= tol:
                 out_t[n_out - 1] = hi
             else:
@@ -153,7 +137,27 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-def]
                 out_t[n_out] = hi
                 n_out += 1
                 open_ = True
-    return out_key, out_b, out_t
+    return n_out
+
+
+@numba.jit(**_JIT)
+def count_bin_structures(mm, nb, tol):  # type: ignore[no-untyped-def]
+    """Number of structures :func:`extract_bins` will write (to size its output exactly)."""
+    n_cells = mm.shape[0] // (2 * nb)
+    n_out = 0
+    for c in range(n_cells):
+        base = 2 * c * nb
+        have = False
+        last_top = 0.0
+        for b in range(nb):
+            lo = np.float64(mm[base + 2 * b])
+            if lo == np.inf:
+                continue
+            if not (have and lo - last_top <= tol):
+                n_out += 1
+            have = True
+            last_top = np.float64(mm[base + 2 * b + 1])
+    return n_out
 
 
 @numba.jit(**_JIT)

@@ -398,7 +398,7 @@ def _floor(x: float) -> int:
 # points that still fall outside it are handled exactly by the sort path, so the guess never changes
 # the result, only the speed.
 _SAMPLE_STEP = 32
-_MARGIN_CELLS = 4
+_MARGIN_CELLS = 2
 
 
 def _sort_path(
@@ -505,8 +505,17 @@ def _build_compiled(
         pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mm, overflow
     )
     n_nonfinite, n_outside = int(n_nonfinite), int(n_outside)
-    key, bot, top = K.extract_bins(mm, nb, i0, j0, nj, ny, tol)
+    # Output capacity: the worst case (every binned point its own structure) when that is small next
+    # to the input (np.empty maps pages lazily, so only written pages cost memory), else counted exactly
+    # by a second walk over the table.
+    cap = max(min(dense, n - n_nonfinite - n_outside - int(n_over)), 1)
+    if cap * 24 > pts.nbytes // 2:
+        cap = max(int(K.count_bin_structures(mm, nb, tol)), 1)
+    out_key, out_b, out_t = np.empty(cap, np.int64), np.empty(cap, np.float64), np.empty(cap, np.float64)
+    n_out = int(K.extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t))
     del mm
+    key, bot, top = out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
+    del out_key, out_b, out_t
     if n_over:
         if n_over <= overflow.shape[0]:
             rest = pts[overflow[:n_over]]

@@ -84,7 +84,9 @@ class SimChair:
             self.bodies = (
                 build_scene(self.scene, self.world.client) if self.scene is not None else SceneBodies()
             )
-            ss = np.random.SeedSequence(seed)
+            if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+                raise SimError(f"seed={seed!r}: expected a non-negative integer")
+            ss = np.random.SeedSequence(int(seed))
             cam_seed, sonar_seed, tyre_seed = ss.spawn(3)
             if not (math.isfinite(tyre_radius_error) and 0 <= tyre_radius_error < 0.1):
                 raise SimError(f"tyre_radius_error={tyre_radius_error!r}: expected a fraction in [0, 0.1)")

@@ -426,3 +426,21 @@ def test_sparse_points_on_a_large_grid_take_the_sort_fallbacks_and_stay_exact(
     m = VHVMap(spec, 0.05)
     m.insert(pts, method=method)
     assert as_tuples(m.structures()) == reference_structures(pts, spec, 0.05)
+
+
+@pytest.mark.slow
+def test_full_hd_frame_gives_the_same_map_on_every_path_and_in_halves() -> None:
+    from mapping.synthetic import kinect_hd_like_cloud
+
+    cloud = kinect_hd_like_cloud(np.random.default_rng(4))
+    spec = GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
+    ref = VHVMap(spec, 0.05)
+    assert ref.insert(cloud, method="sort").method == "sort"
+    for method in ("auto", "bins", "numpy"):
+        m = VHVMap(spec, 0.05)
+        m.insert(cloud, method=method)
+        assert m.structures().equals(ref.structures()), method
+    halves = VHVMap(spec, 0.05)
+    halves.insert(cloud[:540])
+    halves.insert(cloud[540:])
+    assert halves.structures().equals(ref.structures())

@@ -150,6 +150,8 @@ def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the
         backend.chair.close()
     with pytest.raises(SimError, match="unknown key"):
         make_sim_backend({"colour": "red"})
+    with pytest.raises(SimError, match="seed=-1: expected a non-negative integer"):
+        make_sim_backend({"seed": -1, "sensor": "none", "sonars": False})
     del DepthCamera, SonarArray
 
 

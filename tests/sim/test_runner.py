@@ -74,10 +74,14 @@ def _arrays(res):
     return out
 
 
-def test_same_seed_gives_the_same_run_bit_for_bit_and_another_seed_does_not():
-    a = run_scenario("outdoor_people", duration=SHORT, write=False, progress=False, seed=5)
-    b = run_scenario("outdoor_people", duration=SHORT, write=False, progress=False, seed=5)
-    c = run_scenario("outdoor_people", duration=SHORT, write=False, progress=False, seed=6)
+@pytest.mark.parametrize("scenario", ["outdoor_people", "office_corridor"])
+def test_same_seed_gives_the_same_run_bit_for_bit_threaded_or_not_and_another_seed_does_not(scenario):
+    # the pipelined run (Kinect and mapping on their own threads) must equal the plain serial run
+    a = run_scenario(scenario, duration=SHORT, write=False, progress=False, seed=5)
+    b = run_scenario(
+        scenario, duration=SHORT, write=False, progress=False, seed=5, pipeline=False, mapping_thread=False
+    )
+    c = run_scenario(scenario, duration=SHORT, write=False, progress=False, seed=6)
     aa, bb, cc = _arrays(a), _arrays(b), _arrays(c)
     assert aa.keys() == bb.keys()
     for k in aa:
