@@ -75,9 +75,8 @@ def voxels(m: VHVMap) -> NDArray[np.int64]:
     s = m.structures()
     if len(s) == 0:
         return np.empty((0, 3), np.int64)
-    ics = m.spec.inv_cell_size
-    kb = np.floor(s.bottom * ics).astype(np.int64)
-    kt = np.floor(s.top * ics).astype(np.int64)
+    kb = m.spec.height_index(s.bottom)
+    kt = m.spec.height_index(s.top)
     counts = kt - kb + 1
     idx = np.repeat(np.arange(len(s)), counts)
     k = kb[idx] + (np.arange(idx.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts))

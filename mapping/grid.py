@@ -164,6 +164,16 @@ class GridSpec:
             j = np.floor(np.asarray(v, dtype=np.float64) * ics).astype(np.int64) - ov
         return i, j
 
+    def height_index(self, h: ArrayLike) -> NDArray[np.int64]:
+        """Standard-voxel lattice index along the kept axis, ``floor(h * (1 / cell_size))``.
+
+        The same binning as :meth:`world_to_index` uses in the grid plane, so cubes line up with cells.
+        Every voxel count and voxel list goes through this one function (``floor(h / cs)`` differs
+        from it at bin edges, e.g. ``0.7 / 0.1 < 7``).
+        """
+        with np.errstate(invalid="ignore", over="ignore"):
+            return np.floor(np.asarray(h, dtype=np.float64) * self.inv_cell_size).astype(np.int64)
+
     def index_to_world(self, i: ArrayLike, j: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """World ``(u, v)`` of the centres of cells ``(i, j)`` (equation 4.2.3)."""
         ou, ov = self.origin

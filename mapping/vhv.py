@@ -333,14 +333,13 @@ class VHVMap:
     def n_voxels(self) -> int:
         """Number of standard cubic voxels of side ``cell_size`` the same structures occupy.
 
-        A structure covers the vertical lattice cells ``floor(bottom / cs) .. floor(top / cs)``; two
+        A structure covers the vertical lattice cells ``spec.height_index(bottom .. top)``; two
         structures of one cell that touch the same cube count it once (SPEC: "for comparison").
         """
         if self._key.shape[0] == 0:
             return 0
-        cs = self.spec.cell_size
-        kb = np.floor(self._bottom / cs).astype(np.int64)
-        kt = np.floor(self._top / cs).astype(np.int64)
+        kb = self.spec.height_index(self._bottom)
+        kt = self.spec.height_index(self._top)
         total = int(np.sum(kt - kb + 1))
         shared = (self._key[1:] == self._key[:-1]) & (kb[1:] == kt[:-1])
         return total - int(np.count_nonzero(shared))

@@ -193,3 +193,10 @@ def test_synthetic_clouds_are_deterministic_and_shaped_like_a_kinect_frame() -> 
     assert 10_000 < s.shape[0] < 100_000 and np.isfinite(s).all()
     with pytest.raises(MappingError, match="nan_fraction"):
         kinect_hd_like_cloud(np.random.default_rng(0), 4, 4, nan_fraction=1.5)
+
+
+def test_voxel_count_and_voxel_list_agree_at_a_bin_edge() -> None:
+    # 0.7 / 0.1 = 6.999... but 0.7 * 10 = 7.0: both counts must use the same lattice index.
+    m = VHVMap(GridSpec(cell_size=0.1, size_x=1.0, size_y=1.0), 0.05)
+    m.insert(np.array([[0.25, 0.05, 0.70], [0.25, 0.05, 0.72]]))
+    assert m.n_voxels == len(D.voxels(m)) == 1
