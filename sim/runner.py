@@ -9,8 +9,8 @@ One run:
    odometry pose, whose (v, w) goes through :class:`robchair.kinematics.DiffDrive` to motor RPM set
    points (``MotorController.set_speeds_rpm``); at 30 Hz captures a Kinect frame at the camera's
    physics pose (the call ``DepthCamera.read`` makes, keeping the pose for the ground-truth map); at
-   20 Hz reads both sonar arrays (``SonarArray.read``) and turns their servos toward the nearest echo
-   (:func:`mapping.sonar.servo_command_deg`);
+   15 Hz (the SRF08's 65 ms ranging time) reads both sonar arrays (``SonarArray.read``) and turns
+   their servos toward the nearest echo (:func:`mapping.sonar.servo_command_deg`);
 3. inserts every Kinect frame into two :class:`mapping.vhv.VHVMap` global maps: one placed with the
    chair's odometry (what the real chair would build) and one with the physics' ground-truth camera
    pose (for comparison); sonar readings go through the five-zone fusion and the cone -> points
@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 
 CONTROL_HZ = 60
 KINECT_HZ = 30
-SONAR_HZ = 20
+SONAR_HZ: float | None = None  # None: as fast as the sonar model's ranging time allows (SRF08: 15 Hz)
 CELL_SIZE = 0.05
 MAP_TOLERANCE = 0.05
 OCC_BAND = (0.10, None)  # occupancy band: above the floor's noise, up to the chair's height (spec)
@@ -227,6 +227,7 @@ def run_scenario(
     raycast_threads: int = 0,
     ground_truth_map: bool = True,
     pipeline: bool = True,
+    sonar_hz: float | None = SONAR_HZ,
 ) -> RunResult:
     """Run a scenario headlessly and (with ``write``) write its run folder.
 
@@ -244,6 +245,7 @@ def run_scenario(
         raycast_threads: Embree threads of the ray caster (0 = all cores).
         ground_truth_map: Also build the map placed with ground-truth poses (for the comparison metrics).
         pipeline: Capture each Kinect frame on a background thread while the physics and sonars go on.
+        sonar_hz: Sonar reading rate; None = as fast as the model's ranging time allows (SRF08: 15 Hz).
 
     Raises:
         ScenarioError: The scenario is invalid.
@@ -278,6 +280,7 @@ def run_scenario(
             raycast_threads,
             ground_truth_map,
             pipeline,
+            sonar_hz,
         )
         if res.error is not None:
             raise res.error
@@ -299,6 +302,7 @@ def run_scenario(
             raycast_threads,
             ground_truth_map,
             pipeline,
+            sonar_hz,
         )
         _write_outputs(res, scenario, spec, staging, pictures)
     res.out_dir = target.resolve()
@@ -340,6 +344,7 @@ def _simulate(
     raycast_threads: int = 0,
     ground_truth_map: bool = True,
     pipeline: bool = True,
+    sonar_hz: float | None = SONAR_HZ,
 ) -> RunResult:
     from mapping.sonar import array_points, servo_command_deg
     from mapping.vhv import VHVMap
@@ -371,7 +376,11 @@ def _simulate(
     follower = PurePursuit(path, scenario.route.speed, scenario.route.lookahead, drive)
     hz = world.physics_hz
     n_steps = round(duration * hz)
-    every = {"control": hz // CONTROL_HZ, "kinect": hz // KINECT_HZ, "sonar": hz // SONAR_HZ}
+    every = {
+        "control": hz // CONTROL_HZ,
+        "kinect": hz // KINECT_HZ,
+        "sonar": _sonar_every(chair, hz, sonar_hz),
+    }
     cam = chair.kinect
     t_base_cam = spec.mounts["kinect_link"].transform()  # the chair's belief of where its Kinect sits
     t_cam_out = cam.output_pose(np.eye(4)) if cam is not None else np.eye(4)
@@ -560,6 +569,18 @@ def _simulate(
             "cloud_stride": BAG_CLOUD_STRIDE,
         }
     return res
+
+
+def _sonar_every(chair: Any, hz: int, sonar_hz: float | None) -> int:
+    """Physics steps between sonar readings: ``sonar_hz``, or the ranging time (SRF08: 65 ms, 15 Hz)."""
+    if sonar_hz is not None:
+        if not (math.isfinite(sonar_hz) and 0 < sonar_hz <= hz):
+            raise SimError(f"sonar_hz must be in (0, {hz}], got {sonar_hz!r}")
+        return max(1, round(hz / sonar_hz))
+    if not chair.sonars:
+        return hz
+    ranging = max(arr.model.ranging_time_s for arr in chair.sonars.values())
+    return max(1, math.ceil(ranging * hz - 1e-9))
 
 
 class _Camera:

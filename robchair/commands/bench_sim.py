@@ -86,6 +86,7 @@ def measure(config: dict[str, Any], scenario: str, duration: float, seed: int = 
             camera_backend=config["camera_backend"],
             mapping_thread=config["mapping_thread"],
             pipeline=config["mapping_thread"],
+            sonar_hz=20.0,  # the issue's workload (faster than an SRF08's 65 ms ranging allows)
             raycast_threads=config["raycast_threads"],
             ground_truth_map=False,
         )

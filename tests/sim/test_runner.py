@@ -14,7 +14,7 @@ from sim.runner import PurePursuit, dilate, run_scenario
 
 pytest.importorskip("pybullet")
 
-SHORT = 0.2  # simulated seconds: 7 Kinect frames and 5 readings per sonar array
+SHORT = 0.2  # simulated seconds: 7 Kinect frames and 4 readings per sonar array
 
 
 def test_pure_pursuit_curvature_is_two_y_over_l_squared():
@@ -100,7 +100,8 @@ def test_short_headless_run_writes_the_run_folder(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["status"] == "ok"
     assert m["frames"]["kinect_frames"] == int(SHORT * 30) + 1
-    assert m["frames"]["sonar_readings"] == 2 * (int(SHORT * 20) + 1)  # two arrays at 20 Hz
+    # two SRF08 arrays every 65 ms ranging time -> every 16 physics steps (15 Hz): steps 0, 16, 32, 48
+    assert m["frames"]["sonar_readings"] == 2 * (int(SHORT * 240) // 16 + 1)
     assert m["mapping_ms_per_frame_median"] > 0
     assert m["real_time_factor"] > 0
     assert 0 <= m["map"]["odometry_map_vs_scene"]["precision"] <= 1
