@@ -277,7 +277,7 @@ class Backend:
         """Stop the motors first, then close everything (never raises on the stop)."""
         try:
             self.motors.set_speeds_rpm(0.0, 0.0)
-        except Exception:  # noqa: BLE001 - closing must go on; the stop is best effort here
+        except Exception:
             pass
         for d in reversed(self.devices()):
             d.close()

@@ -26,9 +26,7 @@ def _preload_libusb() -> None:
     try:
         import libusb_package
     except ImportError as exc:  # pragma: no cover - dependency of the distribution
-        raise MappingError(
-            "open3d needs libusb-1.0; install the 'libusb-package' Python package (pip install libusb-package)"
-        ) from exc
+        raise MappingError("open3d needs libusb-1.0: pip install libusb-package") from exc
     path = libusb_package.get_library_path()
     if path is None:  # pragma: no cover
         raise MappingError("libusb-package did not ship a libusb-1.0 library for this platform")

@@ -12,7 +12,9 @@ from robchair.errors import RobChairError
 from sim.errors import SimError
 
 
-@pytest.mark.parametrize("exc_type", [MappingError, HardwareError, SimError, RobChairError, FileNotFoundError])
+@pytest.mark.parametrize(
+    "exc_type", [MappingError, HardwareError, SimError, RobChairError, FileNotFoundError]
+)
 def test_project_error_becomes_one_line_and_exit_code_2(
     exc_type: type[Exception], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
