@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from hw.clock import MonotonicClock
 from hw.errors import CommandError
 from hw.interfaces import Clock, Device, JoystickReading
-from hw.serial_lines import LineTransport, decode_line
+from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
 
 log = logging.getLogger(__name__)
 
@@ -149,15 +149,14 @@ class SerialJoystick(Device):
         )
 
 
-class ArduinoJoystickEmulator:
+class ArduinoJoystickEmulator(EmulatedLineBoard):
     """The joystick board as a :class:`hw.serial_lines.LineTransport`: call :meth:`emit` to stream."""
 
     def __init__(self) -> None:
+        super().__init__()
         self.x_raw = ADC_CENTRE
         self.y_raw = ADC_CENTRE
         self.deadman = False
-        self._tx: list[bytes] = []
-        self.closed = False
 
     def set(self, x_raw: int, y_raw: int, deadman: bool) -> None:
         self.x_raw, self.y_raw, self.deadman = x_raw, y_raw, deadman
@@ -165,23 +164,8 @@ class ArduinoJoystickEmulator:
     def emit(self, n: int = 1) -> None:
         """Send ``n`` samples of the current stick state, as the board's loop does."""
         for _ in range(n):
-            self._tx.append(format_line(self.x_raw, self.y_raw, self.deadman))
+            self._send(format_line(self.x_raw, self.y_raw, self.deadman))
 
     def emit_raw(self, line: bytes) -> None:
         """Send arbitrary bytes (line noise, a cut line)."""
-        self._tx.append(line)
-
-    @property
-    def in_waiting(self) -> int:
-        return sum(len(b) for b in self._tx)
-
-    def write(self, data: bytes) -> int:
-        return len(data)  # the board ignores what the host sends
-
-    def readline(self) -> bytes:
-        if self.closed:
-            raise OSError("emulated serial port is closed")
-        return self._tx.pop(0) if self._tx else b""
-
-    def close(self) -> None:
-        self.closed = True
+        self._send(line)

@@ -49,3 +49,47 @@ def decode_line(raw: bytes) -> str | None:
     if not text.isprintable():
         return None
     return text
+
+
+class EmulatedLineBoard:
+    """The serial side of an emulated Arduino board, as a :class:`LineTransport`.
+
+    Host writes are split into LF-terminated ASCII lines and handed to :meth:`_handle`; the board's
+    answers are queued with :meth:`_send` and handed back one line per ``readline`` (``b""`` when
+    nothing is waiting, like a pyserial read that times out). Subclasses implement the protocol.
+    """
+
+    def __init__(self) -> None:
+        self._rx = b""
+        self._tx: list[bytes] = []
+        self.closed = False
+
+    @property
+    def in_waiting(self) -> int:
+        return sum(len(b) for b in self._tx)
+
+    def write(self, data: bytes) -> int:
+        self._check_open()
+        self._rx += data
+        while b"\n" in self._rx:
+            line, self._rx = self._rx.split(b"\n", 1)
+            self._handle(line.decode("ascii", "replace").strip())
+        return len(data)
+
+    def readline(self) -> bytes:
+        self._check_open()
+        return self._tx.pop(0) if self._tx else b""
+
+    def close(self) -> None:
+        self.closed = True
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise OSError("emulated serial port is closed")
+
+    def _send(self, raw: bytes) -> None:
+        """Queue raw bytes (normally one line with its LF) for the host to read."""
+        self._tx.append(raw)
+
+    def _handle(self, line: str) -> None:
+        """React to one host line (default: a board that ignores what the host sends)."""

@@ -27,7 +27,7 @@ from typing import Any, Literal, Protocol, runtime_checkable
 from hw.clock import MonotonicClock
 from hw.errors import CommandError, DeviceFaultError, DeviceTimeoutError, HardwareError
 from hw.interfaces import Clock, Device
-from hw.serial_lines import LineTransport, decode_line
+from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +161,7 @@ class SerialServo(Device, _AngleCheck):
             log.debug("%s: ignored line %r", self.name, raw)
 
 
-class ArduinoServoEmulator:
+class ArduinoServoEmulator(EmulatedLineBoard):
     """The board side of the servo protocol, as a :class:`hw.serial_lines.LineTransport`.
 
     Holds the commanded angle of each servo in :attr:`angles`. Fault injection: ``drop_replies``
@@ -169,40 +169,17 @@ class ArduinoServoEmulator:
     """
 
     def __init__(self, servo_ids: tuple[int, ...] = (0,)) -> None:
+        super().__init__()
         self.angles: dict[int, int | None] = dict.fromkeys(servo_ids)
-        self._rx = b""
-        self._tx: list[bytes] = []
         self.drop_replies = 0
         self.refuse_next: str | None = None
         self.commands: list[tuple[int, int]] = []
-        self.closed = False
-
-    @property
-    def in_waiting(self) -> int:
-        return sum(len(b) for b in self._tx)
-
-    def write(self, data: bytes) -> int:
-        if self.closed:
-            raise OSError("emulated serial port is closed")
-        self._rx += data
-        while b"\n" in self._rx:
-            line, self._rx = self._rx.split(b"\n", 1)
-            self._handle(line.decode("ascii", "replace").strip())
-        return len(data)
-
-    def readline(self) -> bytes:
-        if self.closed:
-            raise OSError("emulated serial port is closed")
-        return self._tx.pop(0) if self._tx else b""
-
-    def close(self) -> None:
-        self.closed = True
 
     def _reply(self, line: str) -> None:
         if self.drop_replies > 0:
             self.drop_replies -= 1
             return
-        self._tx.append(line.encode("ascii") + b"\n")
+        self._send(line.encode("ascii") + b"\n")
 
     def _handle(self, line: str) -> None:
         parts = line.split()

@@ -33,7 +33,7 @@ from typing import Any, Protocol, runtime_checkable
 from hw.clock import MonotonicClock
 from hw.errors import CommandError, DeviceTimeoutError, HardwareError, ProtocolError
 from hw.interfaces import Clock, Device, RangeReading
-from hw.serial_lines import LineTransport, decode_line
+from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +234,7 @@ class ArduinoEchoPins:
         """The transport is shared by the board's sonars; its owner closes it."""
 
 
-class ArduinoSRF04Emulator:
+class ArduinoSRF04Emulator(EmulatedLineBoard):
     """The Arduino side of the SRF04 line protocol, as a :class:`LineTransport` for tests and demos.
 
     Args:
@@ -244,38 +244,14 @@ class ArduinoSRF04Emulator:
     """
 
     def __init__(self, ranges: Callable[[int, int], float], clock: Clock, sonar_ids: tuple[int, ...] = (0,)):
+        super().__init__()
         self.ranges = ranges
         self.clock = clock
         self.sonar_ids = set(sonar_ids)
-        self._rx = b""
-        self._tx: list[bytes] = []
         self.drop_replies = 0
         self.garble_replies = 0
         self.wrong_id_replies = 0
         self.requests: list[int] = []
-        self.closed = False
-
-    # LineTransport ------------------------------------------------------------------------------------
-    @property
-    def in_waiting(self) -> int:
-        return sum(len(b) for b in self._tx)
-
-    def write(self, data: bytes) -> int:
-        if self.closed:
-            raise OSError("emulated serial port is closed")
-        self._rx += data
-        while b"\n" in self._rx:
-            line, self._rx = self._rx.split(b"\n", 1)
-            self._handle(line.decode("ascii", "replace").strip())
-        return len(data)
-
-    def readline(self) -> bytes:
-        if self.closed:
-            raise OSError("emulated serial port is closed")
-        return self._tx.pop(0) if self._tx else b""
-
-    def close(self) -> None:
-        self.closed = True
 
     # board behaviour ------------------------------------------------------------------------------------
     def _handle(self, line: str) -> None:
@@ -295,9 +271,9 @@ class ArduinoSRF04Emulator:
             return
         if self.garble_replies > 0:
             self.garble_replies -= 1
-            self._tx.append(b"E\xff" + str(width).encode() + b"\x00\n")
+            self._send(b"E\xff" + str(width).encode() + b"\x00\n")
             return
         if self.wrong_id_replies > 0:
             self.wrong_id_replies -= 1
-            self._tx.append(f"E {sid + 1} 1234\n".encode())
-        self._tx.append(f"E {sid} {width}\n".encode())
+            self._send(f"E {sid + 1} 1234\n".encode())
+        self._send(f"E {sid} {width}\n".encode())

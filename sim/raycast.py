@@ -345,6 +345,11 @@ class MeshMirror:
         self._o3d: Any = None
         self.keys: IntArray = np.zeros((0, 2), dtype=np.int64)
         self._face_normals_world: list[FloatArray] = []
+        #: every triangle of the scene as flat arrays (world vertices, faces, geometry index of each
+        #: face), refreshed with the Embree scene
+        self.tri_vertices: FloatArray = np.zeros((0, 3))
+        self.tri_faces: IntArray = np.zeros((0, 3), dtype=np.int64)
+        self.tri_geometry: IntArray = np.zeros(0, dtype=np.int64)
 
     # ---- geometry ---------------------------------------------------------------------------
 
@@ -525,6 +530,22 @@ class MeshMirror:
                 raise MeshMirrorError(f"Open3D assigned geometry id {gid} to geometry {k}")
         self._scene = scene
         self.rebuilds += 1
+        # the same triangles as flat arrays, for casters that work on them directly (the Kinect's
+        # image-space caster, sim._kinect_kernels.raster_depth)
+        if self._links:
+            counts = [len(lg.world_vertices) for lg in self._links]  # type: ignore[arg-type]
+            offsets = np.cumsum([0, *counts[:-1]])
+            self.tri_vertices = np.concatenate([lg.world_vertices for lg in self._links]).astype(np.float64)  # type: ignore[misc]
+            self.tri_faces = np.concatenate(
+                [lg.faces + off for lg, off in zip(self._links, offsets)]  # type: ignore[operator]
+            ).astype(np.int64)
+            self.tri_geometry = np.concatenate(
+                [np.full(len(lg.faces), k, dtype=np.int64) for k, lg in enumerate(self._links)]  # type: ignore[arg-type]
+            )
+        else:
+            self.tri_vertices = np.zeros((0, 3))
+            self.tri_faces = np.zeros((0, 3), dtype=np.int64)
+            self.tri_geometry = np.zeros(0, dtype=np.int64)
 
     @property
     def n_triangles(self) -> int:
@@ -566,25 +587,44 @@ class MeshMirror:
                 f"origins of shape {o.shape} do not match directions of shape {d.shape}"
             ) from None
         rays[:, 3:] = d.reshape(-1, 3)
-        if not np.all(np.isfinite(rays)):
+        # a non-finite float32 ray has a non-finite component, so the sum is not finite either
+        # (one reduction instead of an elementwise isfinite array over every ray)
+        if not math.isfinite(float(np.sum(rays, dtype=np.float64))):
             raise MeshMirrorError("ray origins and directions must be finite")
-        if self._scene is None:
-            self.sync()
-        o3d = self._o3d
-        res = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
-        t = res["t_hit"].numpy()
-        gid = res["geometry_ids"].numpy()
-        miss = (gid == self._scene.INVALID_ID) | ~(t <= max_range)
+        t, gid, nrm = self.cast_raw(rays, normals=normals)
+        miss = (gid == self.invalid_id) | ~(t <= max_range)
         dist = t.astype(np.float64)
         dist[miss] = np.inf
         g = gid.astype(np.int32)
         g[miss] = NO_HIT
-        if normals:
-            nrm = res["primitive_normals"].numpy()
+        if nrm is not None:
             nrm[miss] = np.nan
         else:
             nrm = np.full((n_rays, 3), np.nan, dtype=np.float32)
         return RayHits(dist.reshape(shape), g.reshape(shape), nrm.reshape((*shape, 3)))
+
+    @property
+    def invalid_id(self) -> int:
+        """The geometry id :meth:`cast_raw` reports for a ray that hit nothing."""
+        if self._scene is None:
+            self.sync()
+        return int(self._scene.INVALID_ID)
+
+    def cast_raw(
+        self, rays: npt.NDArray[np.float32], *, normals: bool = True
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32], npt.NDArray[np.float32] | None]:
+        """Embree's raw answer for an (N, 6) C-contiguous float32 array of (origin, direction) rows.
+
+        No checks and no post-processing (the caller guarantees finite rays): ``(t_hit, geometry_ids,
+        primitive_normals)``, misses have ``geometry_ids == invalid_id`` and ``t_hit = inf``; hits
+        beyond a range limit are not cut. ``normals=False`` returns None for the normals.
+        """
+        if self._scene is None:
+            self.sync()
+        o3d = self._o3d
+        res = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        nrm = res["primitive_normals"].numpy() if normals else None
+        return res["t_hit"].numpy(), res["geometry_ids"].numpy(), nrm
 
     def body_of(self, geometry: Any) -> npt.NDArray[np.int64]:
         """Body unique id for each geometry index (-1 stays -1)."""
