@@ -21,79 +21,200 @@ QUANT_NONE, QUANT_MM, QUANT_DISPARITY = 0, 1, 2
 HALF_PI = math.pi / 2
 #: The angle the noise models are held at (``sim.kinect._THETA_MAX``).
 THETA_MAX = _THETA_MAX
+COS_THETA_MAX = math.cos(_THETA_MAX)
 #: Kinect v1 disparity constant f * b * subpixels (580 px, 7.5 cm, 1/8 px).
 K_DISPARITY = KINECT1_FOCAL_PX * KINECT1_BASELINE_M * KINECT1_SUBPIXEL
 
 
-@numba.njit(cache=True, nogil=True)
-def _angles(normals, rays, inv_norm):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """Angle (rad) between surface normal and viewing ray per pixel, held at THETA_MAX; 0 if unknown."""
-    h, w = inv_norm.shape
-    out = np.empty((h, w))
-    for v in range(h):
-        for u in range(w):
-            c = abs(
-                normals[v, u, 0] * rays[v, u, 0]
-                + normals[v, u, 1] * rays[v, u, 1]
-                + normals[v, u, 2] * rays[v, u, 2]
-            )
-            c *= inv_norm[v, u]
-            if not c == c:  # NaN normal (unknown): treat the surface as facing the camera
-                out[v, u] = 0.0
-                continue
-            th = math.acos(min(c, 1.0))
-            out[v, u] = th if th < THETA_MAX else THETA_MAX
-    return out
+# Acklam's rational approximation of the standard normal quantile (relative error < 1.15e-9)
+_A = (
+    -3.969683028665376e01,
+    2.209460984245205e02,
+    -2.759285104469687e02,
+    1.383577518672690e02,
+    -3.066479806614716e01,
+    2.506628277459239e00,
+)
+_B = (
+    -5.447609879822406e01,
+    1.615858368580409e02,
+    -1.556989798598866e02,
+    6.680131188771972e01,
+    -1.328068155288572e01,
+)
+_C = (
+    -7.784894002430293e-03,
+    -3.223964580411365e-01,
+    -2.400758277161838e00,
+    -2.549732539343734e00,
+    4.374664141464968e00,
+    2.938163982698783e00,
+)
+_D = (7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e00, 3.754408661907416e00)
+_P_LOW = 0.02425
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _normal_quantile(p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    if p < _P_LOW:
+        q = math.sqrt(-2.0 * math.log(p))
+        return (((((_C[0] * q + _C[1]) * q + _C[2]) * q + _C[3]) * q + _C[4]) * q + _C[5]) / (
+            (((_D[0] * q + _D[1]) * q + _D[2]) * q + _D[3]) * q + 1.0
+        )
+    if p > 1.0 - _P_LOW:
+        q = math.sqrt(-2.0 * math.log(1.0 - p))
+        return -(((((_C[0] * q + _C[1]) * q + _C[2]) * q + _C[3]) * q + _C[4]) * q + _C[5]) / (
+            (((_D[0] * q + _D[1]) * q + _D[2]) * q + _D[3]) * q + 1.0
+        )
+    q = p - 0.5
+    r = q * q
+    return (
+        (((((_A[0] * r + _A[1]) * r + _A[2]) * r + _A[3]) * r + _A[4]) * r + _A[5])
+        * q
+        / (((((_B[0] * r + _B[1]) * r + _B[2]) * r + _B[3]) * r + _B[4]) * r + 1.0)
+    )
+
+
+#: Abramowitz & Stegun 4.4.46: acos(x) = sqrt(1 - x) * sum(a_k x^k) for 0 <= x <= 1, |error| <= 2e-8 rad
+_ACOS = (
+    1.5707963050,
+    -0.2145988016,
+    0.0889789874,
+    -0.0501743046,
+    0.0308918810,
+    -0.0170881256,
+    0.0066700901,
+    -0.0012624911,
+)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _acos01(x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """acos(x) for 0 <= x <= 1 to 2e-8 rad (A&S 4.4.46), ~5x cheaper than libm's acos."""
+    poly = _ACOS[7]
+    for k in range(6, -1, -1):
+        poly = poly * x + _ACOS[k]
+    return math.sqrt(1.0 - x) * poly
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _angle_ratio(normals, ax, by, u, v):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """``theta / (pi/2 - theta)`` at pixel (u, v): the ratio both noise models' angle terms use.
+
+    ``theta`` is the angle between the surface normal and the pixel's viewing ray, held at
+    THETA_MAX, and 0 when the normal is unknown (NaN: the surface is taken as facing the camera).
+    The acos is A&S 4.4.46 (2e-8 rad), far below anything the noise models resolve.
+    """
+    a, b = ax[u], by[v]
+    c = abs(normals[v, u, 0] + normals[v, u, 1] * a + normals[v, u, 2] * b)
+    c /= math.sqrt(1.0 + a * a + b * b)
+    if not c == c:
+        th = 0.0
+    elif c <= COS_THETA_MAX:
+        th = THETA_MAX
+    else:
+        th = min(_acos01(min(c, 1.0)), THETA_MAX)
+    return th / (HALF_PI - th)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _uniform32(k):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """The uniform (k + 0.5) / 2^32 in (0, 1) of a 32-bit integer k."""
+    return (float(k) + 0.5) * (1.0 / 4294967296.0)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _table_offset(p, table):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """The offset o = min{j : p < table[j + J]} (J = len // 2): a rounded normal by its CDF."""
+    j0 = table.shape[0] // 2
+    i = j0
+    if p < table[i]:
+        while i > 0 and p < table[i - 1]:
+            i -= 1
+    else:
+        while i < table.shape[0] - 1 and p >= table[i]:
+            i += 1
+    return i - j0
 
 
 @numba.njit(cache=True, nogil=True)
-def finish(depth, normals, body, link, rays, inv_norm, rnd, noise, model, quant, zmin, zmax):  # type: ignore[no-untyped-def]  # pragma: no cover
+def finish(
+    depth,
+    normals,
+    body,
+    link,
+    ax,
+    by,
+    bits,
+    lat_table,
+    lat_buckets,
+    noise,
+    model,
+    quant,
+    zmin,
+    zmax,
+    labels=True,
+):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Noise, quantisation and range cut in one pass; the organized cloud and labels of the result.
 
-    ``rnd`` holds three standard-normal draws per pixel: lateral u, lateral v, axial.
+    Pixel (u, v) looks along the camera-frame ray ``(1, ax[u], by[v])`` (:meth:`sim.kinect.Intrinsics.rays`);
+    a point is ``z`` times its ray.
+
+    Randomness: ``bits`` ((2, h, w) uint64 words of a seeded Generator) per pixel: the two 32-bit
+    halves of ``bits[0]`` give the lateral u and v offsets, ``bits[1]`` (53 bits) the axial draw,
+    each a uniform in (0, 1) turned into N(0, 1) by the normal quantile (inverse transform
+    sampling; Acklam's approximation, relative error < 1.15e-9). A lateral offset is the normal
+    draw times ``sigma_L`` rounded to whole pixels; when ``sigma_L`` is constant (the Kinect v2
+    model) ``lat_table`` holds the CDF of that rounded offset, ``Phi((j + 0.5) / sigma_L)`` for
+    j = -J..J, and the offset is read from it (the same offset the quantile would give, cheaper):
+    ``lat_buckets[k >> 16]`` is the offset of every 32-bit ``k`` in that bucket, or 127 for the
+    few buckets a CDF step falls in (then the table is searched). An empty table means per-pixel
+    ``sigma_L`` (the Kinect v1 model) through the quantile.
 
     Returns:
         ``(z, src, points, body, link)``: depth (NaN invalid), flat index of the pixel each value came
-        from, float32 points ``z * ray``, and the (body, link) labels of the source pixel (-1 invalid).
+        from, float32 points ``z * ray``, and the (body, link) labels of the source pixel (-1 invalid);
+        with ``labels=False`` only the points are filled (the others are 1x1 placeholders).
     """
     h, w = depth.shape
-    z_out = np.empty((h, w))
-    src = np.empty((h, w), dtype=np.int64)
+    # labels=False (a plain frame): depth, source index and labels are not wanted; skip their writes
+    lh, lw = (h, w) if labels else (1, 1)
+    z_out = np.empty((lh, lw))
+    src = np.empty((lh, lw), dtype=np.int64)
     pts = np.empty((h, w, 3), dtype=np.float32)
-    body_out = np.empty((h, w), dtype=np.int64)
-    link_out = np.empty((h, w), dtype=np.int64)
+    body_out = np.empty((lh, lw), dtype=np.int64)
+    link_out = np.empty((lh, lw), dtype=np.int64)
     nguyen = model == NGUYEN2012
-    # per pixel (once, not once per pixel that samples it): the angle term of the axial model at
-    # the surface seen there, and the lateral sigma of the pixel (constant 1.6 px for the v2 model)
-    if noise:
-        theta = _angles(normals, rays, inv_norm)
-        aterm = np.empty((h, w))
-        lat = np.empty((h, w)) if nguyen else np.empty((1, 1))
-        for v in range(h):
-            for u in range(w):
-                th = theta[v, u]
-                aterm[v, u] = th * th / ((HALF_PI - th) * (HALF_PI - th))
-                if nguyen:
-                    lat[v, u] = 0.8 + 0.035 * th / (HALF_PI - th)
-    else:
-        aterm = np.empty((1, 1))
-        lat = np.empty((1, 1))
     for v in range(h):
         for u in range(w):
             if noise:
-                sl = lat[v, u] if nguyen else 1.6
-                su = int(np.rint(u + rnd[0, v, u] * sl))
-                sv = int(np.rint(v + rnd[1, v, u] * sl))
+                word = bits[0, v, u]
+                ku = word & np.uint64(0xFFFFFFFF)
+                kv = word >> np.uint64(32)
+                pu = _uniform32(ku)
+                pv = _uniform32(kv)
+                if lat_table.shape[0] > 0:
+                    ou = lat_buckets[ku >> np.uint64(16)]
+                    ov = lat_buckets[kv >> np.uint64(16)]
+                    su = u + (_table_offset(pu, lat_table) if ou == 127 else ou)
+                    sv = v + (_table_offset(pv, lat_table) if ov == 127 else ov)
+                else:
+                    # (the Kinect v1's sigma_L depends on the angle at this pixel)
+                    sl = 0.8 + 0.035 * _angle_ratio(normals, ax, by, u, v) if nguyen else 1.6
+                    su = u + int(np.rint(_normal_quantile(pu) * sl))
+                    sv = v + int(np.rint(_normal_quantile(pv) * sl))
                 su = min(max(su, 0), w - 1)
                 sv = min(max(sv, 0), h - 1)
                 z = depth[sv, su]
                 if z == z:  # a return at the source pixel (NaN: none, nothing to perturb)
-                    a = aterm[sv, su]
+                    q = _angle_ratio(normals, ax, by, su, sv)
+                    a = q * q
                     if nguyen:
                         sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
                     else:
                         sz = 1e-3 * (1.5 - 0.5 * z + 0.3 * z * z + 0.1 * (z * math.sqrt(z)) * a)
-                    z = z + rnd[2, v, u] * sz
+                    pz = (float(bits[1, v, u] >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+                    z = z + _normal_quantile(pz) * sz
                     if quant == QUANT_MM:
                         z = np.rint(z * 1000.0) / 1000.0
                     elif quant == QUANT_DISPARITY:
@@ -103,18 +224,22 @@ def finish(depth, normals, body, link, rays, inv_norm, rnd, noise, model, quant,
                 sv, su = v, u
                 z = depth[v, u]
             s = sv * w + su
-            src[v, u] = s
+            if labels:
+                src[v, u] = s
             if z >= zmin and z <= zmax:
-                z_out[v, u] = z
-                for c in range(3):
-                    pts[v, u, c] = z * rays[v, u, c]
-                body_out[v, u] = body[sv, su]
-                link_out[v, u] = link[sv, su]
+                pts[v, u, 0] = z
+                pts[v, u, 1] = z * ax[u]
+                pts[v, u, 2] = z * by[v]
+                if labels:
+                    z_out[v, u] = z
+                    body_out[v, u] = body[sv, su]
+                    link_out[v, u] = link[sv, su]
             else:
-                z_out[v, u] = np.nan
                 pts[v, u, 0] = pts[v, u, 1] = pts[v, u, 2] = np.nan
-                body_out[v, u] = -1
-                link_out[v, u] = -1
+                if labels:
+                    z_out[v, u] = np.nan
+                    body_out[v, u] = -1
+                    link_out[v, u] = -1
     return z_out, src, pts, body_out, link_out
 
 
@@ -191,43 +316,9 @@ def hits_to_image(t_hit, gid, nrm, invalid_id, keys, rot, max_range, h, w, norma
 
 
 @numba.njit(cache=True, nogil=True)
-def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """First hit of every pixel ray of a pinhole camera among triangles, by image-space culling.
-
-    The exact geometric answer of casting one ray per pixel (the same as Embree's, up to floating
-    point rounding), but each triangle is only tested against the pixels of its projected bounding
-    box, so a frame costs about the pixels the triangles cover instead of a BVH walk per pixel.
-
-    Pixel (u, v) has the camera-frame ray ``(1, ax[u], by[v])`` (x forward, y left, z up; see
-    :meth:`sim.kinect.Intrinsics.rays`), so its ray parameter is the depth. A ray through the camera
-    origin crosses the triangle (p0, p1, p2) iff the three triple products ``ray . (p_i x p_j)``
-    share a sign; each is affine in (ax, by), and so is the plane's ``n . ray``, which gives the
-    depth ``(n . p0) / (n . ray)``. Triangles partly behind the camera are clipped against the plane
-    x = 1e-9 only to bound their pixels; the hit test itself needs no clipping.
-
-    Args:
-        verts: (M, 3) world vertices; faces: (T, 3) vertex indices; tri_geom: (T,) geometry index of
-            each triangle; keys: (G, 2) (body, link) of each geometry.
-        rot, origin: camera rotation (world <- camera) and position.
-        ax, by: (W,) and (H,) ray components of the pixel columns and rows.
-        far: hits beyond this depth are misses.
-        normals: fill the camera-frame unit normals of the hit triangles (else NaN).
-
-    Returns:
-        ``(depth, normals, body, link)``: (H, W) depth (NaN: no hit), (H, W, 3) float32 normals,
-        (H, W) body and link (-1: no hit).
-    """
+def _draw_rows(pc, faces, ax, by, far, row0, row1, zbuf, tri):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The triangle loop of :func:`raster_depth`, drawing into the image rows [row0, row1)."""
     h, w = by.shape[0], ax.shape[0]
-    m = verts.shape[0]
-    pc = np.empty((m, 3))
-    for k in range(m):
-        dx = verts[k, 0] - origin[0]
-        dy = verts[k, 1] - origin[1]
-        dz = verts[k, 2] - origin[2]
-        for j in range(3):
-            pc[k, j] = rot[0, j] * dx + rot[1, j] * dy + rot[2, j] * dz
-    zbuf = np.full((h, w), np.inf)
-    tri = np.full((h, w), -1, dtype=np.int64)
     # pixel index of a ray component: ax decreases with u, by with v (uniform steps)
     a0, da = ax[0], ax[1] - ax[0] if w > 1 else -1.0
     b0, db = by[0], by[1] - by[0] if h > 1 else -1.0
@@ -272,7 +363,7 @@ def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals
         u1 = math.ceil(min(max((amin - a0) / da, -2.0), w + 2.0)) + 1
         v0 = math.floor(min(max((bmax - b0) / db, -2.0), h + 2.0)) - 1
         v1 = math.ceil(min(max((bmin - b0) / db, -2.0), h + 2.0)) + 1
-        u0, u1, v0, v1 = max(u0, 0), min(u1, w - 1), max(v0, 0), min(v1, h - 1)
+        u0, u1, v0, v1 = max(u0, 0), min(u1, w - 1), max(v0, row0), min(v1, row1 - 1)
         if u0 > u1 or v0 > v1:
             continue
         # edge functions r . (p_i x p_j) = e0 + e1 * a + e2 * b, and the plane n . r
@@ -283,18 +374,33 @@ def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals
         d = n0 * x0 + n1 * y0 + n2 * z0
         if d == 0.0:
             continue  # the plane passes through the camera: seen edge-on, no area
+        # a ray meets the triangle in front of the camera iff every triple product has the sign of
+        # d (their sum is n . r, and the depth d / (n . r) must be positive): flip to ">= 0" tests
+        if d < 0.0:
+            e00, e01, e02, e10, e11, e12 = -e00, -e01, -e02, -e10, -e11, -e12
+            e20, e21, e22 = -e20, -e21, -e22
         for v in range(v0, v1 + 1):
             b = by[v]
             f0 = e00 + e02 * b
             f1 = e10 + e12 * b
             f2 = e20 + e22 * b
+            # the columns where each (affine in a) triple product is >= 0, widened by a pixel
+            # for rounding; every pixel in the span still gets the exact test below
+            lo, hi = u0, u1
+            for f_i, e_i in ((f0, e01), (f1, e11), (f2, e21)):
+                if e_i == 0.0:
+                    if f_i < 0.0:
+                        hi = -1
+                    continue
+                uc = min(max((-f_i / e_i - a0) / da, -2.0), w + 2.0)
+                if e_i > 0.0:  # a >= root: u <= uc (a decreases with u)
+                    hi = min(hi, math.ceil(uc) + 1)
+                else:
+                    lo = max(lo, math.floor(uc) - 1)
             g = n0 + n2 * b
-            for u in range(u0, u1 + 1):
+            for u in range(lo, hi + 1):
                 a = ax[u]
-                s0 = f0 + e01 * a
-                s1 = f1 + e11 * a
-                s2 = f2 + e21 * a
-                if (s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0) or (s0 <= 0.0 and s1 <= 0.0 and s2 <= 0.0):
+                if f0 + e01 * a >= 0.0 and f1 + e11 * a >= 0.0 and f2 + e21 * a >= 0.0:
                     den = g + n1 * a
                     if den == 0.0:
                         continue  # the ray runs in the triangle's plane
@@ -302,29 +408,158 @@ def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals
                     if t > 0.0 and t <= far and t < zbuf[v, u]:
                         zbuf[v, u] = t
                         tri[v, u] = f
+
+
+@numba.njit(cache=True, nogil=True)
+def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals, labels=True):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """First hit of every pixel ray of a pinhole camera among triangles, by image-space culling.
+
+    The exact geometric answer of casting one ray per pixel (the same as Embree's, up to floating
+    point rounding), but each triangle is only tested against the pixels of its projected bounding
+    box, so a frame costs about the pixels the triangles cover instead of a BVH walk per pixel.
+
+    Pixel (u, v) has the camera-frame ray ``(1, ax[u], by[v])`` (x forward, y left, z up; see
+    :meth:`sim.kinect.Intrinsics.rays`), so its ray parameter is the depth. A ray through the camera
+    origin crosses the triangle (p0, p1, p2) iff the three triple products ``ray . (p_i x p_j)``
+    share a sign; each is affine in (ax, by), and so is the plane's ``n . ray``, which gives the
+    depth ``(n . p0) / (n . ray)``. Triangles partly behind the camera are clipped against the plane
+    x = 1e-9 only to bound their pixels; the hit test itself needs no clipping.
+
+    Args:
+        verts: (M, 3) world vertices; faces: (T, 3) vertex indices; tri_geom: (T,) geometry index of
+            each triangle; keys: (G, 2) (body, link) of each geometry.
+        rot, origin: camera rotation (world <- camera) and position.
+        ax, by: (W,) and (H,) ray components of the pixel columns and rows.
+        far: hits beyond this depth are misses.
+        normals: fill the camera-frame unit normals of the hit triangles (else NaN).
+        labels: fill body and link (else they are 1x1 placeholders).
+
+    Returns:
+        ``(depth, normals, body, link)``: (H, W) depth (NaN: no hit), (H, W, 3) float32 normals,
+        (H, W) body and link (-1: no hit).
+    """
+    h, w = by.shape[0], ax.shape[0]
+    m = verts.shape[0]
+    pc = np.empty((m, 3))
+    for k in range(m):
+        dx = verts[k, 0] - origin[0]
+        dy = verts[k, 1] - origin[1]
+        dz = verts[k, 2] - origin[2]
+        for j in range(3):
+            pc[k, j] = rot[0, j] * dx + rot[1, j] * dy + rot[2, j] * dz
+    zbuf = np.full((h, w), np.inf)
+    tri = np.full((h, w), -1, dtype=np.int64)
+    _draw_rows(pc, faces, ax, by, far, 0, h, zbuf, tri)
+    nt = faces.shape[0] if normals else 0
+    tn = np.empty((nt, 3), dtype=np.float32)  # unit normal of each triangle (camera frame)
+    for f in range(nt):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        ux, uy, uz = pc[i1, 0] - pc[i0, 0], pc[i1, 1] - pc[i0, 1], pc[i1, 2] - pc[i0, 2]
+        wx, wy, wz = pc[i2, 0] - pc[i0, 0], pc[i2, 1] - pc[i0, 1], pc[i2, 2] - pc[i0, 2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            tn[f, 0], tn[f, 1], tn[f, 2] = nx / ln, ny / ln, nz / ln
+        else:
+            tn[f, 0] = tn[f, 1] = tn[f, 2] = np.nan
     depth = np.empty((h, w))
     nrm = np.empty((h, w, 3), dtype=np.float32)
-    body = np.empty((h, w), dtype=np.int64)
-    link = np.empty((h, w), dtype=np.int64)
+    lh, lw = (h, w) if labels else (1, 1)
+    body = np.empty((lh, lw), dtype=np.int64)
+    link = np.empty((lh, lw), dtype=np.int64)
     for v in range(h):
         for u in range(w):
             f = tri[v, u]
             if f < 0:
                 depth[v, u] = np.nan
                 nrm[v, u, 0] = nrm[v, u, 1] = nrm[v, u, 2] = np.nan
-                body[v, u] = link[v, u] = -1
+                if labels:
+                    body[v, u] = link[v, u] = -1
                 continue
             depth[v, u] = zbuf[v, u]
-            g = tri_geom[f]
-            body[v, u] = keys[g, 0]
-            link[v, u] = keys[g, 1]
+            if labels:
+                g = tri_geom[f]
+                body[v, u] = keys[g, 0]
+                link[v, u] = keys[g, 1]
             if normals:
-                p0, p1, p2 = faces[f, 0], faces[f, 1], faces[f, 2]
-                ux, uy, uz = pc[p1, 0] - pc[p0, 0], pc[p1, 1] - pc[p0, 1], pc[p1, 2] - pc[p0, 2]
-                wx, wy, wz = pc[p2, 0] - pc[p0, 0], pc[p2, 1] - pc[p0, 1], pc[p2, 2] - pc[p0, 2]
-                nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-                ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-                nrm[v, u, 0], nrm[v, u, 1], nrm[v, u, 2] = nx / ln, ny / ln, nz / ln
+                nrm[v, u, 0], nrm[v, u, 1], nrm[v, u, 2] = tn[f, 0], tn[f, 1], tn[f, 2]
             else:
                 nrm[v, u, 0] = nrm[v, u, 1] = nrm[v, u, 2] = np.nan
     return depth, nrm, body, link
+
+
+@numba.njit(cache=True, nogil=True)
+def transform_points(t, pts):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """``R p + t`` of the 4x4 transform ``t`` for (..., 3) float32 points (float64 sums, float32 out)."""
+    flat = pts.reshape(-1, 3)
+    out = np.empty_like(flat)
+    for k in range(flat.shape[0]):
+        x, y, z = flat[k, 0], flat[k, 1], flat[k, 2]
+        for i in range(3):
+            out[k, i] = t[i, 0] * x + t[i, 1] * y + t[i, 2] * z + t[i, 3]
+    return out.reshape(pts.shape)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _interp_uniform(x, xp, fp):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """``np.interp(x, xp, fp)`` for increasing ``xp`` (held at the end values outside it)."""
+    n = xp.shape[0]
+    if x <= xp[0]:
+        return fp[0]
+    if x >= xp[n - 1]:
+        return fp[n - 1]
+    lo, hi = 0, n - 1  # xp[lo] <= x < xp[hi]
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if xp[mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    slope = (fp[hi] - fp[lo]) / (xp[hi] - xp[lo])
+    return slope * (x - xp[lo]) + fp[lo]
+
+
+@numba.njit(cache=True, nogil=True)
+def sonar_first_echo(
+    t_hit,
+    gid,
+    nrm,
+    invalid_id,
+    dirs,
+    max_range,
+    cos_incidence,
+    bearing,
+    elevation,
+    table_m,
+    table_left,
+    table_right,
+):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """First echo of each sonar from Embree's raw hits of its beam (see :class:`sim.sonar._Beam`).
+
+    Rays are grouped per sonar (``len(bearing)`` each). A ray echoes when it hit something within
+    ``max_range``, the surface faces it (``|normal . dir| >= cos_incidence``) and the hit lies inside
+    the beam at that range (ellipse of the tabulated half-apertures). Returns the smallest echoing
+    distance per sonar, NaN when none.
+    """
+    n = bearing.shape[0]
+    ns = t_hit.shape[0] // n
+    out = np.full(ns, np.nan)
+    for s in range(ns):
+        best = np.inf
+        for i in range(n):
+            k = s * n + i
+            r = np.float64(t_hit[k])
+            if gid[k] == invalid_id or not r <= max_range or not r < best:
+                continue
+            facing = abs(nrm[k, 0] * dirs[k, 0] + nrm[k, 1] * dirs[k, 1] + nrm[k, 2] * dirs[k, 2])
+            if not facing >= cos_incidence:
+                continue
+            left = _interp_uniform(r, table_m, table_left)
+            right = _interp_uniform(r, table_m, table_right)
+            vert = 0.5 * (left + right)
+            h = left if bearing[i] >= 0 else right
+            if (bearing[i] / h) ** 2 + (elevation[i] / vert) ** 2 <= 1.0:
+                best = r
+        if best < np.inf:
+            out[s] = best
+    return out

@@ -105,6 +105,10 @@ class SimChair:
                 self.mirror = MeshMirror(
                     self.world.client, exclude_bodies=(self.robot.body,), nthreads=raycast_threads
                 )
+                # scripted people move only in step(): one sync per physics step serves every sensor
+                world = self.world
+                self.mirror.step_counter = lambda: world.steps
+                self.mirror.bodies_fixed = True  # scene bodies are created once, never replaced
             if sensor is not None:
                 from sim.kinect import KinectSim
 

@@ -51,6 +51,11 @@ coefficients above, including the mm unit of the v2 model and its constant 1.6 p
 for steeper surfaces (the models' angle terms have a pole at 90 deg and were not fitted that far;
 at 85 deg the v2 model would give ~10 cm, scattering the silhouettes of round objects).
 
+Random draws (seeded Generator, two 64-bit words per pixel, :meth:`KinectSim.noise_bits`): the
+normal draws are made by inverse transform sampling from uniform words (Acklam's quantile, relative
+error < 1.2e-9); the Kinect v2's rounded lateral offsets are read from the CDF of
+``round(1.6 N(0, 1))`` directly. The same seed gives the same frames on any thread.
+
 Lateral noise is applied the way it shows in real depth images: each pixel takes the depth (and
 surface angle) found at a pixel offset drawn from N(0, sigma_L^2), rounded to the pixel grid, and
 keeps its own ray, so edges jitter while planes stay planes.
@@ -278,6 +283,7 @@ def render_raycast(
     normals: bool = True,
     buffer: npt.NDArray[np.float32] | None = None,
     caster: str = "embree",
+    labels: bool = True,
 ) -> DepthImage:
     """Depth image by ray casting into ``mirror`` (the caller syncs the mirror).
 
@@ -286,6 +292,7 @@ def render_raycast(
     ``caster``: ``"embree"`` (Open3D's ``RaycastingScene``) or ``"raster"`` (the same rays tested
     against the mirror's triangles with image-space culling, :func:`sim._kinect_kernels.raster_depth`:
     the same geometry up to float rounding, several times faster for a camera's coherent rays).
+    ``labels=False`` lets the raster caster skip the body and link images (1x1 placeholders then).
     The per-pixel work runs in compiled kernels that release the GIL, so a capture thread
     overlaps the simulation thread.
     """
@@ -314,6 +321,7 @@ def render_raycast(
             by,
             float(far_m),
             bool(normals),
+            bool(labels),
         )
         return DepthImage(depth, nc, body, link)
     if buffer is None or buffer.shape != (h * w, 6):
@@ -465,6 +473,36 @@ def register_depth(
 # noise + quantisation + range cut, fused (one pass over the image instead of ~20 numpy passes)
 # --------------------------------------------------------------------------------------------
 
+
+def _rounded_normal_cdf(noise_model: str, half_width: int = 16) -> FloatArray:
+    """CDF table of a lateral offset ``round(N(0, 1) * sigma_L)`` for j = -J..J when ``sigma_L`` is
+    constant (Kinect v2: 1.6 px): ``Phi((j + 0.5) / sigma_L)``; empty when it varies per pixel.
+
+    J = 16 reaches 10 sigma, far below the 2^-32 resolution of the uniforms it is compared with.
+    """
+    if noise_model != "fankhauser2015":
+        return np.zeros(0)
+    sigma = float(fankhauser2015_lateral_sigma_px(0.0))
+    j = np.arange(-half_width, half_width + 1)
+    return np.array([0.5 * math.erfc(-(k + 0.5) / sigma / math.sqrt(2.0)) for k in j])
+
+
+def _offset_buckets(table: FloatArray) -> npt.NDArray[np.int8]:
+    """Per 16-bit bucket of the 32-bit uniforms: the offset ``table`` gives every value in it, or
+    127 where a CDF step falls inside the bucket (see :func:`sim._kinect_kernels.finish`)."""
+    if len(table) == 0:
+        return np.zeros(0, dtype=np.int8)
+    b = np.arange(1 << 16, dtype=np.float64)
+    half = len(table) // 2
+
+    def offset(k: FloatArray) -> npt.NDArray[np.int64]:
+        i = np.searchsorted(table, (k + 0.5) / 2.0**32, side="right")
+        return np.minimum(i, len(table) - 1) - half
+
+    lo, hi = offset(b * 65536.0), offset(b * 65536.0 + 65535.0)
+    return np.where(lo == hi, lo, 127).astype(np.int8)
+
+
 _NOISE_CODES = {"nguyen2012": 0, "fankhauser2015": 1}  # sim._kinect_kernels.NGUYEN2012, FANKHAUSER2015
 _QUANT_CODES = {None: 0, "mm": 1, "disparity": 2}  # sim._kinect_kernels.QUANT_*
 
@@ -543,8 +581,11 @@ class KinectSim:
             raise KinectError(f"near_m={near_m}: must be in (0, min range {self.model.min_range_m})")
         self.near_m = near_m
         self._rays = self.model.intrinsics.rays()
-        self._inv_ray_norm = 1.0 / np.linalg.norm(self._rays, axis=-1)
-        self._ray_buffer = np.empty((self._rays.shape[0] * self._rays.shape[1], 6), dtype=np.float32)
+        # the rays' y and z components per column and row (the x component is 1)
+        self._ray_ax = np.ascontiguousarray(self._rays[0, :, 1])
+        self._ray_by = np.ascontiguousarray(self._rays[:, 0, 2])
+        self._lateral_table = _rounded_normal_cdf(self.model.noise_model)
+        self._lateral_buckets = _offset_buckets(self._lateral_table)
 
     # ---- frames -----------------------------------------------------------------------------
 
@@ -566,8 +607,11 @@ class KinectSim:
 
     # ---- capture ----------------------------------------------------------------------------
 
-    def render(self, cam_pose: Any) -> DepthImage:
-        """The clean depth image of the depth camera (no noise, no range cut) at ``cam_pose``."""
+    def render(self, cam_pose: Any, *, labels: bool = True) -> DepthImage:
+        """The clean depth image of the depth camera (no noise, no range cut) at ``cam_pose``.
+
+        ``labels=False``: the body and link images may be 1x1 placeholders (raster caster).
+        """
         t = pose_matrix(cam_pose)
         intr = self.model.intrinsics
         far = self.model.max_range_m * 1.5
@@ -582,8 +626,8 @@ class KinectSim:
                 far,
                 rays=self._rays,
                 normals=need_normals,
-                buffer=self._ray_buffer,
                 caster=self.caster,
+                labels=labels,
             )
         img = render_pybullet(self.client, t, intr, self.near_m, far)
         if self.exclude_bodies:
@@ -597,17 +641,61 @@ class KinectSim:
         return img
 
     def capture_full(
-        self, cam_pose: Any, *, stamp_ns: int = 0, rng: np.random.Generator | None = None
+        self,
+        cam_pose: Any,
+        *,
+        stamp_ns: int = 0,
+        rng: np.random.Generator | None = None,
+        noise_bits: npt.NDArray[np.uint64] | None = None,
     ) -> KinectCapture:
         """Capture one frame and keep the per-pixel (body, link) labels (see :class:`KinectCapture`)."""
+        return self._capture(cam_pose, stamp_ns, rng, noise_bits, labels=True)  # type: ignore[return-value]
+
+    def noise_bits(self, rng: np.random.Generator | None = None) -> npt.NDArray[np.uint64] | None:
+        """The random words one noisy capture consumes (None when the noise is off).
+
+        Drawing them apart from :meth:`capture` (``noise_bits=``) lets frames be captured on several
+        threads while the generator is still used in frame order: the frames are then the same as
+        captured one after the other. Two uniform 64-bit words per pixel: lateral u and v (32 bits
+        each), axial (53 bits); the kernel turns them into normal draws (see
+        :func:`sim._kinect_kernels.finish`).
+        """
+        if not self.noise:
+            return None
+        return (rng or self.rng).integers(
+            0,
+            np.iinfo(np.uint64).max,
+            size=(2, self.model.height, self.model.width),
+            dtype=np.uint64,
+            endpoint=True,
+        )
+
+    def _capture(
+        self,
+        cam_pose: Any,
+        stamp_ns: int,
+        rng: np.random.Generator | None,
+        noise_bits: npt.NDArray[np.uint64] | None,
+        *,
+        labels: bool,
+    ) -> KinectCapture | DepthFrame:
+        """The capture; with ``labels=False`` only the frame (the kernel skips depth and labels)."""
         m = self.model
-        img = self.render(cam_pose)
+        # HD / qHD registration needs each pixel's source index, which comes with the labels
+        full = labels or m.registration is not None
+        img = self.render(cam_pose, labels=full)
         h, w = img.depth.shape
-        if self.noise:
-            # three standard-normal draws per pixel: lateral u, lateral v, axial (in this order)
-            rnd = (rng or self.rng).standard_normal((3, h, w), dtype=np.float32)
+        bits: Any
+        if not self.noise:
+            bits = np.zeros((2, 1, 1), dtype=np.uint64)
+        elif noise_bits is None:
+            bits = self.noise_bits(rng)
         else:
-            rnd = np.zeros((3, 1, 1), dtype=np.float32)
+            bits = np.asarray(noise_bits)
+            if bits.shape != (2, h, w) or bits.dtype != np.uint64:
+                raise KinectError(
+                    f"noise_bits of shape {bits.shape}, {bits.dtype}: expected (2, {h}, {w}) uint64"
+                )
         from sim._kinect_kernels import finish
 
         z, src, pts, body, link = finish(
@@ -615,14 +703,17 @@ class KinectSim:
             img.normals,
             img.body,
             img.link,
-            self._rays,
-            self._inv_ray_norm,
-            rnd,
+            self._ray_ax,
+            self._ray_by,
+            bits,
+            self._lateral_table,
+            self._lateral_buckets,
             self.noise,
             _NOISE_CODES[m.noise_model],
             _QUANT_CODES[m.quantization],
             m.min_range_m,
             m.max_range_m,
+            full,
         )
         if m.registration is not None:
             normals = img.normals.reshape(-1, 3)[src]
@@ -632,10 +723,19 @@ class KinectSim:
             body = np.where(hd_src >= 0, flat_b[np.maximum(hd_src, 0)], -1)
             link = np.where(hd_src >= 0, flat_l[np.maximum(hd_src, 0)], -1)
         frame = DepthFrame(stamp_ns=int(stamp_ns), frame_id=self.frame_id, points=pts)
-        return KinectCapture(frame, z, body, link)
+        return KinectCapture(frame, z, body, link) if labels else frame
 
     def capture(
-        self, cam_pose: Any, *, stamp_ns: int = 0, rng: np.random.Generator | None = None
+        self,
+        cam_pose: Any,
+        *,
+        stamp_ns: int = 0,
+        rng: np.random.Generator | None = None,
+        noise_bits: npt.NDArray[np.uint64] | None = None,
     ) -> DepthFrame:
-        """One :class:`DepthFrame` (organized float32 cloud, NaN = no return) at world pose ``cam_pose``."""
-        return self.capture_full(cam_pose, stamp_ns=stamp_ns, rng=rng).frame
+        """One :class:`DepthFrame` (organized float32 cloud, NaN = no return) at world pose ``cam_pose``.
+
+        ``noise_bits``: the frame's random words drawn beforehand by :meth:`noise_bits` (else they
+        are drawn here from ``rng`` or the camera's generator).
+        """
+        return self._capture(cam_pose, stamp_ns, rng, noise_bits, labels=False)  # type: ignore[return-value]

@@ -350,6 +350,16 @@ class MeshMirror:
         self.tri_vertices: FloatArray = np.zeros((0, 3))
         self.tri_faces: IntArray = np.zeros((0, 3), dtype=np.int64)
         self.tri_geometry: IntArray = np.zeros(0, dtype=np.int64)
+        #: optional ``() -> int`` counting the world's physics steps (set by the owner of the world,
+        #: e.g. :class:`sim.backend.SimChair`): :meth:`sync` then re-reads the world only once per
+        #: step, however many sensors ask (bodies must then only move or appear as the world steps)
+        self.step_counter: Any = None
+        self._synced_stamp: int | None = None
+        #: set by an owner that never removes a body and adds another in its place (e.g.
+        #: :class:`sim.backend.SimChair`): :meth:`sync` then compares only the body ids, not every
+        #: body's visual shape records, to notice a changed world
+        self.bodies_fixed = False
+        self._raw_poses: dict[tuple[int, int], tuple[Any, FloatArray]] = {}
 
     # ---- geometry ---------------------------------------------------------------------------
 
@@ -440,20 +450,40 @@ class MeshMirror:
         """World transform of each link frame (URDF frame) of ``body``."""
         p = self._pb()
         out: dict[int, FloatArray] = {}
+        # the raw (position, quaternion) PyBullet reports is compared with the last one first: a
+        # body at rest (most of a scene) then costs one query, not a 4x4 composition per sync
         if -1 in links:
             pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=self.client)
-            info = p.getDynamicsInfo(body, -1, physicsClientId=self.client)
-            inv_p, inv_q = p.invertTransform(info[3], info[4])
-            out[-1] = _compose(pos, orn, inv_p, inv_q)
+            out[-1] = self._pose_from_raw((body, -1), (pos, orn), lambda: self._base_pose(body, pos, orn))
         others = [l for l in links if l >= 0]
         if others:
             states = p.getLinkStates(body, others, computeForwardKinematics=1, physicsClientId=self.client)
             for l, st in zip(others, states):
-                out[l] = _compose(st[4], st[5], (0, 0, 0), (0, 0, 0, 1))
+                pos, orn = st[4], st[5]
+                out[l] = self._pose_from_raw(
+                    (body, l),
+                    (pos, orn),
+                    lambda pos=pos, orn=orn: _compose(pos, orn, (0, 0, 0), (0, 0, 0, 1)),
+                )
         return out
+
+    def _base_pose(self, body: int, pos: Any, orn: Any) -> FloatArray:
+        p = self._pb()
+        info = p.getDynamicsInfo(body, -1, physicsClientId=self.client)
+        inv_p, inv_q = p.invertTransform(info[3], info[4])
+        return _compose(pos, orn, inv_p, inv_q)
+
+    def _pose_from_raw(self, key: tuple[int, int], raw: Any, compute: Any) -> FloatArray:
+        cached = self._raw_poses.get(key)
+        if cached is not None and cached[0] == raw:
+            return cached[1]  # type: ignore[no-any-return]
+        t = compute()
+        self._raw_poses[key] = (raw, t)
+        return t  # type: ignore[no-any-return]
 
     def _collect(self) -> None:
         p = self._pb()
+        self._raw_poses = {}
         self._links = []
         self.skipped = []
         for body in self._bodies:
@@ -485,12 +515,20 @@ class MeshMirror:
         Returns:
             True when the scene was rebuilt.
         """
+        stamp = self.step_counter() if self.step_counter is not None else None
+        if stamp is not None and stamp == self._synced_stamp and self._scene is not None:
+            return False  # the world has not stepped since the last sync: nothing can have moved
         p = self._pb()
         bodies = self._body_ids()
-        # PyBullet reuses the unique id of a removed body, so the set of ids alone cannot tell that
-        # a body was replaced: compare the visual shape records as well (cheap: one call per body)
-        signature = tuple((b, tuple(p.getVisualShapeData(b, physicsClientId=self.client))) for b in bodies)
         changed = False
+        if self.bodies_fixed and self._scene is not None and bodies == self._bodies:
+            signature = self._signature  # the owner guarantees no body is replaced
+        else:
+            # PyBullet reuses the unique id of a removed body, so the set of ids alone cannot tell
+            # that a body was replaced: compare the visual shape records as well (one call per body)
+            signature = tuple(
+                (b, tuple(p.getVisualShapeData(b, physicsClientId=self.client))) for b in bodies
+            )
         if signature != self._signature:
             self._bodies = bodies
             self._signature = signature
@@ -508,6 +546,7 @@ class MeshMirror:
                     v = np.concatenate([pt.vertices for pt in lg.parts])
                     lg.world_vertices = np.ascontiguousarray(v @ t[:3, :3].T + t[:3, 3], dtype=np.float32)
                     changed = True
+        self._synced_stamp = stamp
         if changed or self._scene is None:
             self._build()
             return True

@@ -152,12 +152,39 @@ class _Beam:
         """Tabulated (left, right) half-apertures at ranges ``r`` (m), constant beyond 1 m."""
         return np.interp(r, self._table_m, self._table_left), np.interp(r, self._table_m, self._table_right)
 
-    def first_echo(self, mirror: MeshMirror, poses: list[FloatArray]) -> FloatArray:
-        """Raw first-echo distance (m, unquantised, NaN = none) for each sonar pose."""
+    def first_echo(self, mirror: MeshMirror, poses: list[FloatArray], *, compiled: bool = True) -> FloatArray:
+        """Raw first-echo distance (m, unquantised, NaN = none) for each sonar pose.
+
+        ``compiled`` (default) runs the echo rule in one compiled pass over Embree's raw hits;
+        False runs the same rule in numpy (the reference the tests compare with). Non-finite poses
+        are refused by :meth:`MeshMirror.cast` either way.
+        """
         n = len(self.dirs)
-        origins = np.concatenate([np.broadcast_to(t[:3, 3], (n, 3)) for t in poses])
         dirs = np.concatenate([self.dirs @ t[:3, :3].T for t in poses])
         mirror.sync()
+        if compiled and all(np.all(np.isfinite(t)) for t in poses):
+            from sim._kinect_kernels import sonar_first_echo
+
+            rays = np.empty((len(dirs), 6), dtype=np.float32)
+            for k, t in enumerate(poses):
+                rays[k * n : (k + 1) * n, :3] = t[:3, 3]
+            rays[:, 3:] = dirs
+            t_hit, gid, nrm = mirror.cast_raw(rays)
+            return sonar_first_echo(  # type: ignore[no-any-return]
+                t_hit,
+                gid,
+                nrm,
+                mirror.invalid_id,
+                dirs,
+                float(self.model.max_range_m),
+                self.cos_incidence,
+                self.bearing_deg,
+                self.elevation_deg,
+                self._table_m,
+                self._table_left,
+                self._table_right,
+            )
+        origins = np.concatenate([np.broadcast_to(t[:3, 3], (n, 3)) for t in poses])
         hits = mirror.cast(origins, dirs, max_range=self.model.max_range_m)
         r = hits.distance.reshape(len(poses), n)
         # |cos| of the incidence angle: triangles may be wound either way

@@ -8,12 +8,13 @@ Configurations, all measured in the same run:
 
 * ``1 core``: the process is pinned to one CPU (``os.sched_setaffinity``), Embree casts on 1 thread
   and capture and mapping run inline on the simulation thread.
-* ``2 cores``: pinned to two CPUs; Embree casts on 2 threads, each Kinect frame is captured on a
-  background thread while the simulation thread steps the physics and reads the sonars, and the VHV
-  mapping runs on a third thread (Embree, the numba kernels and numpy release the GIL). The result is
-  bit for bit the serial run's (a test checks it).
+* ``2 cores``: pinned to two CPUs; Embree casts on 2 threads, Kinect frames are captured on two
+  background threads (up to two frames in flight) while the simulation thread steps the physics and
+  reads the sonars, and the VHV mapping runs on another thread (Embree, the numba kernels and numpy
+  release the GIL). The result is bit for bit the serial run's (a test checks it).
 * ``2 cores, pybullet camera``: as ``2 cores`` but the depth image comes from PyBullet's CPU renderer
-  (``ER_TINY_RENDERER``) instead of ray casting: the baseline the issue measured at RTF ~0.4.
+  (``ER_TINY_RENDERER``) instead of ray casting, one frame in flight (PyBullet is not thread-safe):
+  the baseline the issue measured at RTF ~0.4.
 
 Real-time factor = simulated time / wall time of the simulation loop (setup excluded). The median of
 ``--repeats`` runs is reported with the main-thread time per component. Targets: RTF >= 1.5 on two
