@@ -1,0 +1,188 @@
+"""Poses and rotations for the whole project: SE(2)/SE(3) on :class:`scipy.spatial.transform.Rotation`.
+
+Conventions (ROS REP-103 / REP-105):
+
+- axes x forward, y left, z up; angles in radians, counter-clockwise positive;
+- roll-pitch-yaw are *fixed-axis* (URDF): ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``;
+- quaternions are ordered ``(x, y, z, w)`` as in ``geometry_msgs/Quaternion`` (and PyBullet);
+- a transform ``T_a_b`` (4, 4) maps points from frame ``b`` into frame ``a``:
+  ``p_a = T_a_b @ p_b``; chains read left to right, ``T_map_sensor = T_map_base @ T_base_sensor``;
+- frame names: ``map``, ``odom``, ``base_link``, ``<sensor>_link`` and ``<sensor>_optical_frame`` (z forward,
+  x right, y down) for cameras.
+
+Every other module builds rotations and poses through these functions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+FloatArray = npt.NDArray[np.float64]
+
+MAP = "map"
+ODOM = "odom"
+BASE_LINK = "base_link"
+
+# Rotation of a camera's optical frame (z forward, x right, y down) in its body frame (x forward, z up).
+R_LINK_OPTICAL: FloatArray = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def link_frame(sensor: str) -> str:
+    """REP-105 name of a sensor's body frame, e.g. ``"kinect"`` -> ``"kinect_link"``."""
+    return f"{sensor}_link"
+
+
+def optical_frame(sensor: str) -> str:
+    """REP-105 name of a camera's optical frame (z forward), e.g. ``"kinect_optical_frame"``."""
+    return f"{sensor}_optical_frame"
+
+
+def wrap_angle(theta: float) -> float:
+    """Wrap an angle in rad to (-pi, pi]."""
+    w = math.remainder(float(theta), 2.0 * math.pi)
+    return math.pi if w == -math.pi else w
+
+
+def rotation_rpy(roll: float, pitch: float, yaw: float) -> FloatArray:
+    """Rotation matrix (3, 3) of fixed-axis roll, pitch, yaw in rad (URDF: ``Rz(yaw) Ry(pitch) Rx(roll)``)."""
+    return Rotation.from_euler("xyz", [roll, pitch, yaw]).as_matrix()
+
+
+def rpy_from_matrix(r: Any) -> tuple[float, float, float]:
+    """Fixed-axis (roll, pitch, yaw) in rad of a rotation matrix (3, 3); inverse of :func:`rotation_rpy`."""
+    roll, pitch, yaw = Rotation.from_matrix(np.asarray(r, dtype=float)).as_euler("xyz")
+    return float(roll), float(pitch), float(yaw)
+
+
+def rotation_axis_angle(axis: Sequence[float], angle: float) -> FloatArray:
+    """Rotation matrix (3, 3) of ``angle`` rad about ``axis`` (any non-zero length).
+
+    Raises:
+        ValueError: if ``axis`` has zero length.
+    """
+    a = np.asarray(axis, dtype=float)
+    n = float(np.linalg.norm(a))
+    if n == 0.0:
+        raise ValueError(f"rotation axis {tuple(a)} has zero length")
+    return Rotation.from_rotvec(a / n * float(angle)).as_matrix()
+
+
+def quat_from_matrix(r: Any) -> tuple[float, float, float, float]:
+    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (3, 3), with ``w >= 0``."""
+    q = Rotation.from_matrix(np.asarray(r, dtype=float)[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
+
+
+def matrix_from_quat(q: Sequence[float]) -> FloatArray:
+    """Rotation matrix (3, 3) of a quaternion ``(x, y, z, w)`` (normalised first).
+
+    Raises:
+        ValueError: if the quaternion has zero length.
+    """
+    qa = np.asarray(q, dtype=float)
+    if qa.shape != (4,) or float(np.dot(qa, qa)) < 1e-24:
+        raise ValueError(f"quaternion {tuple(qa.ravel())} is not a non-zero (x, y, z, w)")
+    return Rotation.from_quat(qa).as_matrix()
+
+
+def quat_from_yaw(yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(x, y, z, w)`` of a rotation by ``yaw`` rad about z (a planar heading)."""
+    half = 0.5 * float(yaw)
+    return 0.0, 0.0, math.sin(half), math.cos(half)
+
+
+def yaw_from_matrix(r: Any) -> float:
+    """Heading in rad (about z) of a rotation or transform matrix; the z-y-x Euler yaw."""
+    m = np.asarray(r, dtype=float)
+    return math.atan2(m[1, 0], m[0, 0])
+
+
+def se3(rotation: Any = None, translation: Sequence[float] = (0.0, 0.0, 0.0)) -> FloatArray:
+    """Homogeneous transform (4, 4) from a rotation ((3, 3) or :class:`Rotation`) and a translation, m."""
+    t = np.eye(4)
+    if rotation is not None:
+        t[:3, :3] = (
+            rotation.as_matrix() if isinstance(rotation, Rotation) else np.asarray(rotation, dtype=float)
+        )
+    t[:3, 3] = np.asarray(translation, dtype=float)
+    return t
+
+
+def se3_rpy(xyz: Sequence[float], rpy: Sequence[float]) -> FloatArray:
+    """Homogeneous transform (4, 4) of a URDF origin: translation ``xyz`` (m) and fixed-axis ``rpy`` (rad)."""
+    return se3(rotation_rpy(*rpy), xyz)
+
+
+def se3_from_quat(translation: Sequence[float], quat_xyzw: Sequence[float]) -> FloatArray:
+    """Homogeneous transform (4, 4) of a position (m) and quaternion ``(x, y, z, w)``."""
+    return se3(matrix_from_quat(quat_xyzw), translation)
+
+
+def se3_planar(x: float, y: float, yaw: float, z: float = 0.0) -> FloatArray:
+    """Homogeneous transform (4, 4) of a planar pose: position (x, y, z) in m and heading ``yaw`` in rad."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    t = np.eye(4)
+    t[0, 0], t[0, 1], t[1, 0], t[1, 1] = c, -s, s, c
+    t[0, 3], t[1, 3], t[2, 3] = x, y, z
+    return t
+
+
+def se2(x: float, y: float, yaw: float) -> FloatArray:
+    """Homogeneous 2D transform (3, 3) of a planar pose (m, m, rad)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def se2_to_pose(t: Any) -> tuple[float, float, float]:
+    """(x, y, yaw) of a 2D (3, 3) or 3D (4, 4) transform; yaw wrapped to (-pi, pi]."""
+    m = np.asarray(t, dtype=float)
+    n = m.shape[0] - 1
+    return float(m[0, n]), float(m[1, n]), wrap_angle(math.atan2(m[1, 0], m[0, 0]))
+
+
+def invert(t: Any) -> FloatArray:
+    """Inverse of a rigid transform (2D (3, 3) or 3D (4, 4)) without a general matrix inverse."""
+    m = np.asarray(t, dtype=float)
+    n = m.shape[0] - 1
+    out = np.eye(n + 1)
+    r = m[:n, :n]
+    out[:n, :n] = r.T
+    out[:n, n] = -r.T @ m[:n, n]
+    return out
+
+
+def transform_points(t: Any, points: Any) -> FloatArray:
+    """Apply a rigid transform to points.
+
+    Args:
+        t: (4, 4) transform for 3D points, or (3, 3) for 2D points.
+        points: (..., 3) or (..., 2) array; NaN rows stay NaN.
+
+    Returns:
+        Array of the same shape as ``points``, float64.
+    """
+    m = np.asarray(t, dtype=float)
+    p = np.asarray(points, dtype=float)
+    n = m.shape[0] - 1
+    if p.shape[-1] != n:
+        raise ValueError(f"points of shape {p.shape} do not match a {m.shape} transform")
+    return p @ m[:n, :n].T + m[:n, n]
+
+
+def transform_pose2d(t_a_b: Any, x: float, y: float, yaw: float) -> tuple[float, float, float]:
+    """Express a planar pose given in frame ``b`` in frame ``a`` (``T_a_b`` (3, 3) or (4, 4))."""
+    m = np.asarray(t_a_b, dtype=float)
+    m2 = (
+        m
+        if m.shape == (3, 3)
+        else np.array([[m[0, 0], m[0, 1], m[0, 3]], [m[1, 0], m[1, 1], m[1, 3]], [0, 0, 1]])
+    )
+    return se2_to_pose(m2 @ se2(x, y, yaw))

@@ -1,0 +1,87 @@
+"""Tests of the one frames module against hand-computed rotations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from robchair import frames
+
+angles = st.floats(-math.pi, math.pi, allow_nan=False)
+
+
+def test_yaw_of_a_quarter_turn_maps_x_onto_y() -> None:
+    r = frames.rotation_rpy(0.0, 0.0, math.pi / 2)
+    np.testing.assert_allclose(r @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+
+
+def test_positive_pitch_tilts_the_x_axis_down() -> None:
+    r = frames.rotation_rpy(0.0, 0.3, 0.0)
+    x = r @ [1.0, 0.0, 0.0]
+    assert x[2] == pytest.approx(-math.sin(0.3))
+
+
+def test_rpy_is_fixed_axis_roll_then_pitch_then_yaw() -> None:
+    roll, pitch, yaw = 0.2, -0.4, 1.1
+    cx, sx, cy, sy, cz, sz = (
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    np.testing.assert_allclose(frames.rotation_rpy(roll, pitch, yaw), rz @ ry @ rx, atol=1e-14)
+
+
+@given(angles, st.floats(-1.5, 1.5), angles)
+def test_rpy_round_trips_away_from_gimbal_lock(roll: float, pitch: float, yaw: float) -> None:
+    got = frames.rpy_from_matrix(frames.rotation_rpy(roll, pitch, yaw))
+    np.testing.assert_allclose(frames.rotation_rpy(*got), frames.rotation_rpy(roll, pitch, yaw), atol=1e-12)
+
+
+def test_quaternion_is_ordered_x_y_z_w() -> None:
+    q = frames.quat_from_yaw(math.pi / 2)
+    assert q == pytest.approx((0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)))
+    assert frames.quat_from_matrix(frames.rotation_rpy(0, 0, math.pi / 2)) == pytest.approx(q)
+    np.testing.assert_allclose(frames.matrix_from_quat(q), frames.rotation_rpy(0, 0, math.pi / 2), atol=1e-15)
+
+
+def test_zero_quaternion_is_refused() -> None:
+    with pytest.raises(ValueError, match="quaternion"):
+        frames.matrix_from_quat((0, 0, 0, 0))
+
+
+def test_planar_transform_moves_a_point_like_a_pose() -> None:
+    t = frames.se3_planar(1.0, 2.0, math.pi / 2)
+    np.testing.assert_allclose(frames.transform_points(t, [[1.0, 0.0, 0.5]]), [[1.0, 3.0, 0.5]], atol=1e-15)
+    np.testing.assert_allclose(
+        frames.transform_points(frames.se2(1.0, 2.0, math.pi / 2), [[1.0, 0.0]]), [[1.0, 3.0]], atol=1e-15
+    )
+
+
+@given(angles, angles, angles, st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5))
+def test_inverse_undoes_a_transform(
+    roll: float, pitch: float, yaw: float, x: float, y: float, z: float
+) -> None:
+    t = frames.se3_rpy((x, y, z), (roll, pitch, yaw))
+    np.testing.assert_allclose(frames.invert(t) @ t, np.eye(4), atol=1e-12)
+
+
+def test_se2_to_pose_wraps_the_heading() -> None:
+    assert frames.se2_to_pose(frames.se2(0.0, 0.0, 3 * math.pi / 2))[2] == pytest.approx(-math.pi / 2)
+
+
+def test_optical_frame_looks_along_the_link_x_axis() -> None:
+    # the optical z axis (forward) is the link's x axis; optical x (right) is the link's -y
+    np.testing.assert_allclose(frames.R_LINK_OPTICAL @ [0, 0, 1], [1, 0, 0])
+    np.testing.assert_allclose(frames.R_LINK_OPTICAL @ [1, 0, 0], [0, -1, 0])
+    assert frames.optical_frame("kinect") == "kinect_optical_frame"
+    assert frames.link_frame("laser") == "laser_link"
