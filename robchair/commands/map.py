@@ -59,7 +59,13 @@ def register(subparsers: Any) -> None:
         help="point-cloud topic of bag inputs, PointCloud2 or PointCloud (default: the only one)",
     )
     p.add_argument(
-        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); replaced on success"
+        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); written on success"
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
     )
     p.add_argument(
         "--size",
@@ -270,21 +276,28 @@ def _row(label: str, points: int, structures: int, voxels: int, ms: float, width
 
 
 def _run(args: argparse.Namespace) -> int:
-    import json
-    import sys
-
-    from mapping.export import DEFAULT_BAND, write_map_outputs
     from mapping.io import open_clouds
-    from robchair.outdir import staged_output_dir
+    from robchair.outdir import check_output_dir, deferred_stdout
 
     _check_args(args)
-    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     # Open every input first: a bad path, extension or topic fails before any work is done.
     sources: list[Any] = (
         [_SampleSource()]
         if (args.sample or not args.inputs)
         else [open_clouds(p, topic=args.topic) for p in args.inputs]
     )
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    with deferred_stdout():
+        return _map_all(args, sources, out_dir)
+
+
+def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
+    import json
+    import sys
+
+    from mapping.export import DEFAULT_BAND, write_map_outputs
+
+    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     names = _unique_names([s.path for s in sources])
     progress = sys.stderr.isatty()
     width = max(12, *(len(str(s.path)) + (len(s.topic) + 3 if s.topic else 0) for s in sources))
@@ -293,7 +306,7 @@ def _run(args: argparse.Namespace) -> int:
         f"{'standard voxels':>15}  {'build ms':>9}"
     )
     results = []
-    with staged_output_dir(args.out) as stage:
+    with out_dir.stage() as stage:
         for source, name in zip(sources, names):
             r = _map_one(source, args, progress)
             m = r["map"]
