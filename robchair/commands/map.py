@@ -175,26 +175,24 @@ class _Extent:
         for o in self.origins:  # the sensor belongs inside the grid too: free space is traced from it
             lo = [min(lo[k], o[k]) for k in range(2)]
             hi = [max(hi[k], o[k]) for k in range(2)]
-        sizes, centre, capped = [], [], False
+        margins = [2 * cell + 0.05 * (hi[k] - lo[k]) for k in range(2)]
+        capped = False
         for k in range(2):
-            margin = 2 * cell + 0.05 * (hi[k] - lo[k])
-            want = hi[k] - lo[k] + 2 * margin
-            if want > MAX_GRID_SIDE_M:
+            if hi[k] - lo[k] + 2 * margins[k] > MAX_GRID_SIDE_M:
                 capped = True
-                want = MAX_GRID_SIDE_M
                 # Far outliers should not drag a bounded grid away from the bulk of the points.
                 med = np.array([(m[k], m[2]) for m in self.medians])
                 order = np.argsort(med[:, 0])
                 cum = np.cumsum(med[order, 1])
-                centre.append(float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0]))
-            else:
-                centre.append((lo[k] + hi[k]) / 2)
-            # +1 cell: snapping the centre to the lattice may shift the grid by up to one cell.
-            sizes.append((math.ceil(want / cell) + 1) * cell)
+                mid = float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0])
+                # the covering grid spans at most one cell more than its box
+                half = (MAX_GRID_SIDE_M - cell) / 2
+                lo[k], hi[k], margins[k] = mid - half, mid + half, 0.0
         how = "data extent + margin" + (
             f" (capped at {MAX_GRID_SIDE_M:g} m per side, centred on the median)" if capped else ""
         )
-        return GridSpec(cell, sizes[0], sizes[1], (centre[0], centre[1]), args.axis), how
+        grid = GridSpec.covering((lo[0], lo[1]), (hi[0], hi[1]), cell, (margins[0], margins[1]), args.axis)
+        return grid, how
 
 
 def _unique_names(paths: list[Path]) -> list[str]:
