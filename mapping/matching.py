@@ -115,7 +115,7 @@ class MatchResult:
 def occupied_cell_centroids(
     points: ArrayLike, cell_size: float, band: tuple[float, float]
 ) -> NDArray[np.float64]:
-    """Mean ``(x, y)`` ``(K, 2)`` of the finite points in ``band`` of each occupied cell of pitch ``cell_size``.
+    """Mean ``(x, y)`` ``(K, 2)`` of the points in ``band`` of each occupied cell of pitch ``cell_size``.
 
     Centroids, not cell centres: a frame reduced to cell centres would match the map's lattice best at
     the lattice's own offsets and pull every correction towards them.
