@@ -221,15 +221,17 @@ class ScanMatcher:
         # the correction rotates about the map origin: express it as a planar transform
         dx, dy, dyaw = reg.dx, reg.dy, reg.dyaw
         fit, rmse = reg.fitness, reg.rmse
-        common = {"dx": dx, "dy": dy, "dyaw": dyaw, "fitness": fit, "rmse": rmse,
-                  "n_source": len(src), "n_target": len(tgt)}  # fmt: skip
+
+        def result(accepted: bool, reason: str) -> MatchResult:
+            return MatchResult(accepted, reason, dx, dy, dyaw, fit, rmse, len(src), len(tgt))
+
         if fit < p.min_fitness:
-            return MatchResult(False, "low fitness", **common)
+            return result(False, "low fitness")
         if rmse > p.max_rmse:
-            return MatchResult(False, "high rmse", **common)
+            return result(False, "high rmse")
         if math.hypot(dx, dy) > p.max_translation or abs(dyaw) > p.max_rotation:
-            return MatchResult(False, "correction too large", **common)
-        return MatchResult(True, "", **common)
+            return result(False, "correction too large")
+        return result(True, "")
 
 
 @dataclass(frozen=True)
