@@ -53,6 +53,7 @@ class MatchParams:
         max_translation: Largest accepted correction per frame.
         max_rotation: Largest accepted heading correction per frame.
         map_radius: Map cells within this distance of the frame's cells are the target.
+        max_source: Most frame cells registered (an even subset beyond it), which bounds the cost.
     """
 
     band: tuple[float, float] = (0.15, 1.8)
@@ -65,6 +66,7 @@ class MatchParams:
     max_translation: float = 0.2
     max_rotation: float = math.radians(4.0)
     map_radius: float = 0.5
+    max_source: int = 800
 
     def __post_init__(self) -> None:
         lo, hi = self.band
@@ -79,6 +81,7 @@ class MatchParams:
             "max_translation": self.max_translation > 0,
             "max_rotation": self.max_rotation > 0,
             "map_radius": self.map_radius >= 0,
+            "max_source": self.max_source >= self.min_cells,
         }
         for name, ok in checks.items():
             if not ok:
@@ -126,21 +129,28 @@ def occupied_cell_centroids(
         band: ``(z_min, z_max)``, m.
     """
     pts = as_points(points)
+    return _centroids(pts[_in_band(pts, band), :2].astype(np.float64), cell_size)
+
+
+def _in_band(pts: NDArray[np.floating], band: tuple[float, float]) -> NDArray[np.bool_]:
     z = pts[:, 2]
     with np.errstate(invalid="ignore"):
-        keep = np.isfinite(pts).all(axis=1) & (z >= band[0]) & (z <= band[1])
-    if not keep.any():
+        return (z >= band[0]) & (z <= band[1]) & np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1])
+
+
+def _centroids(xy: NDArray[np.float64], cell_size: float) -> NDArray[np.float64]:
+    if xy.shape[0] == 0:
         return np.empty((0, 2))
-    xy = pts[keep, :2].astype(np.float64)
     ij = np.floor(xy * (1.0 / cell_size)).astype(np.int64)
     i0, j0 = ij.min(axis=0)
     span = int(ij[:, 1].max() - j0 + 1)
-    _, inv, counts = np.unique(
-        (ij[:, 0] - i0) * span + (ij[:, 1] - j0), return_inverse=True, return_counts=True
-    )
-    sx = np.bincount(inv, weights=xy[:, 0]) / counts
-    sy = np.bincount(inv, weights=xy[:, 1]) / counts
-    return np.column_stack([sx, sy])
+    key = (ij[:, 0] - i0) * span + (ij[:, 1] - j0)
+    n = int(key.max()) + 1
+    counts = np.bincount(key, minlength=n)
+    hit = counts > 0
+    sx = np.bincount(key, weights=xy[:, 0], minlength=n)[hit]
+    sy = np.bincount(key, weights=xy[:, 1], minlength=n)[hit]
+    return np.column_stack([sx, sy]) / counts[hit, None]
 
 
 def map_cell_centres(vhv: VHVMap, band: tuple[float, float]) -> NDArray[np.float64]:
@@ -203,9 +213,11 @@ class ScanMatcher:
     def _match(self, points_odom: ArrayLike, vhv: VHVMap) -> MatchResult:
         p = self.params
         cs = vhv.spec.cell_size
-        pts = as_points(points_odom).astype(np.float64)
-        pts = pts @ self.t_map_odom[:3, :3].T + self.t_map_odom[:3, 3]
-        src = occupied_cell_centroids(pts, cs, p.band)
+        pts = as_points(points_odom)
+        # the map -> odom transform is planar: the height band can be cut before it is applied
+        xy = pts[_in_band(pts, p.band), :2].astype(np.float64)
+        xy = xy @ self.t_map_odom[:2, :2].T + self.t_map_odom[:2, 3]
+        src = _centroids(xy, cs)
         if len(src) < p.min_cells:
             return MatchResult(False, "too few frame cells", n_source=len(src))
         sd = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(src.T)), 0.0, None))
@@ -217,6 +229,8 @@ class ScanMatcher:
             tgt = tgt[np.all((tgt >= lo) & (tgt <= hi), axis=1)]
         if len(tgt) < p.min_cells:
             return MatchResult(False, "too few map cells", n_source=len(src), n_target=len(tgt))
+        if len(src) > p.max_source:  # an even subset of the cells (they come sorted along x, then y)
+            src = src[:: math.ceil(len(src) / p.max_source)]
         reg = _point_to_line_icp(src, tgt, p)
         # the correction rotates about the map origin: express it as a planar transform
         dx, dy, dyaw = reg.dx, reg.dy, reg.dyaw
@@ -264,8 +278,11 @@ def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: Ma
     inl = np.zeros(len(src), bool)
     res = np.zeros(len(src))
     # coarse to fine: wide correspondences first to capture the offset, then narrow ones to refine it
+    half = p.max_iterations // 2
+    fine = False
     for it in range(p.max_iterations):
-        reach = p.max_correspondence * (1.0 if it < p.max_iterations // 2 else 0.4)
+        fine = fine or it >= half
+        reach = p.max_correspondence * (0.4 if fine else 1.0)
         c, s_ = math.cos(x[2]), math.sin(x[2])
         moved = src @ np.array([[c, s_], [-s_, c]]) + x[:2]
         dist, idx = tree.query(moved, distance_upper_bound=reach)
@@ -283,8 +300,10 @@ def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: Ma
         info = jac.T @ (jac * w[:, None])
         step = np.linalg.lstsq(info, -(jac.T @ (w * res)), rcond=None)[0]
         x += step
-        if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6 and it >= p.max_iterations // 2:
-            break
+        if np.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-5:
+            if fine:
+                break
+            fine = True
     rmse = float(np.sqrt(np.mean(res**2))) if inl.any() else math.nan
     min_info = float(np.linalg.eigvalsh(info)[0] / max(len(src), 1)) if inl.any() else 0.0
     return _Icp(float(x[0]), float(x[1]), float(x[2]), float(inl.mean()), rmse, min_info)
