@@ -31,6 +31,7 @@ BENCHES = (
     "robchair.commands.bench_table52",
     "robchair.commands.bench_env",
     "robchair.commands.bench_sweep",
+    "robchair.commands.bench_zoom",
 )
 
 
