@@ -29,6 +29,7 @@ BENCHES = (
     "robchair.commands.bench_sim",
     "robchair.commands.bench_table52",
     "robchair.commands.bench_env",
+    "robchair.commands.bench_laser",
 )
 
 
