@@ -222,7 +222,19 @@ class HokuyoURG(Device):
             raw = self._next_streamed_scan()
         else:
             cmd = self.command
-            raw = self._transact(cmd.text(), accept=("00",), parse=lambda r: codec.parse_scan_reply(r, cmd))
+            try:
+                raw = self._transact(
+                    cmd.text(), accept=("00",), parse=lambda r: codec.parse_scan_reply(r, cmd)
+                )
+            except codec.StatusError as exc:
+                if exc.status != "10":
+                    raise
+                # the laser went off (a reset, another program's QT): switch it on and ask again once
+                log.warning("Hokuyo: laser was off; switching it on again")
+                self._transact("BM", accept=("00", "02"))
+                raw = self._transact(
+                    cmd.text(), accept=("00",), parse=lambda r: codec.parse_scan_reply(r, cmd)
+                )
         self.last_timestamp_ms = raw.timestamp_ms
         stamp = self._now_ns() - round(self.params.scan_time * 1e9)
         return codec.to_laser_scan(raw, self.params, stamp, self.frame_id)

@@ -189,3 +189,47 @@ def test_closed_driver_refuses_to_read(emu):
     laser = HokuyoURG(emu.device_path)
     with pytest.raises(DeviceClosedError):
         laser.read()
+
+
+def test_stuck_stream_is_restarted_then_reported_as_a_timeout(emu):
+    with HokuyoURG(emu.device_path, timeout_s=0.2, retries=1) as laser:
+        laser.read()
+        emu.inject(stuck=True)
+        with pytest.raises(DeviceTimeoutError, match="no valid answer to 'BM'"):
+            laser.read()
+
+
+def test_laser_switched_off_behind_the_drivers_back_is_switched_on_again(emu):
+    with HokuyoURG(emu.device_path, mode="GD") as laser:
+        laser.read()
+        fd = os.open(emu.device_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd, b"QT\n")
+        finally:
+            os.close(fd)
+        import time
+
+        time.sleep(0.05)
+        assert not emu.laser_on
+        _check_wall(laser.read())
+        assert emu.laser_on
+
+
+def test_emulator_scene_may_be_a_function_of_the_beam_angles():
+    with HokuyoEmulator(lambda a: 1.0 + 0.1 * np.abs(a), scip2=True) as emu:
+        with HokuyoURG(emu.device_path, mode="GD") as laser:
+            scan = laser.read()
+    np.testing.assert_allclose(scan.ranges, 1.0 + 0.1 * np.abs(scan.angles()), atol=0.0006)
+
+
+def test_emulator_in_scip11_mode_answers_only_the_switch():
+    with HokuyoEmulator(WALL) as emu:
+        fd = os.open(emu.device_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            os.write(fd, b"VV\n")
+            import time
+
+            time.sleep(0.1)
+            assert os.read(fd, 100) == b"VV\nE\n\n"
+        finally:
+            os.close(fd)
