@@ -297,6 +297,9 @@ class HokuyoURG(Device):
                     continue
                 try:
                     reply = codec.parse_reply(block)
+                    if reply.status == codec.STATUS_SCAN and codec.STATUS_SCAN not in accept:
+                        self.n_foreign_blocks += 1  # a scan of an earlier identical stream
+                        continue
                     codec.check_status(text, reply.status, accept)
                     return parse(reply) if parse is not None else reply.status
                 except (codec.StatusError, codec.HardwareTroubleError):
@@ -373,7 +376,6 @@ class HokuyoURG(Device):
 
     def _restart_stream(self) -> None:
         assert self._port is not None and self._reader is not None and self.command is not None
-        self._io(self._port.write, b"QT\n")
-        self._io(self._reader.discard, quiet_s=0.02, max_s=self.timeout_s)
+        self._transact("QT", accept=("00",))  # scans still in flight come before its echo
         self._transact("BM", accept=("00", "02"))
         self._start_stream()

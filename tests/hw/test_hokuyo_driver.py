@@ -195,7 +195,7 @@ def test_stuck_stream_is_restarted_then_reported_as_a_timeout(emu):
     with HokuyoURG(emu.device_path, timeout_s=0.2, retries=1) as laser:
         laser.read()
         emu.inject(stuck=True)
-        with pytest.raises(DeviceTimeoutError, match="no valid answer to 'BM'"):
+        with pytest.raises(DeviceTimeoutError, match="no valid answer to 'QT'"):
             laser.read()
 
 
