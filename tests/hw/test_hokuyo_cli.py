@@ -58,3 +58,15 @@ def test_hw_emulate_hokuyo_prints_a_pty_path_the_driver_can_use() -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_hw_check_reads_the_roboteq_and_the_laser_together(capsys) -> None:
+    from hw.clock import ManualClock
+    from hw.roboteq.emulator import RoboteqEmulator
+
+    with RoboteqEmulator(clock=ManualClock()) as motors, HokuyoEmulator() as laser:
+        rc = main(["hw", "check", "--port", motors.device_path, "--laser", laser.device_path])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "roboteq: firmware" in out and "roboteq: fault flags none" in out
+    assert "laser: PROD SOKUIKI Sensor URG-04LX" in out and "laser: scan 682 beams" in out
