@@ -157,3 +157,30 @@ def test_bad_configuration_is_refused(client):
         LaserSim(client, caster="optix")
     with pytest.raises(LaserSimError, match="accuracy_sigmas"):
         LaserSim(client, accuracy_sigmas=0.0)
+
+
+@pytest.mark.slow
+def test_laser_on_the_chair_reads_a_wall_from_its_mount_and_never_sees_the_chair():
+    from sim.backend import SimChair
+
+    chair = SimChair(sensor=None, sonars=False, noise=False)
+    try:
+        c = chair.world.client
+        box(c, [0.05, 5, 1], [3.05, 0, 1.0])  # wall face at x = 3 m in front of base_link
+        laser = LaserSim(
+            c,
+            noise=False,
+            exclude_bodies=(chair.robot.body,),
+            pose=lambda: chair.robot.link_transform("laser_link"),
+        )
+        with laser:
+            scan = laser.read()
+        mount_x = load_spec().laser_mount.xyz[0]
+        assert scan.ranges[341] == pytest.approx(3.0 - mount_x, abs=0.002)
+        np.testing.assert_allclose(
+            chair.robot.link_transform("laser_link"), mounted_pose(np.eye(4)), atol=0.01
+        )
+        behind = np.abs(scan.angles()) > math.radians(100)  # beams sweeping back past the chair's sides
+        assert np.isposinf(scan.ranges[behind]).all()
+    finally:
+        chair.close()
