@@ -136,7 +136,8 @@ def verify_line(line: bytes, *, exclude_semicolon: bool = False) -> bytes:
 
     Args:
         line: ``payload + checksum``.
-        exclude_semicolon: VV/PP/II lines: the payload ends in ``;``, which the sum leaves out.
+        exclude_semicolon: VV/PP/II lines: the payload ends in ``;``, which the specification's sum
+            leaves out; a sum that includes it is accepted too, as some firmware sends it.
 
     Raises:
         ChecksumError: the line is empty or the checksum does not match.
@@ -145,6 +146,8 @@ def verify_line(line: bytes, *, exclude_semicolon: bool = False) -> bytes:
         raise ChecksumError(f"line {line!r} is too short to carry a checksum")
     payload, got = line[:-1], line[-1]
     summed = payload[:-1] if exclude_semicolon and payload.endswith(b";") else payload
+    if exclude_semicolon and checksum(payload) == got:
+        return payload  # some firmware sums the ';' as well (Hokuyo's urg_library accepts both)
     if checksum(summed) != got:
         raise ChecksumError(
             f"checksum mismatch on line {line!r}: expected {chr(checksum(summed))!r}, got {chr(got)!r}"

@@ -67,6 +67,13 @@ def test_info_line_with_a_wrong_checksum_is_a_checksum_error():
         codec.parse_info([b"DMIN:20;5"])
 
 
+def test_info_line_whose_sum_includes_the_semicolon_is_accepted():
+    # "DMIN:20;" sums to 511 = 0x1FF; & 0x3F = 0x3F; + 0x30 = 0x6F = "o"
+    line = b"DMIN:20;" + bytes([(sum(b"DMIN:20;") & 0x3F) + 0x30])
+    assert line == b"DMIN:20;o"
+    assert codec.parse_info([line]) == {"DMIN": "20"}
+
+
 def test_two_and_three_character_encodings_of_the_specification_examples():
     # specification: "CB" -> 0x13, 0x12 -> 010011 010010 -> 1234; "1Dh" -> 1, 20, 56 -> 5432
     assert codec.decode(b"CB") == 1234
