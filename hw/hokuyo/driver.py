@@ -45,7 +45,7 @@ from hw.errors import (
     HardwareError,
     ProtocolError,
 )
-from hw.hokuyo import codec
+from hw.hokuyo import codec, measurement
 from hw.hokuyo.transport import BlockReader, SerialLike, open_serial_port
 from hw.interfaces import Device, LaserScan
 
@@ -117,7 +117,7 @@ class HokuyoURG(Device):
         self.version: dict[str, str] = {}
         self.state: dict[str, str] = {}
         self.params: codec.SensorParams | None = None
-        self.command: codec.MeasureCommand | None = None
+        self.command: measurement.MeasureCommand | None = None
         self.last_timestamp_ms: int | None = None
         self._streaming = False
         # diagnostics
@@ -168,14 +168,14 @@ class HokuyoURG(Device):
             self.close()
             raise
 
-    def _measure_command(self, p: codec.SensorParams) -> codec.MeasureCommand:
+    def _measure_command(self, p: codec.SensorParams) -> measurement.MeasureCommand:
         start = p.amin if self._start_step is None else self._start_step
         end = p.amax if self._end_step is None else self._end_step
         if not p.amin <= start <= end <= p.amax:
             raise CommandError(
                 f"scan window {start}..{end} lies outside the sensor's steps {p.amin}..{p.amax} (PP)"
             )
-        return codec.measure_command(
+        return measurement.measure_command(
             stream=self.mode == "MD", n_chars=self.encoding, start=start, end=end, cluster=self.cluster
         )
 
@@ -224,7 +224,7 @@ class HokuyoURG(Device):
             cmd = self.command
             try:
                 raw = self._transact(
-                    cmd.text(), accept=("00",), parse=lambda r: codec.parse_scan_reply(r, cmd)
+                    cmd.text(), accept=("00",), parse=lambda r: measurement.parse_scan_reply(r, cmd)
                 )
             except codec.StatusError as exc:
                 if exc.status != "10":
@@ -233,11 +233,11 @@ class HokuyoURG(Device):
                 log.warning("Hokuyo: laser was off; switching it on again")
                 self._transact("BM", accept=("00", "02"))
                 raw = self._transact(
-                    cmd.text(), accept=("00",), parse=lambda r: codec.parse_scan_reply(r, cmd)
+                    cmd.text(), accept=("00",), parse=lambda r: measurement.parse_scan_reply(r, cmd)
                 )
         self.last_timestamp_ms = raw.timestamp_ms
         stamp = self._now_ns() - round(self.params.scan_time * 1e9)
-        return codec.to_laser_scan(raw, self.params, stamp, self.frame_id)
+        return measurement.to_laser_scan(raw, self.params, stamp, self.frame_id)
 
     def reset(self) -> None:
         """``RS``: the sensor stops measuring, switches the laser off and restores its defaults; the
@@ -321,13 +321,13 @@ class HokuyoURG(Device):
         same = sum(a == b for a, b in zip(line, want))
         return same >= len(want) // 2
 
-    def _next_streamed_scan(self) -> codec.RawScan:
+    def _next_streamed_scan(self) -> measurement.RawScan:
         """The newest complete scan of the ``MD``/``MS`` stream (waiting for one if none is buffered)."""
         assert self._reader is not None and self.command is not None
         cmd = self.command
         problems: list[str] = []
         deadline = time.monotonic() + self.timeout_s
-        latest: codec.RawScan | None = None
+        latest: measurement.RawScan | None = None
         while True:
             block = self._io(self._reader.read_block, deadline if latest is None else 0.0)
             if block is None:
@@ -356,7 +356,7 @@ class HokuyoURG(Device):
                 continue
             codec.check_status(reply.echo, reply.status, (codec.STATUS_SCAN,))
             try:
-                scan = codec.parse_scan_reply(reply, cmd)
+                scan = measurement.parse_scan_reply(reply, cmd)
             except ProtocolError as exc:
                 self.n_bad_blocks += 1
                 self.n_retries += 1

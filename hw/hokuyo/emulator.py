@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.errors import HardwareError, ProtocolError
-from hw.hokuyo import codec
+from hw.hokuyo import codec, measurement
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ class _Faults:
 
 @dataclass
 class _Stream:
-    command: codec.MeasureCommand
+    command: measurement.MeasureCommand
     remaining: int  # scans still to send; -1 = until QT
     next_rev: int  # revolution index of the next scan to send
     every: int
@@ -129,7 +129,7 @@ class _Stream:
 
 @dataclass
 class _Pending:
-    command: codec.MeasureCommand
+    command: measurement.MeasureCommand
     rev: int
 
 
@@ -186,7 +186,7 @@ class HokuyoEmulator:
 
     # --- ranges ---------------------------------------------------------------------------------
 
-    def values_for(self, command: codec.MeasureCommand) -> npt.NDArray[np.int64]:
+    def values_for(self, command: measurement.MeasureCommand) -> npt.NDArray[np.int64]:
         """The raw values (mm or error codes) the sensor would send for ``command`` now."""
         p = self.params
         cluster = max(command.cluster, 1)
@@ -304,7 +304,7 @@ class HokuyoEmulator:
         return int((t - self._t0) / self.params.scan_time)
 
     def _timestamp_ms(self) -> int:
-        return int((time.monotonic() - self._t0) * 1000.0) % codec.TIMESTAMP_MODULO_MS
+        return int((time.monotonic() - self._t0) * 1000.0) % measurement.TIMESTAMP_MODULO_MS
 
     # --- serving --------------------------------------------------------------------------------
 
@@ -392,9 +392,9 @@ class HokuyoEmulator:
             data_from=2,
         )
 
-    def _send_scan(self, command: codec.MeasureCommand, status: str) -> None:
+    def _send_scan(self, command: measurement.MeasureCommand, status: str) -> None:
         values = self.values_for(command)
-        lines = codec.scan_reply_lines(command, status, self._timestamp_ms(), values)
+        lines = measurement.scan_reply_lines(command, status, self._timestamp_ms(), values)
         self.scans_sent += 1
         self._send_block(lines, data_from=3)
 
@@ -459,14 +459,14 @@ class HokuyoEmulator:
 
     def _measure(self, line: str) -> None:
         try:
-            cmd = codec.parse_measure_command(line)
+            cmd = measurement.parse_measure_command(line)
         except ProtocolError as exc:
             field_status = {"start": "01", "end": "02", "cluster": "03", "interval": "06", "scans": "07"}
             status = next((v for k, v in field_status.items() if f"field {k} " in str(exc)), "0C")
             self._status_block(line, status)
             return
         p = self.params
-        if len(cmd.tag) > codec.MAX_TAG_CHARS:
+        if len(cmd.tag) > measurement.MAX_TAG_CHARS:
             self._status_block(line, "0G")
             return
         if cmd.end < cmd.start:

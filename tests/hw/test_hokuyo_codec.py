@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hw.errors import DeviceFaultError, ProtocolError
-from hw.hokuyo import codec
+from hw.hokuyo import codec, measurement
 from hw.hokuyo.codec import URG_04LX
 
 
@@ -98,32 +98,34 @@ def test_values_beyond_the_encoding_are_refused():
 
 
 def test_measure_commands_are_formatted_as_in_the_specification():
-    md = codec.measure_command(stream=True, start=44, end=725)
+    md = measurement.measure_command(stream=True, start=44, end=725)
     assert md.text() == "MD0044072501000"
     assert md.n_values == 682
-    ms = codec.measure_command(stream=True, n_chars=2, start=44, end=725, cluster=3, interval=1, scans=5)
+    ms = measurement.measure_command(
+        stream=True, n_chars=2, start=44, end=725, cluster=3, interval=1, scans=5
+    )
     assert ms.text() == "MS0044072503105"
     assert ms.n_values == 228  # 682 / 3 rounded up
-    gd = codec.measure_command(stream=False, start=0, end=768, tag="abc")
+    gd = measurement.measure_command(stream=False, start=0, end=768, tag="abc")
     assert gd.text() == "GD0000076801;abc"
-    assert codec.parse_measure_command("MS0044072503105") == ms
-    assert codec.parse_measure_command("GD0000076801;abc") == gd
+    assert measurement.parse_measure_command("MS0044072503105") == ms
+    assert measurement.parse_measure_command("GD0000076801;abc") == gd
 
 
 def test_non_numeric_measure_fields_are_named():
     with pytest.raises(ProtocolError, match="field cluster"):
-        codec.parse_measure_command("GD004407250x")
+        measurement.parse_measure_command("GD004407250x")
     with pytest.raises(ProtocolError, match="not an MD/MS/GD/GS"):
-        codec.parse_measure_command("GD00440725")
+        measurement.parse_measure_command("GD00440725")
 
 
 def test_scan_data_line_by_hand():
     # 1000 mm = 15 * 64 + 40 -> "0?X"; 20 -> "00D"; error code 5 -> "005"
     # checksum: 48+63+88+48+48+68+48+48+53 = 512; 512 & 63 = 0 -> "0"
     line = b"0?X00D0050"
-    values = codec.parse_scan_data([line], 3, 3)
+    values = measurement.parse_scan_data([line], 3, 3)
     assert values.tolist() == [1000, 20, 5]
-    ranges = codec.ranges_from_mm(values, URG_04LX)
+    ranges = measurement.ranges_from_mm(values, URG_04LX)
     assert ranges.dtype == np.float32
     assert ranges[0] == pytest.approx(1.0)
     assert ranges[1] == pytest.approx(0.02)
@@ -132,24 +134,24 @@ def test_scan_data_line_by_hand():
 
 def test_a_value_split_across_two_data_lines_is_joined():
     values = list(range(1000, 1022))  # 22 values x 3 characters = 66: the 22nd starts on line 1, ends on 2
-    lines = codec.split_data_lines(codec.encode_array(values, 3))
+    lines = measurement.split_data_lines(codec.encode_array(values, 3))
     assert [len(l) for l in lines] == [65, 3]  # 64 characters + checksum, then 2 + checksum
-    assert codec.parse_scan_data(lines, 3, 22).tolist() == values
+    assert measurement.parse_scan_data(lines, 3, 22).tolist() == values
 
 
 def test_every_data_line_checksum_is_verified():
-    lines = codec.split_data_lines(codec.encode_array(range(100, 150), 3))
+    lines = measurement.split_data_lines(codec.encode_array(range(100, 150), 3))
     bad = bytearray(lines[1])
     bad[3] += 1  # a data character changed, checksum kept
     with pytest.raises(codec.ChecksumError, match="checksum mismatch"):
-        codec.parse_scan_data([lines[0], bytes(bad), *lines[2:]], 3, 50)
+        measurement.parse_scan_data([lines[0], bytes(bad), *lines[2:]], 3, 50)
     with pytest.raises(ProtocolError, match="expected 49"):
-        codec.parse_scan_data(lines, 3, 49)
+        measurement.parse_scan_data(lines, 3, 49)
 
 
 def test_error_codes_below_dmin_follow_rep117():
     raw = [0, 1, 6, 16, 7, 18, 19, 20, 5600, 5601]
-    r = codec.ranges_from_mm(raw, URG_04LX)
+    r = measurement.ranges_from_mm(raw, URG_04LX)
     assert np.isposinf(r[:4]).all()  # far / too dark: no return
     assert np.isnan(r[4:7]).all()  # the sensor flagged the beam as invalid
     assert r[7] == pytest.approx(0.02) and r[8] == pytest.approx(5.6)
@@ -164,12 +166,12 @@ def test_steps_map_to_rep103_angles():
 
 
 def test_scan_reply_becomes_a_laser_scan_with_cluster_centred_angles():
-    cmd = codec.measure_command(stream=False, start=383, end=386, cluster=2)
-    lines = codec.scan_reply_lines(cmd, "00", 1234, [1500, 7])
+    cmd = measurement.measure_command(stream=False, start=383, end=386, cluster=2)
+    lines = measurement.scan_reply_lines(cmd, "00", 1234, [1500, 7])
     reply = codec.parse_reply(lines)
-    raw = codec.parse_scan_reply(reply, cmd)
+    raw = measurement.parse_scan_reply(reply, cmd)
     assert raw.timestamp_ms == 1234
-    scan = codec.to_laser_scan(raw, URG_04LX, stamp_ns=5)
+    scan = measurement.to_laser_scan(raw, URG_04LX, stamp_ns=5)
     inc = 2 * math.pi / 1024
     assert scan.angle_min == pytest.approx(-0.5 * inc)  # middle of steps 383 and 384
     assert scan.angle_increment == pytest.approx(2 * inc)
@@ -179,17 +181,17 @@ def test_scan_reply_becomes_a_laser_scan_with_cluster_centred_angles():
 
 
 def test_scan_reply_to_another_command_is_refused():
-    cmd = codec.measure_command(stream=False, start=44, end=50)
-    other = codec.measure_command(stream=False, start=44, end=51)
-    reply = codec.parse_reply(codec.scan_reply_lines(other, "00", 0, range(100, 108)))
+    cmd = measurement.measure_command(stream=False, start=44, end=50)
+    other = measurement.measure_command(stream=False, start=44, end=51)
+    reply = codec.parse_reply(measurement.scan_reply_lines(other, "00", 0, range(100, 108)))
     with pytest.raises(ProtocolError, match="does not answer"):
-        codec.parse_scan_reply(reply, cmd)
+        measurement.parse_scan_reply(reply, cmd)
 
 
 def test_md_data_echo_may_differ_only_in_the_remaining_count():
-    cmd = codec.measure_command(stream=True, start=44, end=50, scans=3)
-    reply = codec.parse_reply(codec.scan_reply_lines(cmd.with_remaining(1), "99", 0, range(100, 107)))
-    assert codec.parse_scan_reply(reply, cmd).command.scans == 1
+    cmd = measurement.measure_command(stream=True, start=44, end=50, scans=3)
+    reply = codec.parse_reply(measurement.scan_reply_lines(cmd.with_remaining(1), "99", 0, range(100, 107)))
+    assert measurement.parse_scan_reply(reply, cmd).command.scans == 1
 
 
 def test_statuses_raise_the_right_errors():
