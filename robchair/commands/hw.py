@@ -8,7 +8,8 @@
 
 ``hw check`` only reads: it probes ``?FID`` and queries; it writes no configuration, and the only
 runtime commands it sends are the zero speeds of the driver's close(). Point it at the emulator's
-path to see what a real controller would report.
+path to see what a real controller would report. ``--laser`` asks the Hokuyo for ``VV``/``PP``/``II``,
+switches its laser on for one ``GD`` scan and off again (``QT``); it changes no setting.
 """
 
 from __future__ import annotations
