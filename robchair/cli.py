@@ -32,6 +32,7 @@ BENCHES = (
     "robchair.commands.bench_env",
     "robchair.commands.bench_sweep",
     "robchair.commands.bench_zoom",
+    "robchair.commands.bench_laser",
 )
 
 

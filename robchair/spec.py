@@ -28,6 +28,7 @@ from robchair.paths import ASSETS
 DEFAULT_SPEC_PATH = ASSETS / "robchair.toml"
 QUADRATURE_FACTOR = 4  # a quadrature decoder counts both edges of both channels
 ENCODER_LOCATIONS = ("motor", "wheel")
+LASER_FRAME = "laser_link"  # REP-105 frame of the Hokuyo laser and the key of its mount
 
 
 @dataclass(frozen=True)
@@ -189,6 +190,20 @@ class RobChairSpec:
     def total_mass(self) -> float:
         """Body + two driven wheels + casters, kg."""
         return self.body.mass + 2 * self.drive.wheel_mass + sum(c.mass for c in self.casters)
+
+    @property
+    def laser_mount(self) -> Mount:
+        """The Hokuyo laser's mount, ``mounts.laser_link`` (base_link <- laser_link).
+
+        Raises:
+            ConfigError: the spec has no ``laser_link`` mount.
+        """
+        try:
+            return self.mounts[LASER_FRAME]
+        except KeyError:
+            raise ConfigError(
+                f"mounts.{LASER_FRAME}: missing (the laser needs a table with parent, xyz, rpy)"
+            ) from None
 
     def step_for_channel(self, channel: int) -> StepResponse:
         """The measured step response of Roboteq ``channel`` (1 or 2)."""
