@@ -12,6 +12,7 @@ zstd frame magic are refused with what to do (open the bag folder with its ``met
 
 from __future__ import annotations
 
+import os
 import struct
 import sys
 from collections.abc import Iterator
@@ -42,13 +43,49 @@ def _typestore(ros2: bool) -> Any:
     return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
 
 
+class _BoundedReads:
+    """A binary file whose ``read(n)`` never asks for more than the bytes left.
+
+    Bag readers read a record by the length the record declares; on a corrupt file that length can
+    be anything up to 2**64, and a plain ``read(n)`` reserves ``n`` bytes before it finds the end of
+    the file. Capping ``n`` at what is left changes no result and keeps memory bounded by the file.
+    """
+
+    def __init__(self, raw: Any) -> None:
+        self._raw = raw
+        self._size = os.fstat(raw.fileno()).st_size
+
+    def read(self, n: int | None = -1) -> bytes:
+        if n is None or n < 0:
+            return bytes(self._raw.read())
+        return bytes(self._raw.read(min(n, max(self._size - self._raw.tell(), 0))))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._raw, name)
+
+    def __enter__(self) -> _BoundedReads:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._raw.close()
+
+
+class _BoundedPath(type(Path())):  # type: ignore[misc]
+    """A path whose binary opens for reading are :class:`_BoundedReads` (paths derived from it too)."""
+
+    def open(self, mode: str = "r", *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+        f = super().open(mode, *args, **kwargs)
+        return _BoundedReads(f) if mode == "rb" else f
+
+
 def _open_reader(path: Path) -> tuple[Any, bool]:
     from rosbags.rosbag1 import Reader as Reader1
     from rosbags.rosbag2 import Reader as Reader2
 
     ros2 = is_ros2_bag(path)
     try:
-        reader = Reader2(path) if ros2 else Reader1(path)
+        bounded = _BoundedPath(path)
+        reader = Reader2(bounded) if ros2 else Reader1(bounded)
         reader.open()
     except (FileNotFoundError, PermissionError, MemoryError):
         raise
