@@ -61,6 +61,7 @@ class PointCloud2Data:
 
 
 _UINT32_MAX = 2**32 - 1  # height, width, steps, offsets and counts are uint32 in sensor_msgs
+_MAX_POINT_STEP = 2**31 - 1  # the largest numpy record (a C int); real points are tens of bytes
 
 
 def as_bytes_array(data: Any) -> np.ndarray:
@@ -134,6 +135,10 @@ def structured(msg: Any) -> np.ndarray:
             raise PointCloudFormatError(f"{_describe(msg)}: {name} {value} is not a uint32")
     if point_step <= 0 and height * width > 0:
         raise PointCloudFormatError(f"{_describe(msg)}: point_step must be positive")
+    if point_step > _MAX_POINT_STEP:
+        raise PointCloudFormatError(
+            f"{_describe(msg)}: point_step {point_step} is not a plausible point size"
+        )
     dtype = structured_dtype(msg.fields, max(point_step, 1), bool(msg.is_bigendian))
     raw = as_bytes_array(msg.data)
     if height * width == 0:

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from mapping.errors import MappingError
 from mapping.io import read_bin, read_clouds, read_pcd_cloud, read_ply_mesh, write_pcd, write_ply
-from mapping.io.bags import to_ros_pointcloud2, write_bag
+from mapping.io.bags import decode_pointcloud1, to_ros_pointcloud2, write_bag
 from mapping.pointcloud2 import FLOAT32, FLOAT64, PointField, decode, encode
 
 QUICK = 50  # cases per file, message and bag test in the default run: 230 cases in all
@@ -246,10 +246,30 @@ def pointcloud2(draw: Any) -> Any:
     return dataclasses.replace(msg, **changes)
 
 
+def _pointcloud1_bytes(ros2: bool) -> bytes:
+    """A serialized ``sensor_msgs/PointCloud`` (the older message) of 5 points."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    t = ts.types
+    stamp = t["builtin_interfaces/msg/Time"](sec=3, nanosec=9)
+    extra = {} if ros2 else {"seq": 3}
+    header = t["std_msgs/msg/Header"](stamp=stamp, frame_id="cam", **extra)
+    pts = [t["geometry_msgs/msg/Point32"](x=float(a), y=float(b), z=float(c)) for a, b, c in _cloud(5)]
+    msg = t["sensor_msgs/msg/PointCloud"](header=header, points=pts, channels=[])
+    msgtype = "sensor_msgs/msg/PointCloud"
+    return bytes(ts.serialize_cdr(msg, msgtype) if ros2 else ts.serialize_ros1(msg, msgtype))
+
+
 def _pc2(data) -> None:
-    msg = data.draw(pointcloud2())
-    organized = data.draw(st.booleans())
-    result = _read_bounded(lambda: decode(msg, organized=organized), int(msg.data.size) + 1024)
+    if data.draw(st.integers(0, 3)) == 0:  # the older PointCloud message, read in place
+        ros2 = data.draw(st.booleans())
+        raw = data.draw(mutated(_pointcloud1_bytes(ros2)))
+        result = _read_bounded(lambda: decode_pointcloud1(raw, ros2=ros2)[0], len(raw) + 1024)
+    else:
+        msg = data.draw(pointcloud2())
+        organized = data.draw(st.booleans())
+        result = _read_bounded(lambda: decode(msg, organized=organized), int(msg.data.size) + 1024)
     if result is not None:
         _well_formed(result)
 
@@ -339,6 +359,8 @@ def test_pointcloud2_with_a_huge_row_step_reads_only_its_rows():
     np.testing.assert_array_equal(points, _cloud(4))
     with pytest.raises(MappingError, match="row_step 1000000000000 is not a uint32"):
         decode(dataclasses.replace(msg, row_step=10**12))
+    with pytest.raises(MappingError, match="point_step 2147483648 is not a plausible point size"):
+        decode(dataclasses.replace(msg, width=0, point_step=2**31, row_step=0))
 
 
 def test_mcap_record_declaring_a_huge_length_is_refused_within_the_files_size(tmp_path, seeds):
