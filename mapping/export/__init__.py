@@ -70,6 +70,7 @@ def write_map_outputs(
     band: tuple[float, float] = DEFAULT_BAND,
     sensor_origin: Any = None,
     frame_id: str = "map",
+    points_dropped_min_range: int = 0,
     stamp_ns: int = 0,
     build_ms: float | None = None,
     parameters: dict[str, Any] | None = None,
@@ -84,6 +85,8 @@ def write_map_outputs(
         band: Kept-axis interval (metres) that makes a cell occupied in the 2D map.
         sensor_origin: World xyz of the sensor; adds ray-traced free space to the 2D map.
         frame_id: Frame of the ROS messages.
+        points_dropped_min_range: Points dropped before insertion for being closer to the sensor
+            than the minimum range (counted in ``points_in`` like the map's own drops).
         stamp_ns: Stamp of the ROS messages.
         build_ms: Total insert time to report (the map does not time itself across frames).
         parameters: Extra entries for the summary's ``parameters``.
@@ -135,9 +138,12 @@ def write_map_outputs(
         stamp_ns=stamp_ns,
         storage=bag_storage,
     )
-    points_in = int(m.points_inserted + m.points_dropped_nonfinite + m.points_outside_grid)
+    points_in = int(
+        m.points_inserted + m.points_dropped_nonfinite + m.points_outside_grid + points_dropped_min_range
+    )
     summary: dict[str, Any] = {
         "points_in": points_in,
+        "points_dropped_min_range": int(points_dropped_min_range),
         "points_dropped_nonfinite": int(m.points_dropped_nonfinite),
         "points_outside_grid": int(m.points_outside_grid),
         "points_inserted": int(m.points_inserted),

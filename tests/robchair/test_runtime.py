@@ -161,6 +161,7 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
     assert 2 * math.atan2(last.orientation.z, last.orientation.w) == pytest.approx(res.poses[-1][3])
 
 
+@pytest.mark.slow  # the real-time loop's timing depends on the machine's load
 def test_emulated_backend_also_runs_in_real_time(spec) -> None:
     # the emulator steps its motors by the real elapsed time; the loop really sleeps
     backend = emulated(realtime=True, sonars=False)
