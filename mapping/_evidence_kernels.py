@@ -218,11 +218,12 @@ def _next_bit(bits, base, nw, b, zero):  # type: ignore[no-untyped-def]
 
 @numba.jit(**_JIT)
 def extract_free(  # type: ignore[no-untyped-def]
-    bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, erode, okey, olo, ohi
+    bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
 ):
-    """Free intervals of the frame from the bit table: runs of marked bins per cell, each shrunk by
-    ``erode`` bins at both ends (the near-surface rule), minus the frame's occupied intervals of the
-    cell (``okey``/``olo``/``ohi``, sorted by key then lo, disjoint).
+    """Free intervals of the frame from the bit table: runs of marked bins per cell (runs separated by
+    at most ``gap`` empty bins joined), each shrunk by ``erode`` bins at both ends (the near-surface
+    rule), minus the frame's occupied intervals of the cell (``okey``/``olo``/``ohi``, sorted by key
+    then lo, disjoint).
 
     Returns:
         (key, lo, hi) sorted by key then lo; disjoint per cell and disjoint from the occupied ones.
@@ -256,6 +257,11 @@ def extract_free(  # type: ignore[no-untyped-def]
                 if r0 >= nbins:
                     break
                 b = min(_next_bit(bits, base, nw, r0, True), nbins)
+                while b < nbins:  # join runs separated by at most ``gap`` empty bins
+                    nxt = _next_bit(bits, base, nw, b, False)
+                    if nxt >= nbins or nxt - b > gap:
+                        break
+                    b = min(_next_bit(bits, base, nw, nxt, True), nbins)
                 r1 = b  # run = bins [r0, r1)
                 lo = b0 + (r0 + erode) * m
                 hi = b0 + (r1 - erode) * m

@@ -16,9 +16,10 @@ Per frame (:meth:`ProbabilisticVHV.insert`)
    cell gets one free interval, the heights the fan spans in that cell. Computed per structure, never
    per point (a 2.07M-point frame has a few thousand structures).
 3. **Merging**: free intervals are united per cell on a bit table of height bins, so they never
-   overlap each other; each united run is then shrunk by ``surface_margin`` at both ends (the
-   near-surface rule, below) and the frame's own occupied slabs are cut out of it, so free evidence
-   never overlaps the frame's occupied evidence.
+   overlap each other; runs closer than ``gap_fill`` (2 cm: sampling holes between neighbouring
+   fans) are joined; each run is then shrunk by ``surface_margin`` at both ends (the near-surface
+   rule, below) and the frame's own occupied slabs are cut out of it, so free evidence never overlaps
+   the frame's occupied evidence.
 4. **Update**: per touched cell, the stored intervals and the frame's evidence are swept together;
    each elementary piece gets ``clamp(L + l_hit)`` under an occupied slab, ``clamp(L + l_miss)`` under
    a free interval, and keeps ``L`` elsewhere (``L = 0``, p = 0.5, where nothing was known). Intervals
@@ -99,6 +100,10 @@ class EvidenceParams:
             half the cell size.
         surface_margin: how much each per-cell run of free space is shrunk at both ends (near-surface
             rule), metres; None = one cell size.
+        gap_fill: free runs of one cell separated by at most this much are joined before the shrink,
+            metres. Neighbouring fans leave holes of a centimetre or two where the cloud's sampling
+            left a cell without points; a surface is thicker than that, and a surface the frame hits is
+            cut out of the free space anyway.
         max_table_bytes: memory for the per-frame (cell, height bin) bit table; beyond it the free bins
             grow coarser (whole multiples of ``height_resolution``).
 
@@ -115,6 +120,7 @@ class EvidenceParams:
     height_resolution: float = 0.01
     surface_half_thickness: float | None = None
     surface_margin: float | None = None
+    gap_fill: float = 0.02
     max_table_bytes: int = 64 << 20
 
     def __post_init__(self) -> None:
@@ -142,7 +148,7 @@ class EvidenceParams:
         r = self.height_resolution
         if not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
             raise MappingError(f"EvidenceParams.height_resolution={r!r}: expected metres > 0")
-        for name in ("surface_half_thickness", "surface_margin"):
+        for name in ("surface_half_thickness", "surface_margin", "gap_fill"):
             v = getattr(self, name)
             if v is not None and not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise MappingError(f"EvidenceParams.{name}={v!r}: expected metres >= 0 or None")
@@ -268,6 +274,7 @@ class ProbabilisticVHV:
         self._r = float(p.height_resolution)
         self._half = float(cs / 2.0 if p.surface_half_thickness is None else p.surface_half_thickness)
         self._margin = float(cs if p.surface_margin is None else p.surface_margin)
+        self._gap = float(p.gap_fill)
         lo = p.log_odds
         self._l_hit = np.float32(lo["hit"])
         self._l_miss = np.float32(lo["miss"])
@@ -338,8 +345,20 @@ class ProbabilisticVHV:
                 truncated = np.empty((n_trunc, 3), np.float64)
                 E.split_beyond(pts, *origin, mr, kept, truncated)
                 pts = kept
-        stats = self._insert(pts, truncated, origin, method)
-        n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - n_trunc
+        return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
+
+    def _counted(
+        self,
+        pts: NDArray[np.floating],
+        n_in: int,
+        free_only: NDArray[np.float64] | None,
+        origin: tuple[float, float, float] | None,
+        method: str,
+        t0: float,
+        n_free_only: int,
+    ) -> EvidenceStats:
+        stats = self._insert(pts, free_only, origin, method)
+        n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - (n_free_only if n_in else 0)
         self.frames += 1
         self.points_inserted += n_ins
         self.points_dropped_nonfinite += stats["n_nonfinite"]
@@ -359,7 +378,7 @@ class ProbabilisticVHV:
             fan_passages=stats["fan_passages"],
             cells_updated=stats["cells_updated"],
             intervals=self._n_intervals,
-            truncated_points=n_trunc,
+            truncated_points=n_free_only,
         )
 
     def insert_frame(
@@ -387,22 +406,7 @@ class ProbabilisticVHV:
             raise MappingError("insert_free sensor_origin=None: free space needs the sensor position")
         tg = as_points(targets, "targets").astype(np.float64)
         tg = tg[np.isfinite(tg).all(axis=1)]
-        empty = np.empty((0, 3), np.float64)
-        stats = self._insert(empty, tg, origin, "auto")
-        self.frames += 1
-        self.sensor_origins.append(origin)
-        return EvidenceStats(
-            points_in=0,
-            points_dropped_nonfinite=0,
-            points_outside_grid=0,
-            points_inserted=0,
-            build_ms=(time.perf_counter() - t0) * 1e3,
-            free_intervals=stats["free_intervals"],
-            fan_passages=stats["fan_passages"],
-            cells_updated=stats["cells_updated"],
-            intervals=self._n_intervals,
-            truncated_points=int(tg.shape[0]),
-        )
+        return self._counted(np.empty((0, 3), np.float64), 0, tg, origin, "auto", t0, int(tg.shape[0]))
 
     def insert_sonar(
         self,
@@ -414,9 +418,11 @@ class ProbabilisticVHV:
         """Evidence of one fused sonar-array reading (thesis 5.2, 5.4; :mod:`mapping.sonar`).
 
         With an echo the zone's cone (Fig. 5.7 points at the fused range, :func:`mapping.sonar.cone_points`)
-        is occupied and the space from the array to it is free, through the same core as a depth
-        frame. With no echo within range (every sonar silent or over 1 m) the array's whole coverage
-        (hull of the three beams) is free up to ``max_range_m``.
+        is occupied and the zone's solid beam from the array up to that range is free (fans to a
+        sampling of the beam's cross-section at the range: the printed Fig. 5.7 rings leave the
+        beam's axis unsampled), through the same core as a depth frame. With no echo within range
+        (every sonar silent or over 1 m) the array's whole coverage (hull of the three beams, each
+        beam's own width as vertical aperture) is free up to ``max_range_m``.
 
         Args:
             fusion: a :class:`mapping.sonar.FusionResult`.
@@ -428,8 +434,9 @@ class ProbabilisticVHV:
         Raises:
             MappingError: malformed pose or range.
         """
-        from mapping.sonar import OUTER_SONAR_DEG, cone_points, sonar_intervals_deg
+        from mapping.sonar import OUTER_SONAR_DEG, cone_points, half_apertures_deg, sonar_intervals_deg
 
+        t0 = time.perf_counter()
         t = np.asarray(t_world_array, dtype=np.float64)
         if t.shape != (4, 4) or not bool(np.all(np.isfinite(t))):
             raise MappingError(
@@ -437,14 +444,20 @@ class ProbabilisticVHV:
             )
         if not (math.isfinite(max_range_m) and max_range_m > 0):
             raise MappingError(f"insert_sonar max_range_m={max_range_m!r}: expected metres > 0")
-        origin = t[:3, 3]
+        origin = (float(t[0, 3]), float(t[1, 3]), float(t[2, 3]))
+        rot, pos = t[:3, :3], t[:3, 3]
         if fusion.has_obstacle and fusion.theta_deg > 0.0:
-            pts = cone_points(fusion.distance_m, fusion.theta_deg, fusion.alpha_deg, ppc)
-            return self.insert(pts @ t[:3, :3].T + origin, sensor_origin=origin)
-        iv = sonar_intervals_deg(max_range_m * 100.0, OUTER_SONAR_DEG)
+            d = float(fusion.distance_m)
+            pts = cone_points(d, fusion.theta_deg, fusion.alpha_deg, ppc) @ rot.T + pos
+            beam = _solid_beam(d, fusion.alpha_deg, fusion.theta_deg, fusion.theta_deg / 2.0) @ rot.T + pos
+            return self._counted(pts, int(pts.shape[0]), beam, origin, "auto", t0, 0)
+        d_cm = min(max_range_m * 100.0, 100.0)  # the detection model's domain
+        iv = sonar_intervals_deg(d_cm, OUTER_SONAR_DEG)
         lo, hi = float(iv[:, 0].min()), float(iv[:, 1].max())
-        pts = cone_points(max_range_m, hi - lo, lo, ppc)
-        return self.insert_free(pts @ t[:3, :3].T + origin, origin)
+        left, right = half_apertures_deg(d_cm)
+        half_elev = float(np.asarray(left + right)) / 2.0
+        beam = _solid_beam(max_range_m, lo, hi - lo, half_elev) @ rot.T + pos
+        return self._counted(np.empty((0, 3), np.float64), 0, beam, origin, "auto", t0, int(beam.shape[0]))
 
     # ------------------------------------------------------------------ core
     def _check_origin(self, sensor_origin: ArrayLike | None) -> tuple[float, float, float] | None:
@@ -600,7 +613,10 @@ class ProbabilisticVHV:
             key, bot, top, ny, cs, ou, ov, su, sv, sh, i0, j0, ni, nj, nw, inv_r, b0, m, nbins, bits
         )
         erode = math.ceil(self._margin / (m * r) - 1e-9)
-        fkey, flo, fhi = E.extract_free(bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, erode, okey, olo, ohi)
+        gap = math.floor(self._gap / (m * r) + 1e-9)
+        fkey, flo, fhi = E.extract_free(
+            bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
+        )
         return fkey, flo, fhi, int(passages)
 
     def _update(
@@ -817,6 +833,19 @@ class ProbabilisticVHV:
             f"ProbabilisticVHV(cells={self.spec.shape}, cell_size={self.spec.cell_size}, "
             f"tolerance={self.tolerance}, intervals={self._n_intervals}, frames={self.frames})"
         )
+
+
+def _solid_beam(
+    range_m: float, alpha_deg: float, theta_deg: float, half_elev_deg: float
+) -> NDArray[np.float64]:
+    """Points at ``range_m`` (array frame) filling bearings ``[alpha, alpha + theta]`` and elevations
+    ``[-half_elev, +half_elev]`` on a 1-degree lattice (both ends included)."""
+    nb = max(2, math.ceil(theta_deg) + 1)
+    ne = max(2, math.ceil(2.0 * half_elev_deg) + 1)
+    b = np.radians(np.linspace(alpha_deg, alpha_deg + theta_deg, nb))[:, None]
+    e = np.radians(np.linspace(-half_elev_deg, half_elev_deg, ne))[None, :]
+    xyz = np.stack([np.cos(e) * np.cos(b), np.cos(e) * np.sin(b), np.sin(e) * np.ones_like(b)], axis=-1)
+    return np.asarray(range_m * xyz.reshape(-1, 3), dtype=np.float64)
 
 
 def _check_band(band: tuple[float, float]) -> tuple[float, float]:
