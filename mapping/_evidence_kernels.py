@@ -69,6 +69,13 @@ def _set_bits(bits, base, b0, b1):  # type: ignore[no-untyped-def]
     """Set bins ``b0 .. b1`` (inclusive) of the bit row starting at word ``base``."""
     w0 = b0 >> 6
     w1 = b1 >> 6
+    if w0 == w1:
+        width = b1 - b0 + 1
+        if width == 64:
+            bits[base + w0] = _ALL
+        else:
+            bits[base + w0] |= ((np.uint64(1) << np.uint64(width)) - np.uint64(1)) << np.uint64(b0 & 63)
+        return
     for w in range(w0, w1 + 1):
         lo = b0 - (w << 6) if w == w0 else 0
         hi = b1 - (w << 6) if w == w1 else 63
@@ -102,16 +109,23 @@ def fan_bits(  # type: ignore[no-untyped-def]
     ics = 1.0 / cs
     li0 = np.int64(np.floor(su * ics))
     lj0 = np.int64(np.floor(sv * ics))
+    fb0 = np.float64(b0)
     passages = 0
-    for k in range(n):
-        ti = key[k] // ny + ou  # lattice cell of the target
-        tj = key[k] % ny + ov
+    g0 = 0
+    while g0 < n:
+        # structures of one cell are consecutive: walk the segment to that cell once for all of them
+        g1 = g0 + 1
+        while g1 < n and key[g1] == key[g0]:
+            g1 += 1
+        ti = key[g0] // ny + ou  # lattice cell of the target
+        tj = key[g0] % ny + ov
         cu = (ti + 0.5) * cs
         cv = (tj + 0.5) * cs
         du = cu - su
         dv = cv - sv
         ci = li0
         cj = lj0
+        # Large finite stand-ins for "never": a step times 0 must stay 0 (inf * 0 is NaN).
         if du > 0.0:
             stu = 1
             tmu = ((ci + 1) * cs - su) / du
@@ -122,8 +136,8 @@ def fan_bits(  # type: ignore[no-untyped-def]
             tdu = -cs / du
         else:
             stu = 0
-            tmu = np.inf
-            tdu = np.inf
+            tmu = 1e300
+            tdu = 0.0
         if dv > 0.0:
             stv = 1
             tmv = ((cj + 1) * cs - sv) / dv
@@ -134,40 +148,43 @@ def fan_bits(  # type: ignore[no-untyped-def]
             tdv = -cs / dv
         else:
             stv = 0
-            tmv = np.inf
-            tdv = np.inf
-        bl = bottom[k] - sh
-        tl = top[k] - sh
+            tmv = 1e300
+            tdv = 0.0
         s_in = 0.0
-        steps = abs(ti - ci) + abs(tj - cj) + 2
+        # A 4-connected walk reaches the target's cell in exactly this many steps; the cells before
+        # each step are the ones the fan passes through.
+        steps = abs(ti - ci) + abs(tj - cj)
         for _ in range(steps):
-            if ci == ti and cj == tj:
-                break
-            s_out = min(tmu, tmv, 1.0)
+            s_out = min(tmu, tmv)
             if s_out > s_in:
                 gi = ci - ou - i0
                 gj = cj - ov - j0
                 if gi >= 0 and gj >= 0 and gi < ni and gj < nj:
-                    lo = sh + min(s_in * bl, s_out * bl)
-                    hi = sh + max(s_in * tl, s_out * tl)
-                    bb0 = np.int64(np.floor(lo * inv_r)) - b0
-                    bb1 = np.int64(np.floor(hi * inv_r)) - b0
-                    if m != 1:  # an integer division costs more than the rest of a passage
-                        bb0 //= m
-                        bb1 //= m
-                    bb0 = min(max(bb0, 0), nbins - 1)
-                    bb1 = min(max(bb1, 0), nbins - 1)
-                    _set_bits(bits, (gi * nj + gj) * nw, bb0, bb1)
-                    passages += 1
-            if s_out >= 1.0:
-                break
+                    base = (gi * nj + gj) * nw
+                    for k in range(g0, g1):
+                        bl = bottom[k] - sh
+                        tl = top[k] - sh
+                        lo = sh + min(s_in * bl, s_out * bl)
+                        hi = sh + max(s_in * tl, s_out * tl)
+                        # heights of a fan lie within the table (>= b0): truncation is floor here
+                        # (a rounding step below 0 truncates to bin 0, where it belongs)
+                        bb0 = np.int64(lo * inv_r - fb0)
+                        bb1 = np.int64(hi * inv_r - fb0)
+                        if m != 1:  # an integer division costs more than the rest of a passage
+                            bb0 //= m
+                            bb1 //= m
+                        bb0 = min(max(bb0, 0), nbins - 1)
+                        bb1 = min(max(bb1, 0), nbins - 1)
+                        _set_bits(bits, base, bb0, bb1)
+                        passages += 1
             s_in = s_out
-            if tmu <= tmv:
-                ci += stu
-                tmu += tdu
-            else:
-                cj += stv
-                tmv += tdv
+            # branch-free step (which axis comes next is unpredictable)
+            fu = np.int64(tmu <= tmv)
+            ci += stu * fu
+            cj += stv * (1 - fu)
+            tmu += tdu * fu
+            tmv += tdv * (1 - fu)
+        g0 = g1
     return passages
 
 

@@ -42,20 +42,9 @@ def map_codes(m: Any, band: tuple[float, float], sensor_origin: Any = None) -> n
     space, unknown where no evidence came). For the accumulate-only :class:`mapping.vhv.VHVMap`: 100
     where a structure overlaps ``band``, 0 where the cell was seen and nothing in the band blocks it (it
     holds only structures outside the band, or free space from ``sensor_origin``), -1 elsewhere."""
-    from mapping.derived import free_space, occupancy_2d
+    from mapping.derived import occupancy_codes
 
-    if hasattr(m, "occupancy_2d"):
-        return np.asarray(m.occupancy_2d(band), dtype=np.int8)
-
-    occ = np.asarray(occupancy_2d(m, band[0], band[1]), dtype=bool)
-    codes = np.full(m.spec.shape, UNKNOWN, dtype=np.int8)
-    s = m.structures()
-    codes[s.i, s.j] = FREE
-    if sensor_origin is not None and m.n_structures:
-        fs = free_space(m, sensor_origin)
-        codes[np.asarray(fs.i, np.intp), np.asarray(fs.j, np.intp)] = FREE
-    codes[occ] = OCCUPIED
-    return codes
+    return occupancy_codes(m, band, UNKNOWN, sensor_origin)
 
 
 def voxel_boxes(m: Any) -> np.ndarray:
