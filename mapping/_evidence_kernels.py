@@ -173,8 +173,8 @@ def fan_bits(  # type: ignore[no-untyped-def]
                         if m != 1:  # an integer division costs more than the rest of a passage
                             bb0 //= m
                             bb1 //= m
-                        bb0 = min(max(bb0, 0), nbins - 1)
-                        bb1 = min(max(bb1, 0), nbins - 1)
+                        bb0 = min(max(bb0, np.int64(0)), nbins - 1)
+                        bb1 = min(max(bb1, np.int64(0)), nbins - 1)
                         _set_bits(bits, base, bb0, bb1)
                         passages += 1
             s_in = s_out
