@@ -35,20 +35,16 @@ OUTPUT_FILES = {
 
 
 def map_codes(m: Any, band: tuple[float, float], sensor_origin: Any = None) -> np.ndarray:
-    """Ternary 2D map (nx, ny) int8: 100 where a structure overlaps ``band``, 0 where the cell was seen
-    and nothing in the band blocks it (it holds only structures outside the band, or free space from
-    ``sensor_origin``), -1 elsewhere."""
-    from mapping.derived import free_space, occupancy_2d
+    """Ternary 2D map (nx, ny) int8 (-1 unknown, 0 free, 100 occupied) of the height ``band``.
 
-    occ = np.asarray(occupancy_2d(m, band[0], band[1]), dtype=bool)
-    codes = np.full(m.spec.shape, UNKNOWN, dtype=np.int8)
-    s = m.structures()
-    codes[s.i, s.j] = FREE
-    if sensor_origin is not None and m.n_structures:
-        fs = free_space(m, sensor_origin)
-        codes[np.asarray(fs.i, np.intp), np.asarray(fs.j, np.intp)] = FREE
-    codes[occ] = OCCUPIED
-    return codes
+    For a :class:`mapping.probabilistic.ProbabilisticVHV` this is its evidence
+    (:meth:`~mapping.probabilistic.ProbabilisticVHV.occupancy_2d`: occupied intervals, remembered free
+    space, unknown where no evidence came). For the accumulate-only :class:`mapping.vhv.VHVMap`: 100
+    where a structure overlaps ``band``, 0 where the cell was seen and nothing in the band blocks it (it
+    holds only structures outside the band, or free space from ``sensor_origin``), -1 elsewhere."""
+    from mapping.derived import occupancy_codes
+
+    return occupancy_codes(m, band, UNKNOWN, sensor_origin)
 
 
 def voxel_boxes(m: Any) -> np.ndarray:
@@ -154,6 +150,8 @@ def write_map_outputs(
         "voxels_exported": int(vboxes.shape[0]),
         "cells_occupied_2d": int(np.count_nonzero(codes == OCCUPIED)),
         "cells_free_2d": int(np.count_nonzero(codes == FREE)),
+        "cells_unknown_2d": int(np.count_nonzero(codes == UNKNOWN)),
+        "map_kind": "probabilistic" if hasattr(m, "occupancy_2d") else "thesis",
         "build_ms": None if build_ms is None else float(build_ms),
         "boxes_drawn_3d": drawn,
         "parameters": {
