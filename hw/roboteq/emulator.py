@@ -4,7 +4,8 @@ The emulator opens a pty (``os.openpty``, raw mode), and a background thread ans
 the master side as the controller does on its serial port (Roboteq user manual V1.8/V2.0): echo of
 each character as it arrives (when on; ``^ECHOF 1`` turns it off), CR or ``_`` ending a command,
 ``+``/``-`` acknowledgements, ``NAME=v1:v2`` answers with CR line ends, ``# C`` stopping telemetry.
-The real driver (:class:`hw.roboteq.driver.RoboteqMDC2230`) is pointed at :attr:`RoboteqEmulator.device_path` unchanged.
+The real driver (:class:`hw.roboteq.driver.RoboteqMDC2230`) is pointed at
+:attr:`RoboteqEmulator.device_path` unchanged.
 
 Each channel runs the identified second-order plant (:class:`robchair.control.DiscretePlant`, command
 RPM in, shaft RPM out) under the discrete PID (:class:`robchair.control.DiscretePID`) at the
