@@ -223,8 +223,9 @@ class ManualRoboteq:
             return "+"
         if kind == "?":
             values: dict[str, list[int] | str] = {
-                "FID": self.fid, "C": self.counts, "S": self.effective, "FF": [self.ff | (16 if self.estop else 0)],
-                "FS": [1], "FM": self.fm, "V": [241, 244, 4980], "A": [0, 0], "T": [30, 28, 28],
+                "FID": self.fid, "C": self.counts, "S": list(self.effective),
+                "FF": [self.ff | (16 if self.estop else 0)], "FS": [1], "FM": self.fm,
+                "V": [241, 244, 4980], "A": [0, 0], "T": [30, 28, 28],
             }  # fmt: skip
             v = values.get(name)
             if v is None:
@@ -312,7 +313,7 @@ def test_a_flag_bit_the_manual_does_not_name_stops_the_motors_first(fake, attr):
         fake.fm = [128, 0]
     else:
         fake.ff = 256
-    with pytest.raises(DeviceFaultError, match="f8|f9"):
+    with pytest.raises(DeviceFaultError, match=r"f8|f9"):
         drv.read_state()
     assert fake.effective == (0, 0)
     drv.close()
