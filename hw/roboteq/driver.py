@@ -186,6 +186,7 @@ class RoboteqMDC2230(Device):
         self._last: tuple[int, tuple[int, ...]] | None = None  # (stamp_ns, counts) of the last read
         self._last_bang_ns: int | None = None
         self._rx_bytes = 0
+        self._telemetry_seen = False
         self.firmware: codec.FirmwareId | None = None
         self.firmware_warning: str | None = None
         self.stop_reason: str | None = None
@@ -434,6 +435,18 @@ class RoboteqMDC2230(Device):
                     self._fail(DeviceFaultError(f"Roboteq {side} motor flags {flags.names()} (?FM)"))
         self._check_plausible(stamp, (counts[0], counts[1]))
         return MotorState(stamp, (counts[0], counts[1]), (float(speeds[0]), float(speeds[1])), faults)
+
+    def read_encoder_counts(self) -> tuple[int, int]:
+        """``?C`` (signed 32-bit, quadrature x4) without the plausibility check (for inspection)."""
+        self._check_open()
+        a, b = self._ints(codec.query("C"), 2)
+        return a, b
+
+    def read_speeds_rpm(self) -> tuple[float, float]:
+        """``?S``: measured motor speeds, RPM."""
+        self._check_open()
+        a, b = self._ints(codec.query("S"), 2)
+        return float(a), float(b)
 
     def read_faults_word(self) -> int:
         """The raw ``?FF`` word (0..65535), without acting on it."""
@@ -862,6 +875,8 @@ class RoboteqMDC2230(Device):
 
     def _discard(self, line: str, cmd: codec.Command) -> None:
         self.discarded_lines += 1
+        if "=" in line:
+            self._telemetry_seen = True
         log.debug("Roboteq: discarded %r (not the answer to %s)", line, cmd.text)
 
     def _read_some(self) -> bytes:
@@ -893,9 +908,11 @@ class RoboteqMDC2230(Device):
         if lines:
             self.discarded_lines += len(lines)
             log.debug("Roboteq: flushed %d stale line(s): %r", len(lines), lines[:5])
-            if self._identified and any("=" in ln for ln in lines):
-                # values nobody asked for: telemetry started by a script or another tool; stop it again
-                self._write_raw(b"# C" + codec.CR)
+            self._telemetry_seen = self._telemetry_seen or any("=" in ln for ln in lines)
+        if self._telemetry_seen and self._identified:
+            # values nobody asked for: telemetry started by a script or another tool; stop it again
+            self._telemetry_seen = False
+            self._write_raw(b"# C" + codec.CR)
 
     # --- fault path ---------------------------------------------------------------------------
 
