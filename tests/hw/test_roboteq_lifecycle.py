@@ -22,7 +22,6 @@ from hw.errors import (
     HardwareError,
 )
 from hw.interfaces import LifecycleState, MotorControllerLifecycle, MotorFaults, PIDConfig
-from hw.roboteq import codec
 from hw.roboteq.driver import RoboteqMDC2230
 from hw.roboteq.emulator import INJECT_KINDS, RoboteqEmulator, SyncedClock
 from hw.roboteq.settings import RoboteqProtections
@@ -260,54 +259,6 @@ def test_hw_emulate_refuses_an_unknown_fault_kind_in_one_line(capsys) -> None:
     assert main(["hw", "emulate", "roboteq", "--inject", "late-ack,meteor"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "meteor" in err
-
-
-def test_emulator_resumes_the_earlier_set_points_on_the_next_command_after_a_watchdog_trip(
-    emu, clock
-) -> None:
-    import serial
-
-    with serial.Serial(emu.device_path, timeout=0.5) as port:
-        port.write(b"!S 1 300\r!S 2 300\r")
-        _read_lines(port, 4)
-        clock.advance(1.5)
-        assert emu.setpoints_rpm == (0.0, 0.0) and emu.watchdog_trips == 1
-        port.write(b"!S 1 50\r")
-        _read_lines(port, 2)
-    assert emu.setpoints_rpm == (50.0, 300.0)  # channel 2 resumed its earlier speed (manual)
-
-
-def test_emulator_echoes_each_character_as_it_arrives_and_takes_underscore_as_a_line_end(emu) -> None:
-    import serial
-
-    with serial.Serial(emu.device_path, timeout=0.5) as port:
-        port.write(b"?FI")
-        assert port.read(3) == b"?FI"  # echoed before the command is complete
-        port.write(b"D\r")
-        lines = _read_lines(port, 2)
-        assert lines == ["D", f"FID={emu.firmware.text}"]
-        port.write(b"?FF_?FM 2_")
-        lines = _read_lines(port, 2)
-    # the echo is of the characters as typed; each '_' ended a command like a CR
-    assert lines == ["?FF_?FM 2_FF=0", "FM=0"]
-
-
-def test_emulator_accepts_gains_up_to_two_billion_on_firmware_2x(clock) -> None:
-    import serial
-
-    with RoboteqEmulator(clock=clock, firmware="Roboteq v2.0 MDC2230 01/01/2020", echo=False) as emu:
-        with serial.Serial(emu.device_path, timeout=0.5) as port:
-            port.write(b"^KP 1 2000000000\r^KP 1 2000000001\r")
-            assert _read_lines(port, 2) == ["+", "-"]
-
-
-def _read_lines(port, n: int) -> list[str]:
-    data = b""
-    while data.count(b"\r") < n:
-        chunk = port.read(64)
-        assert chunk, f"no answer after {data!r}"
-        data += chunk
-    return codec.split_lines(data)[0]
 
 
 def test_a_read_only_session_cannot_be_activated_or_released(emu, clock) -> None:
