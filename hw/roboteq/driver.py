@@ -835,7 +835,9 @@ class RoboteqMDC2230(Device):
                     if self._echo is None:  # a read-only session learns the echo state from its probe
                         self._echo = True
                     continue
-                if line.lstrip().startswith("#"):  # the echo of a "# C" telemetry stop
+                if line.lstrip()[:1] in ("#", *codec.KINDS):  # the echo of an earlier command
+                    self._discard(line, cmd)
+                    discarded.append(line)
                     continue
                 try:
                     reply = codec.parse_reply_line(line)

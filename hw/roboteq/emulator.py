@@ -13,8 +13,9 @@ controller rate, with the gains the driver wrote (``^KP/^KI/^KD`` in firmware un
 counted quadrature x4 into a signed 32-bit counter. The serial watchdog (``^RWD`` ms) stops both
 motors when no ``!`` command arrived within the period; as the manual says, the motors resume their
 earlier set points on the next valid command (so a host must command zero after a stall).
-``^MAC``/``^MDEC``, ``^ALIM`` and ``^CLERD`` are stored and read back (the ramps and the amps limit
-are not modelled). Gains are 0..255 on 1.x and 0..2,000,000,000 on 2.x, as in the manual.
+The set point reaches the PID through the ``^MAC``/``^MDEC`` ramps (0.1 RPM/s; power-on 1000 RPM/s);
+``^ALIM`` and ``^CLERD`` are stored and read back, not modelled. Gains are 0..255 on 1.x and
+0..2,000,000,000 on 2.x, as in the manual.
 
 Time: by default motor time follows ``time.monotonic_ns`` (the real elapsed time); pass any
 :class:`hw.interfaces.Clock` (e.g. :class:`hw.clock.ManualClock`) to step simulated time instead, so tests run
@@ -107,6 +108,7 @@ class _Channel:
     setpoint_rpm: float = 0.0
     command: float = 0.0  # PID output (command RPM into the plant)
     speed_rpm: float = 0.0
+    ramp_rpm: float = 0.0  # the set point after the ^MAC/^MDEC ramp
     ticks: float = 0.0  # unwrapped encoder position, ticks (float keeps the fraction)
     config: dict[str, int] = field(default_factory=dict)
 
@@ -190,9 +192,9 @@ class RoboteqEmulator:
         self.stops: list[StopEvent] = []
         self.watchdog_trips = 0
         self.disconnected = False
-        self._t_ns = self.clock.now_ns()
+        self._channels = [self._make_channel(i) for i in range(2)]  # slow the first time (PID design)
+        self._t_ns = self.clock.now_ns()  # motor time starts once the channels exist
         self._last_bang_ns = self._t_ns
-        self._channels = [self._make_channel(i) for i in range(2)]
         if isinstance(self.clock, SyncedClock):
             self.clock.followers.append(self)
 
@@ -245,6 +247,11 @@ class RoboteqEmulator:
                 self.stops.append(StopEvent(self._t_ns, "watchdog"))
             for ch in self._channels:
                 target = 0.0 if self._wd_tripped else ch.setpoint_rpm
+                if self.estop or self.faults.any:
+                    ch.ramp_rpm = 0.0  # the power stage is off: no ramp
+                else:
+                    ch.ramp_rpm = self._ramp(ch, target)
+                target = ch.ramp_rpm
                 if ch.config["MMOD"] == 1:
                     u = ch.pid.update(target, ch.speed_rpm)
                 else:  # open loop: the set point is the plant command
@@ -252,6 +259,17 @@ class RoboteqEmulator:
                 ch.command = float(u)
                 ch.speed_rpm = float(ch.plant.step(ch.command))
                 ch.ticks += ch.speed_rpm / 60.0 * self.dt * self._ticks_per_motor_rev(ch)
+
+    def _ramp(self, ch: _Channel, target: float) -> float:
+        """Move the ramped set point towards ``target`` at ``^MAC`` (speeding up) or ``^MDEC``
+        (slowing down), in 0.1 RPM/s; 0 bypasses the ramp (manual)."""
+        now = ch.ramp_rpm
+        speeding_up = abs(target) > abs(now) and (now == 0.0 or (target > 0) == (now > 0))
+        rate = ch.config["MAC" if speeding_up else "MDEC"] / 10.0
+        if rate <= 0:
+            return target
+        step = rate * self.dt
+        return now + max(-step, min(step, target - now))
 
     def _stop_all(self, reason: str) -> None:
         for ch in self._channels:

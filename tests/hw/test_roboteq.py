@@ -158,7 +158,8 @@ def test_commanded_speeds_produce_counts_that_odometry_turns_into_the_commanded_
 
 
 def test_straight_run_distance_matches_the_closed_loop_lag_of_the_quantised_pid(drv, emu, clock) -> None:
-    """x(t) of a speed step through the closed loop T(s) is v (t - T_lag), T_lag = -T'(0) for T(0) = 1."""
+    """x(t) of a ramped speed step through the closed loop T(s) is v (t - T_ramp - T_lag), with
+    T_lag = -T'(0) for T(0) = 1."""
     spec = load_spec()
     dd = DiffDrive(spec)
     v = 0.4
@@ -176,7 +177,9 @@ def test_straight_run_distance_matches_the_closed_loop_lag_of_the_quantised_pid(
         num, den = q.closed_loop_tf().num[0][0], q.closed_loop_tf().den[0][0]
         # T = N/D, T(0) = 1  ->  -T'(0) = (D'(0) - N'(0)) / D(0)
         lags.append((den[-2] - num[-2]) / den[-1])
-    expected = v * (duration - sum(lags) / 2)
+    # the controller's ^MAC ramp delays a step by rpm / (2 MAC) more (a ramp lags by half its length)
+    ramp_lag = rpm / (2.0 * drv.protections.accel_rpm_s)
+    expected = v * (duration - sum(lags) / 2 - ramp_lag)
     assert pose.x == pytest.approx(expected, abs=0.01)
     # the two motors differ (SPEC 5), so their wheels lag by different distances: the heading
     # ends at (d_right - d_left) / b = v (lag_left - lag_right) / b
