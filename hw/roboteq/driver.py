@@ -43,6 +43,26 @@ last set points and resumes them on the next valid command (manual): after any h
 than the watchdog the driver commands zero on both channels before the new speeds, and counts the
 trip (:attr:`RoboteqMDC2230.watchdog_trips`).
 
+Where this differs from the reference drivers, and why:
+
+* Clearpath ``roboteq_driver`` (ROS 1) downloads a MicroBasic script that streams feedback at
+  10/50 Hz and turns the echo off. Here nothing runs on the controller and every value is polled
+  and paired with its query: a stream cannot be told apart from a stale or foreign line, and a
+  script in the controller is a second program to keep in step with the host. The cost is four
+  transactions per cycle instead of one stream.
+* Echo: both Clearpath and Roboteq-Inc's driver send ``^ECHOF 1``. Here the echo is set on
+  (``^ECHOF 0``) by default, because over an ordered serial link the echo is what ties a ``+`` or
+  ``-`` to its command; ``echo=False`` gives their behaviour (pairing by flush and reply kind).
+* Husarion's Panther interface talks CANopen (PDOs, SDOs, heartbeat), so its replies are paired by
+  the bus; it escalates only after several consecutive read/write errors. Here any failure that
+  outlives ``retries`` immediate retries stops the chair: a seated person, no second E-stop loop.
+* Panther and ros2_control leave the error state through ``on_error``/re-configure; here only an
+  explicit operator release (``release()``, ``--release-stop``) leaves it, and the configuration
+  is read back before every activation (neither reference reads it back).
+* Neither reference checks encoder plausibility or restarts; a restart here is a fault (counters
+  reset, "default configuration loaded", or the plausibility bound).
+* Clearpath's ``!EX`` is fire-and-forget; here the latch is read back from ``?FF``.
+
 One thread talks to a driver (the runtime loop); it holds no lock of its own.
 """
 
@@ -524,11 +544,23 @@ class RoboteqMDC2230(Device):
         }
 
     def read_diagnostics(self) -> RoboteqDiagnostics:
-        """Counters plus ``?V``, ``?A``, ``?T``, ``?FF`` (four transactions: poll at about 1 Hz).
+        """Counters plus ``?V``, ``?A``, ``?T``, ``?FS``, ``?FF`` (five transactions: poll at about 1 Hz).
 
-        Does not act on the flags (read_state does). Raises like any query on a failed link.
+        ``?FF``/``?FM`` are acted on by :meth:`read_state` every cycle; ``?FS`` (the controller's
+        mode) only here, at the diagnostics rate: a status bit the manual does not name stops.
+
+        Raises:
+            DeviceFaultError: ``?FS`` has a bit the manual does not name (after stopping).
+            DeviceTimeoutError, ProtocolError, DeviceDisconnectedError: the link failed (after stopping).
         """
         self._check_open()
+        status = self.read_status()
+        if status.unknown_bits and self._state is not S.ERROR:
+            self._fail(
+                DeviceFaultError(
+                    f"Roboteq status flags {status.names()} (?FS): a bit the manual does not name"
+                )
+            )
         internal, battery, _ = self.read_voltages()
         amps = self.read_amps()
         temps = self.read_temperatures()
@@ -542,6 +574,7 @@ class RoboteqMDC2230(Device):
             watchdog_trips=self.watchdog_trips,
             stop_reason=self.stop_reason,
             faults=tuple(faults.names()),
+            status=tuple(status.names()),
             battery_v=battery,
             internal_v=internal,
             motor_amps=amps,

@@ -176,6 +176,7 @@ class RoboteqEmulator:
         self.estop = False
         self.faults = MotorFaults()
         self.motor_flags = [0, 0]
+        self.status_unknown_bits = 0  # ?FS bits above f9, as a newer firmware might set
         # fault injection counters
         self._drop = 0
         self._garble = 0
@@ -644,7 +645,10 @@ class RoboteqEmulator:
     def _cmd_query_FS(self) -> str:
         stall = any(w & 2 for w in self.motor_flags)
         flags = codec.StatusFlags(
-            serial_mode=True, power_stage_off=self.estop or self.faults.any, stall_detected=stall
+            serial_mode=True,
+            power_stage_off=self.estop or self.faults.any,
+            stall_detected=stall,
+            unknown_bits=self.status_unknown_bits,
         )
         return codec.format_value("FS", codec.encode_status_flags(flags))
 

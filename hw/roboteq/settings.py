@@ -104,6 +104,7 @@ class RoboteqDiagnostics:
         watchdog_trips: host stalls longer than the serial watchdog (the controller stopped the motors).
         stop_reason: why the motors were stopped, or None.
         faults: set fault-flag names (``?FF``).
+        status: set status-flag names (``?FS``).
         battery_v, internal_v: supply voltages, V (``?V``).
         motor_amps: motor currents (left, right), A (``?A``).
         temperatures_c: MCU and the two channel heatsinks, degrees C (``?T``).
@@ -117,6 +118,7 @@ class RoboteqDiagnostics:
     watchdog_trips: int
     stop_reason: str | None
     faults: tuple[str, ...] = ()
+    status: tuple[str, ...] = ()
     battery_v: float = math.nan
     internal_v: float = math.nan
     motor_amps: tuple[float, float] = (math.nan, math.nan)
@@ -132,6 +134,7 @@ class RoboteqDiagnostics:
             "watchdog_trips": str(self.watchdog_trips),
             "stop_reason": self.stop_reason or "",
             "faults": ",".join(self.faults),
+            "status": ",".join(self.status),
             "battery_v": f"{self.battery_v:.1f}",
             "internal_v": f"{self.internal_v:.1f}",
             "motor_amps_left": f"{self.motor_amps[0]:.1f}",

@@ -154,6 +154,18 @@ def test_diagnostics_report_counters_voltages_amps_and_temperatures(emu, clock) 
     drv.close()
 
 
+def test_an_unknown_status_bit_found_by_the_diagnostics_poll_stops_the_motors(emu, clock) -> None:
+    drv = make(emu, clock)
+    drv.open()
+    drv.set_speeds_rpm(100, 100)
+    assert drv.read_diagnostics().status == ("serial_mode",)
+    emu.status_unknown_bits = 1 << 10
+    with pytest.raises(DeviceFaultError, match="f11"):
+        drv.read_diagnostics()
+    assert emu.setpoints_rpm == (0.0, 0.0) and drv.state is S.ERROR
+    drv.close()
+
+
 def test_watchdog_can_be_set_by_the_runtime_and_zero_is_refused(emu, clock) -> None:
     drv = make(emu, clock)
     drv.open()
