@@ -68,7 +68,6 @@ One thread talks to a driver (the runtime loop); it holds no lock of its own.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
@@ -87,6 +86,7 @@ from hw.errors import (
 )
 from hw.interfaces import Device, LifecycleState, MotorFaults, MotorState, PIDConfig
 from hw.roboteq import codec
+from hw.roboteq.link import ReplyLink
 from hw.roboteq.settings import RoboteqDiagnostics, RoboteqProtections
 
 log = logging.getLogger(__name__)
@@ -190,13 +190,11 @@ class RoboteqMDC2230(Device):
         self.check_motor_flags = check_motor_flags
         self.protections = protections
         self._echo_wanted = echo
-        self._echo: bool | None = None  # the controller's echo state, once known
         ticks = 4.0 * encoder_ppr / (gear_ratio if encoder_on == "wheel" else 1.0)
         self._max_counts_per_s = max_rpm * (1.0 + plausibility_margin) / 60.0 * ticks
         self.plausibility_margin = plausibility_margin
         self._port: SerialLike | None = None
         self._owns_port = False
-        self._rx = b""
         self._state = S.UNCONFIGURED
         self._dead = False  # the port failed: nothing more is written, nothing more is logged
         self._identified = False  # ?FID answered: it is a Roboteq, stop commands may be sent
@@ -205,13 +203,12 @@ class RoboteqMDC2230(Device):
         self._written: dict[str, tuple[int, ...]] = {}
         self._last: tuple[int, tuple[int, ...]] | None = None  # (stamp_ns, counts) of the last read
         self._last_bang_ns: int | None = None
-        self._rx_bytes = 0
-        self._telemetry_seen = False
+        self._link: ReplyLink | None = None
         self.firmware: codec.FirmwareId | None = None
         self.firmware_warning: str | None = None
         self.stop_reason: str | None = None
         self.n_retries = 0
-        self.discarded_lines = 0
+        self._discarded_before = 0
         self.watchdog_trips = 0
         self.stop_acknowledged = False
 
@@ -221,6 +218,11 @@ class RoboteqMDC2230(Device):
     def state(self) -> LifecycleState:
         """The lifecycle state (:class:`hw.interfaces.LifecycleState`)."""
         return self._state
+
+    @property
+    def discarded_lines(self) -> int:
+        """Received lines that answered nothing the driver asked (stale, unsolicited, other echoes)."""
+        return self._link.discarded_lines if self._link is not None else self._discarded_before
 
     @property
     def read_only(self) -> bool:
@@ -264,6 +266,7 @@ class RoboteqMDC2230(Device):
                 f"{self.name}: configure() needs the unconfigured state, not {self._state.value}"
             )
         self._open_port()
+        self._link = ReplyLink(self._port, self.timeout_s)
         self._is_open = True
         self._state = S.INACTIVE
         self.stop_reason = None
@@ -380,6 +383,9 @@ class RoboteqMDC2230(Device):
             except Exception as exc:
                 log.debug("closing Roboteq port: %s", exc)
         self._port = None
+        if self._link is not None:
+            self._discarded_before = self._link.discarded_lines
+        self._link = None
         self._state = S.FINALIZED
 
     def set_watchdog_ms(self, watchdog_ms: int) -> None:
@@ -686,9 +692,12 @@ class RoboteqMDC2230(Device):
             log.warning("Roboteq: %s", self.firmware_warning)
         if self._writable:
             self._command(codec.set_config("ECHOF", 0 if self._echo_wanted else 1))
-            self._echo = self._echo_wanted
+            assert self._link is not None
+            self._link.echo = self._echo_wanted
         self._zero()  # acknowledged this time
-        self.discarded_lines = 0  # the answers to the unacknowledged first zeros are not news
+        assert self._link is not None
+        self._link.discarded_lines = 0  # the answers to the unacknowledged first zeros are not news
+        self._link.stop_telemetry = True
         word = self.read_faults_word()
         self._startup_config_at_start = bool(word & _FF_STARTUP_CONFIG)
 
@@ -823,14 +832,17 @@ class RoboteqMDC2230(Device):
         probing: bool = False,
     ) -> codec.Reply:
         """Send ``cmd`` and return its reply, retrying; on final failure stop the motors and raise."""
+        link = self._link
+        assert link is not None
         problems: list[str] = []
-        self._rx_bytes = 0
+        link.rx_bytes = 0
         for attempt in range(self.retries + 1):
             if attempt:
                 self.n_retries += 1
-            self._flush()
-            self._write_raw(cmd.encode())
-            outcome = self._await_reply(cmd, expected)
+            try:
+                outcome = link.attempt(cmd, expected)
+            except OSError as exc:  # pyserial's SerialException is an IOError
+                self._port_failed(exc)
             if isinstance(outcome, str):
                 problems.append(outcome)
                 log.debug("Roboteq %s: %s (attempt %d)", cmd.text, outcome, attempt + 1)
@@ -839,10 +851,10 @@ class RoboteqMDC2230(Device):
                 self._last_bang_ns = self._now_ns()
             return outcome
         kinds = {p.split(":")[0] for p in problems}
-        if probing and self._rx_bytes and kinds <= {"timeout", "garbled", "unattributed"}:
+        if probing and link.rx_bytes and kinds <= {"timeout", "garbled", "unattributed"}:
             self._fail(
                 ProtocolError(
-                    f"{self._port_arg!r} received {self._rx_bytes} bytes that are not a Roboteq reply to "
+                    f"{self._port_arg!r} received {link.rx_bytes} bytes that are not a Roboteq reply to "
                     f"{cmd.text!r} (wrong device or baud rate? {self.baudrate} 8N1 expected): {problems[-1]}"
                 )
             )
@@ -851,103 +863,19 @@ class RoboteqMDC2230(Device):
             err_cls(f"Roboteq gave no valid answer to {cmd.text!r} in {len(problems)} tries: {problems}")
         )
 
-    def _await_reply(
-        self, cmd: codec.Command, expected: Callable[[tuple[int, ...]], None] | None
-    ) -> codec.Reply | str:
-        """Read lines until the reply paired with ``cmd``; a str describes why this attempt failed."""
-        deadline = time.monotonic() + self.timeout_s
-        echo_seen = self._echo is not True  # with echo off (or not known yet) there is nothing to wait for
-        discarded: list[str] = []
-        while True:
-            lines, self._rx = codec.split_lines(self._rx)
-            for line in lines:
-                if not line.strip():
-                    continue
-                if codec.is_echo(line, cmd):
-                    echo_seen = True
-                    if self._echo is None:  # a read-only session learns the echo state from its probe
-                        self._echo = True
-                    continue
-                if line.lstrip()[:1] in ("#", *codec.KINDS):  # the echo of an earlier command
-                    self._discard(line, cmd)
-                    discarded.append(line)
-                    continue
-                try:
-                    reply = codec.parse_reply_line(line)
-                except ProtocolError:
-                    if not echo_seen:  # noise before our echo belongs to nothing we asked
-                        self._discard(line, cmd)
-                        discarded.append(line)
-                        continue
-                    return f"garbled: {line!r}"
-                if not echo_seen:  # before our echo: it answers an earlier command
-                    self._discard(line, cmd)
-                    discarded.append(line)
-                    continue
-                if isinstance(reply, codec.Nack):
-                    return "rejected: '-'"
-                if cmd.expects_value:
-                    if isinstance(reply, codec.Value) and reply.name == cmd.name:
-                        if expected is None:  # ?FID: free text
-                            return reply
-                        try:
-                            expected(reply.ints())
-                        except ProtocolError as exc:
-                            return f"garbled: {line!r} ({exc})"
-                        return reply
-                elif isinstance(reply, codec.Ack):
-                    return reply
-                self._discard(line, cmd)
-                discarded.append(line)
-            if time.monotonic() >= deadline:
-                if discarded:
-                    return f"unattributed: only {discarded!r} within {self.timeout_s} s"
-                return f"timeout: no answer within {self.timeout_s} s"
-            chunk = self._read_some()
-            if chunk:
-                self._rx_bytes += len(chunk)
-                self._rx += chunk
-
-    def _discard(self, line: str, cmd: codec.Command) -> None:
-        self.discarded_lines += 1
-        if "=" in line:
-            self._telemetry_seen = True
-        log.debug("Roboteq: discarded %r (not the answer to %s)", line, cmd.text)
-
-    def _read_some(self) -> bytes:
-        assert self._port is not None
-        try:
-            return self._port.read(max(1, int(getattr(self._port, "in_waiting", 0) or 0)))
-        except OSError as exc:  # pyserial's SerialException is an IOError
-            self._port_failed(exc)
-
     def _write_raw(self, data: bytes) -> None:
-        assert self._port is not None
+        assert self._link is not None
         try:
-            self._port.write(data)
+            self._link.write(data)
         except OSError as exc:
             self._port_failed(exc)
 
     def _flush(self) -> None:
-        """Discard (and count) whatever arrived before the next command: it answers nothing we ask."""
-        assert self._port is not None
+        assert self._link is not None
         try:
-            pending = int(getattr(self._port, "in_waiting", 0) or 0)
-            data = self._rx + (self._port.read(pending) if pending else b"")
-            self._port.reset_input_buffer()
+            self._link.flush()
         except OSError as exc:
             self._port_failed(exc)
-        self._rx = b""
-        complete, rest = codec.split_lines(data)
-        lines = [ln for ln in complete if ln.strip()] + ([repr(rest)] if rest.strip() else [])
-        if lines:
-            self.discarded_lines += len(lines)
-            log.debug("Roboteq: flushed %d stale line(s): %r", len(lines), lines[:5])
-            self._telemetry_seen = self._telemetry_seen or any("=" in ln for ln in lines)
-        if self._telemetry_seen and self._identified:
-            # values nobody asked for: telemetry started by a script or another tool; stop it again
-            self._telemetry_seen = False
-            self._write_raw(b"# C" + codec.CR)
 
     # --- fault path ---------------------------------------------------------------------------
 
@@ -959,22 +887,14 @@ class RoboteqMDC2230(Device):
 
         Nothing is written to a device that never identified itself as a Roboteq.
         """
-        if self._port is None or self._dead or not self._identified:
+        if self._link is None or self._dead or not self._identified:
             return False
         cmds = [codec.set_speed(1, 0), codec.set_speed(2, 0)]
         if self._writable:
             cmds.append(codec.emergency_stop())
         try:
-            self._rx = b""
-            with contextlib.suppress(OSError):
-                self._port.reset_input_buffer()
-            self._port.write(b"".join(c.encode() for c in cmds))
-            acks, deadline = 0, time.monotonic() + self.timeout_s
-            while acks < len(cmds) and time.monotonic() < deadline:
-                chunk = self._port.read(max(1, int(getattr(self._port, "in_waiting", 0) or 0)))
-                lines, self._rx = codec.split_lines(self._rx + chunk)
-                acks += sum(1 for line in lines if line.strip() == "+")
-            self.stop_acknowledged = acks == len(cmds)
+            assert self._link is not None
+            self.stop_acknowledged = self._link.send_stop(cmds)
             return True
         except Exception as exc:
             log.debug("Roboteq: could not send the stop commands: %s", exc)
