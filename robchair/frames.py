@@ -88,15 +88,43 @@ def matrix_from_quat(q: Sequence[float]) -> FloatArray:
         ValueError: if the quaternion has zero length.
     """
     qa = np.asarray(q, dtype=float)
-    if qa.shape != (4,) or float(np.dot(qa, qa)) < 1e-24:
+    if qa.shape != (4,):
         raise ValueError(f"quaternion {tuple(qa.ravel())} is not a non-zero (x, y, z, w)")
-    return Rotation.from_quat(qa).as_matrix()
+    x, y, z, w = (float(c) for c in qa)
+    n = x * x + y * y + z * z + w * w
+    if not n >= 1e-24:
+        raise ValueError(f"quaternion {tuple(qa.ravel())} is not a non-zero (x, y, z, w)")
+    # The closed form of Rotation.from_quat(q).as_matrix() (a test checks they agree): one rotation
+    # through scipy costs about ten times more, and simulated sensors convert every moving link's
+    # pose for every frame.
+    s = 2.0 / n
+    return np.array(
+        [
+            [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+            [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
+            [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
+        ]
+    )
 
 
 def quat_from_yaw(yaw: float) -> tuple[float, float, float, float]:
     """Quaternion ``(x, y, z, w)`` of a rotation by ``yaw`` rad about z (a planar heading)."""
     half = 0.5 * float(yaw)
     return 0.0, 0.0, math.sin(half), math.cos(half)
+
+
+def quat_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(x, y, z, w)`` of fixed-axis roll, pitch, yaw in rad, with ``w >= 0``."""
+    return quat_from_matrix(rotation_rpy(roll, pitch, yaw))
+
+
+def yaw_from_quat(q: Sequence[float]) -> float:
+    """Heading in rad (about z) of a quaternion ``(x, y, z, w)``; the z-y-x Euler yaw.
+
+    Raises:
+        ValueError: if the quaternion has zero length.
+    """
+    return yaw_from_matrix(matrix_from_quat(q))
 
 
 def yaw_from_matrix(r: Any) -> float:

@@ -23,6 +23,7 @@ import numpy as np
 
 from robchair.config import ConfigSource, ConfigTable, bounds, load_dataclass, load_toml
 from robchair.errors import ConfigError
+from robchair.frames import rotation_axis_angle, rotation_rpy, se3
 from robchair.paths import ASSETS
 
 DEFAULT_SPEC_PATH = ASSETS / "robchair.toml"
@@ -107,20 +108,16 @@ class Mount:
 
     def rotation(self, joint_angle: float = 0.0) -> np.ndarray:
         """Rotation matrix (3, 3) of the frame in its parent, with the servo at ``joint_angle`` rad."""
-        roll, pitch, yaw = self.rpy
-        r = _rot_z(yaw) @ _rot_y(pitch) @ _rot_x(roll)
+        r = rotation_rpy(*self.rpy)
         if joint_angle != 0.0:
             if self.joint is None:
                 raise ConfigError(f"mount has no joint; cannot turn it by joint_angle={joint_angle!r}")
-            r = r @ _axis_angle(np.asarray(self.joint.axis, dtype=float), joint_angle)
+            r = r @ rotation_axis_angle(self.joint.axis, joint_angle)
         return r
 
     def transform(self, joint_angle: float = 0.0) -> np.ndarray:
         """Homogeneous transform (4, 4) parent <- frame, with the servo at ``joint_angle`` rad."""
-        t = np.eye(4)
-        t[:3, :3] = self.rotation(joint_angle)
-        t[:3, 3] = self.xyz
-        return t
+        return se3(self.rotation(joint_angle), self.xyz)
 
 
 @dataclass(frozen=True)
@@ -281,24 +278,3 @@ def _parse_step(t: ConfigTable) -> StepResponse:
     if "name" not in t:  # the label follows the channel
         step = dataclasses.replace(step, name=f"motor {step.channel}")
     return step
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rot_y(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _axis_angle(axis: np.ndarray, a: float) -> np.ndarray:
-    """Rodrigues' rotation about the unit vector ``axis`` by ``a`` rad."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + math.sin(a) * k + (1.0 - math.cos(a)) * (k @ k)

@@ -80,6 +80,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import DepthFrame
+from robchair import frames
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -336,13 +337,13 @@ def render_raycast(
     return DepthImage(depth, nc, body, link)
 
 
+# OpenGL camera axes in the optical frame: x right (the same), y up = -y, z backwards = -z
+_R_OPTICAL_GL = np.diag([1.0, -1.0, -1.0])
+
+
 def _gl_view_matrix(t_world_cam: FloatArray) -> FloatArray:
-    # OpenGL camera axes in the ROS camera frame: x_gl = right = -y, y_gl = up = z, z_gl = back = -x
-    r_ros_gl = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    t_world_gl = np.eye(4)
-    t_world_gl[:3, :3] = t_world_cam[:3, :3] @ r_ros_gl
-    t_world_gl[:3, 3] = t_world_cam[:3, 3]
-    return np.asarray(np.linalg.inv(t_world_gl), dtype=np.float64)
+    t_world_gl = frames.se3(t_world_cam[:3, :3] @ frames.R_LINK_OPTICAL @ _R_OPTICAL_GL, t_world_cam[:3, 3])
+    return frames.invert(t_world_gl)
 
 
 def _gl_projection(intr: Intrinsics, near: float, far: float) -> FloatArray:
@@ -595,9 +596,7 @@ class KinectSim:
         reg = self.model.registration
         if reg is None:
             return t
-        off = np.eye(4)
-        off[:3, 3] = reg.offset_m
-        return t @ off
+        return t @ frames.se3(translation=reg.offset_m)
 
     def to_world(self, points: Any, cam_pose: Any) -> FloatArray:
         """Transform an organized (H, W, 3) or (N, 3) cloud of this camera to the world frame (NaN kept)."""

@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import RangeReading, SonarArrayReading
+from robchair import frames
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -126,13 +127,6 @@ def beam_rays(spacing_deg: float = 1.0) -> tuple[FloatArray, FloatArray, FloatAr
     br, er = np.radians(bb), np.radians(ee)
     d = np.column_stack([np.cos(er) * np.cos(br), np.cos(er) * np.sin(br), np.sin(er)])
     return d, bb, ee
-
-
-def _rot_z(deg: float) -> FloatArray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    t = np.eye(4)
-    t[:2, :2] = [[c, -s], [s, c]]
-    return t
 
 
 class _Beam:
@@ -304,13 +298,11 @@ class SonarArraySim:
 
     def sonar_poses(self, array_pose: Any, servo_angle_deg: float) -> list[FloatArray]:
         """World poses of sonars 1, 2, 3."""
-        base = pose_matrix(array_pose) @ _rot_z(servo_angle_deg)
-        out = []
-        for off, yaw in zip(self.offsets, self.yaws_deg):
-            t = _rot_z(yaw)
-            t[:3, 3] = off
-            out.append(base @ t)
-        return out
+        base = pose_matrix(array_pose) @ frames.se3_planar(0.0, 0.0, math.radians(servo_angle_deg))
+        return [
+            base @ frames.se3_planar(off[0], off[1], math.radians(yaw), off[2])
+            for off, yaw in zip(self.offsets, self.yaws_deg)
+        ]
 
     def measure(
         self, array_pose: Any, servo_angle_deg: float = 0.0, *, rng: np.random.Generator | None = None
