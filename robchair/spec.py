@@ -12,6 +12,7 @@ Frames: REP-103/REP-105. ``base_link`` lies on the floor midway between the driv
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -121,6 +122,31 @@ class Mount:
 
 
 @dataclass(frozen=True)
+class SonarArrays:
+    """Geometry of the two sonar arrays and the servo convention (thesis 5.2, SPEC section 3).
+
+    Attributes:
+        outer_sonar_deg: Sonar 1 (left) points ``+outer_sonar_deg`` and sonar 3 (right)
+            ``-outer_sonar_deg`` from the middle sonar 2, deg.
+        servo_centre_deg: Servo command at which the array faces along its mount's x axis (joint
+            angle 0), deg on the servo's 0..180 scale.
+        sonar_offsets_m: Position (3, 3) of sonars 1, 2, 3 in the array frame, m.
+    """
+
+    outer_sonar_deg: float = field(metadata=bounds(gt=0, lt=90))
+    servo_centre_deg: float = field(metadata=bounds(ge=0, le=180))
+    sonar_offsets_m: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+
+    def joint_angle(self, servo_deg: float) -> float:
+        """Joint angle in rad of the array's mount for a servo command of ``servo_deg`` deg."""
+        return math.radians(servo_deg - self.servo_centre_deg)
+
+    def servo_deg(self, joint_angle: float) -> float:
+        """Servo command in deg that turns the array's mount to ``joint_angle`` rad."""
+        return math.degrees(joint_angle) + self.servo_centre_deg
+
+
+@dataclass(frozen=True)
 class StepResponse:
     """Metrics of one measured open-loop step response of a wheel motor (SPEC section 5).
 
@@ -150,6 +176,7 @@ class RobChairSpec:
     casters: tuple[Caster, ...]
     mounts: Mapping[str, Mount]
     motor_steps: tuple[StepResponse, ...]
+    sonar_arrays: SonarArrays
     source: str = field(default="", compare=False)
 
     @property
@@ -217,7 +244,7 @@ def spec_from_dict(data: Mapping[str, Any], source: ConfigSource | str = "<dict>
     """Build a validated :class:`RobChairSpec` from the parsed TOML tables (see ``load_spec``)."""
     src = source if isinstance(source, ConfigSource) else ConfigSource(source)
     top = ConfigTable(data, src)
-    sections = {"body", "drive", "casters", "mounts", "motor_steps"}
+    sections = {"body", "drive", "casters", "mounts", "motor_steps", "sonar_arrays"}
     top.keys(sections, required=sections)
     body = load_dataclass(Body, top.table("body"))
     drive = load_dataclass(Drive, top.table("drive"))
@@ -245,6 +272,7 @@ def spec_from_dict(data: Mapping[str, Any], source: ConfigSource | str = "<dict>
         casters=casters,
         mounts=MappingProxyType(mounts),
         motor_steps=steps,
+        sonar_arrays=load_dataclass(SonarArrays, top.table("sonar_arrays")),
         source=src.name,
     )
 
@@ -271,6 +299,16 @@ def _parse_mount(t: ConfigTable) -> Mount:
     return Mount(
         parent=t.string("parent"), xyz=(xyz[0], xyz[1], xyz[2]), rpy=(rpy[0], rpy[1], rpy[2]), joint=joint
     )
+
+
+@functools.cache
+def default_spec() -> RobChairSpec:
+    """The platform spec of ``assets/robchair.toml``, loaded once (the spec is immutable).
+
+    Raises:
+        ConfigError: As :func:`load_spec`.
+    """
+    return load_spec()
 
 
 def _parse_step(t: ConfigTable) -> StepResponse:

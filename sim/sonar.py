@@ -40,6 +40,7 @@ import numpy.typing as npt
 
 from hw.interfaces import RangeReading, SonarArrayReading
 from robchair import frames
+from robchair.spec import default_spec
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -262,7 +263,8 @@ class SonarArraySim:
     ``array_pose`` is the world pose of the servo's base frame (z = servo axis, x = straight ahead at
     servo angle 0); the servo turns the three sonars together by ``servo_angle_deg`` about z.
     ``sonar_offsets_m`` places each sonar in the turned frame (the thesis stacks them on top of each
-    other; the default puts sonar 1 on top, 2 cm apart).
+    other). ``outer_deg`` and ``sonar_offsets_m`` default to the platform's (``[sonar_arrays]`` of
+    ``assets/robchair.toml``, :class:`robchair.spec.SonarArrays`).
     """
 
     def __init__(
@@ -272,8 +274,8 @@ class SonarArraySim:
         *,
         mirror: MeshMirror | None = None,
         exclude_bodies: Any = (),
-        outer_deg: float = 30.0,
-        sonar_offsets_m: Any = ((0.0, 0.0, 0.02), (0.0, 0.0, 0.0), (0.0, 0.0, -0.02)),
+        outer_deg: float | None = None,
+        sonar_offsets_m: Any = None,
         noise_std_m: float = 0.0,
         rng: np.random.Generator | int | None = None,
         ray_spacing_deg: float = 1.0,
@@ -282,6 +284,10 @@ class SonarArraySim:
     ) -> None:
         self.model = get_sonar_model(model)
         self.mirror = mirror if mirror is not None else MeshMirror(client, exclude_bodies=exclude_bodies)
+        if outer_deg is None or sonar_offsets_m is None:
+            platform = default_spec().sonar_arrays
+            outer_deg = platform.outer_sonar_deg if outer_deg is None else outer_deg
+            sonar_offsets_m = platform.sonar_offsets_m if sonar_offsets_m is None else sonar_offsets_m
         offs = np.asarray(sonar_offsets_m, dtype=float)
         if offs.shape != (3, 3):
             raise SonarSimError(f"sonar_offsets_m of shape {offs.shape}: expected (3, 3)")
