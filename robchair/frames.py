@@ -60,7 +60,7 @@ def rpy_from_matrix(r: Any) -> tuple[float, float, float]:
     return float(roll), float(pitch), float(yaw)
 
 
-def rotation_axis_angle(axis: Sequence[float], angle: float) -> FloatArray:
+def rotation_axis_angle(axis: npt.ArrayLike, angle: float) -> FloatArray:
     """Rotation matrix (3, 3) of ``angle`` rad about ``axis`` (any non-zero length).
 
     Raises:
@@ -81,7 +81,7 @@ def quat_from_matrix(r: Any) -> tuple[float, float, float, float]:
     return float(q[0]), float(q[1]), float(q[2]), float(q[3])
 
 
-def matrix_from_quat(q: Sequence[float]) -> FloatArray:
+def matrix_from_quat(q: npt.ArrayLike) -> FloatArray:
     """Rotation matrix (3, 3) of a quaternion ``(x, y, z, w)`` (normalised first).
 
     Raises:
@@ -118,7 +118,7 @@ def quat_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, 
     return quat_from_matrix(rotation_rpy(roll, pitch, yaw))
 
 
-def yaw_from_quat(q: Sequence[float]) -> float:
+def yaw_from_quat(q: npt.ArrayLike) -> float:
     """Heading in rad (about z) of a quaternion ``(x, y, z, w)``; the z-y-x Euler yaw.
 
     Raises:
@@ -133,7 +133,7 @@ def yaw_from_matrix(r: Any) -> float:
     return math.atan2(m[1, 0], m[0, 0])
 
 
-def se3(rotation: Any = None, translation: Sequence[float] = (0.0, 0.0, 0.0)) -> FloatArray:
+def se3(rotation: Any = None, translation: npt.ArrayLike = (0.0, 0.0, 0.0)) -> FloatArray:
     """Homogeneous transform (4, 4) from a rotation ((3, 3) or :class:`Rotation`) and a translation, m."""
     t = np.eye(4)
     if rotation is not None:
@@ -144,12 +144,12 @@ def se3(rotation: Any = None, translation: Sequence[float] = (0.0, 0.0, 0.0)) ->
     return t
 
 
-def se3_rpy(xyz: Sequence[float], rpy: Sequence[float]) -> FloatArray:
+def se3_rpy(xyz: npt.ArrayLike, rpy: Sequence[float]) -> FloatArray:
     """Homogeneous transform (4, 4) of a URDF origin: translation ``xyz`` (m) and fixed-axis ``rpy`` (rad)."""
     return se3(rotation_rpy(*rpy), xyz)
 
 
-def se3_from_quat(translation: Sequence[float], quat_xyzw: Sequence[float]) -> FloatArray:
+def se3_from_quat(translation: npt.ArrayLike, quat_xyzw: npt.ArrayLike) -> FloatArray:
     """Homogeneous transform (4, 4) of a position (m) and quaternion ``(x, y, z, w)``."""
     return se3(matrix_from_quat(quat_xyzw), translation)
 
