@@ -51,7 +51,17 @@ def wrap_angle(theta: float) -> float:
 
 def rotation_rpy(roll: float, pitch: float, yaw: float) -> FloatArray:
     """Rotation matrix (3, 3) of fixed-axis roll, pitch, yaw in rad (URDF: ``Rz(yaw) Ry(pitch) Rx(roll)``)."""
-    return Rotation.from_euler("xyz", [roll, pitch, yaw]).as_matrix()
+    # closed form of Rotation.from_euler("xyz", ...).as_matrix() (tested against it), ~20x cheaper
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def rpy_from_matrix(r: Any) -> tuple[float, float, float]:
@@ -115,7 +125,17 @@ def quat_from_yaw(yaw: float) -> tuple[float, float, float, float]:
 
 def quat_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
     """Quaternion ``(x, y, z, w)`` of fixed-axis roll, pitch, yaw in rad, with ``w >= 0``."""
-    return quat_from_matrix(rotation_rpy(roll, pitch, yaw))
+    # closed form of Rotation.from_euler("xyz", ...).as_quat() (tested against it), ~20x cheaper
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    q = (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
+    return q if q[3] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
 def yaw_from_quat(q: npt.ArrayLike) -> float:

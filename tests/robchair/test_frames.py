@@ -105,3 +105,15 @@ def test_matrix_of_a_quaternion_agrees_with_scipy(q: tuple[float, float, float, 
     from scipy.spatial.transform import Rotation
 
     np.testing.assert_allclose(frames.matrix_from_quat(q), Rotation.from_quat(q).as_matrix(), atol=1e-12)
+
+
+@given(roll=angles, pitch=angles, yaw=angles)
+def test_rpy_matrix_and_quaternion_agree_with_scipy(roll: float, pitch: float, yaw: float) -> None:
+    from scipy.spatial.transform import Rotation
+
+    ref = Rotation.from_euler("xyz", [roll, pitch, yaw])
+    np.testing.assert_allclose(frames.rotation_rpy(roll, pitch, yaw), ref.as_matrix(), atol=1e-12)
+    q = np.array(frames.quat_from_rpy(roll, pitch, yaw))
+    r = ref.as_quat()
+    assert q[3] >= 0.0
+    assert np.allclose(q, r, atol=1e-12) or np.allclose(q, -r, atol=1e-12)
