@@ -7,12 +7,12 @@ field as a TOML path, the value and what was expected::
 
     assets/robchair.toml:31: drive.wheel_radius = -0.172: expected a finite number > 0
     run.toml:7: route.turbo: unknown key (value True); expected one of lookahead, speed, waypoints
-    run.toml: route.waypoints: missing; expected a list of [x, y] points
+    run.toml:5: route.waypoints: missing; expected a list of at least 1 [x, y] points of finite numbers
 
 Two ways in:
 
 * :class:`ConfigTable` reads one TOML table field by field (``number``, ``integer``, ``boolean``,
-  ``string``, ``vector``, ``points``, sub-tables), for loaders with cross-field rules.
+  ``string``, ``vector``, ``points``, ``rows``, sub-tables), for loaders with cross-field rules.
 * :func:`load_dataclass` fills a frozen dataclass from a table by its annotations (``float``, ``int``,
   ``bool``, ``str``, fixed-length float tuples and tuples of them, ``X | None``),
   its defaults and the bounds given with :func:`bounds` in each field's metadata; and
