@@ -19,7 +19,10 @@ import argparse
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from mapping.grid import GridSpec
 
 SAMPLE_SEED = 7
 SAMPLE_SENSOR_ORIGIN = (0.0, 0.0, 1.0)  # mapping.synthetic's camera position
@@ -178,7 +181,7 @@ class _Extent:
         if sensor_origin is not None:
             self.origins.append((float(sensor_origin[self.cols[0]]), float(sensor_origin[self.cols[1]])))
 
-    def grid(self, args: argparse.Namespace) -> tuple[Any, str]:
+    def grid(self, args: argparse.Namespace) -> tuple[GridSpec, str]:
         """GridSpec over the points and the sensor plus a margin, each side bounded; and how it was chosen."""
         import numpy as np
 
@@ -227,7 +230,7 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def _warm_up(spec: Any, tolerance: float, points: Any) -> None:
+def _warm_up(spec: GridSpec, tolerance: float, points: Any) -> None:
     """Build a throwaway map from the first frame of each dtype, so the compiled kernels that frame
     needs are loaded (or compiled) before the timed insert: ``build ms`` then measures the build."""
     from mapping.vhv import VHVMap
