@@ -14,8 +14,9 @@ counted quadrature x4 into a signed 32-bit counter. The serial watchdog (``^RWD`
 motors when no ``!`` command arrived within the period; as the manual says, the motors resume their
 earlier set points on the next valid command (so a host must command zero after a stall).
 The set point reaches the PID through the ``^MAC``/``^MDEC`` ramps (0.1 RPM/s; power-on 1000 RPM/s);
-``^ALIM`` and ``^CLERD`` are stored and read back, not modelled. Gains are 0..255 on 1.x and
-0..2,000,000,000 on 2.x, as in the manual.
+``^CLERD`` stops a channel whose speed error stays above the level's threshold for its time (?FM
+f3, :meth:`RoboteqEmulator.disconnect_encoder` provokes it); ``^ALIM`` is stored, not modelled.
+Gains are 0..255 on 1.x and 0..2,000,000,000 on 2.x, as in the manual.
 
 Time: by default motor time follows ``time.monotonic_ns`` (the real elapsed time); pass any
 :class:`hw.interfaces.Clock` (e.g. :class:`hw.clock.ManualClock`) to step simulated time instead, so tests run
@@ -111,6 +112,13 @@ class _Channel:
     ramp_rpm: float = 0.0  # the set point after the ^MAC/^MDEC ramp
     ticks: float = 0.0  # unwrapped encoder position, ticks (float keeps the fraction)
     config: dict[str, int] = field(default_factory=dict)
+    encoder_lost: bool = False  # the encoder came off: the loop sees 0 RPM and no counts
+    loop_error_s: float = 0.0  # how long the loop error has exceeded the ^CLERD threshold
+    loop_stopped: bool = False  # ^CLERD tripped: the channel is off until commanded to 0
+
+
+# ^CLERD level -> (seconds, RPM error) from the manual ("1: 250ms and Error > 100", ...)
+LOOP_ERROR_DETECTION = {1: (0.25, 100.0), 2: (0.5, 250.0), 3: (1.0, 500.0)}
 
 
 @functools.lru_cache(maxsize=16)
@@ -253,13 +261,38 @@ class RoboteqEmulator:
                 else:
                     ch.ramp_rpm = self._ramp(ch, target)
                 target = ch.ramp_rpm
-                if ch.config["MMOD"] == 1:
-                    u = ch.pid.update(target, ch.speed_rpm)
+                measured = 0.0 if ch.encoder_lost else ch.speed_rpm
+                self._detect_loop_error(ch, target, measured)
+                if ch.loop_stopped:
+                    u = 0.0
+                elif ch.config["MMOD"] == 1:
+                    u = ch.pid.update(target, measured)
                 else:  # open loop: the set point is the plant command
                     u = target
                 ch.command = float(u)
                 ch.speed_rpm = float(ch.plant.step(ch.command))
-                ch.ticks += ch.speed_rpm / 60.0 * self.dt * self._ticks_per_motor_rev(ch)
+                if not ch.encoder_lost:
+                    ch.ticks += ch.speed_rpm / 60.0 * self.dt * self._ticks_per_motor_rev(ch)
+
+    def _detect_loop_error(self, ch: _Channel, target: float, measured: float) -> None:
+        """``^CLERD``: an error above the level's threshold for its time stops the channel (?FM f3)."""
+        level = LOOP_ERROR_DETECTION.get(ch.config["CLERD"])
+        if level is None or ch.loop_stopped or ch.config["MMOD"] != 1:
+            ch.loop_error_s = 0.0
+            return
+        seconds, rpm = level
+        ch.loop_error_s = ch.loop_error_s + self.dt if abs(target - measured) > rpm else 0.0
+        if ch.loop_error_s >= seconds:
+            index = self._channels.index(ch)
+            self.motor_flags[index] |= 1 << codec.MOTOR_BITS.index("loop_error")
+            ch.loop_stopped = True
+            self.stops.append(StopEvent(self._t_ns, "loop_error"))
+
+    def disconnect_encoder(self, channel: int) -> None:
+        """The encoder of ``channel`` comes off: no counts, 0 RPM seen by the loop."""
+        with self._lock:
+            self._sync()
+            self._channels[channel - 1].encoder_lost = True
 
     def _ramp(self, ch: _Channel, target: float) -> float:
         """Move the ramped set point towards ``target`` at ``^MAC`` (speeding up) or ``^MDEC``
@@ -572,6 +605,9 @@ class RoboteqEmulator:
         ch.setpoint_rpm = max(-mx, min(mx, float(rpm)))
         if rpm == 0:  # manual: f2, f3 and f4 of ?FM clear when the motor command returns to 0
             self.motor_flags[cc - 1] &= ~0b1110
+            if ch.loop_stopped:
+                ch.loop_stopped, ch.loop_error_s = False, 0.0
+                ch.pid.integral = 0.0
         if moving and all(c.setpoint_rpm == 0.0 for c in self._channels):
             self.stops.append(StopEvent(self._t_ns, "command"))
         return "+"

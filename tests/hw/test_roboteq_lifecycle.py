@@ -132,6 +132,24 @@ def test_configure_writes_the_protections_from_the_spec_and_reads_them_back(emu,
     drv.close()
 
 
+def test_a_lost_encoder_trips_the_loop_error_detection_the_driver_configured(emu, clock) -> None:
+    drv = make(emu, clock)  # ^CLERD 2: 500 ms with an error above 250 RPM
+    drv.open()
+    for _ in range(10):
+        drv.set_speeds_rpm(400, 400)
+        drv.read_state()
+        clock.advance(0.05)
+    emu.disconnect_encoder(1)
+    with pytest.raises(DeviceFaultError, match="loop_error"):
+        for _ in range(40):
+            drv.set_speeds_rpm(400, 400)
+            clock.advance(0.05)
+            drv.read_state()
+    assert [s.reason for s in emu.stops][:1] == ["loop_error"]
+    assert emu.setpoints_rpm == (0.0, 0.0)
+    drv.close()
+
+
 def test_loop_error_detection_cannot_be_switched_off() -> None:
     with pytest.raises(CommandError, match="loop-error"):
         RoboteqProtections(loop_error_detection=0)
