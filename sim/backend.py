@@ -11,7 +11,7 @@ simulated sensors (S2's :mod:`sim.kinect` and :mod:`sim.sonar`). The devices bel
 * :class:`SimDepthCamera` - the simulated Kinect at ``kinect_link``'s current world pose.
 * :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
 
-:func:`make_sim_backend` builds all of it from a small config mapping (what ``hw.registry`` passes).
+:func:`make_sim_backend` builds all of it from a small config mapping (what :mod:`robchair.backends` passes).
 """
 
 from __future__ import annotations
@@ -170,10 +170,15 @@ def _make_sonars(chair: SimChair, rng: np.random.Generator, noise: bool) -> dict
 
 
 class SimClock:
-    """Simulated time of a :class:`SimChair`; sleeping advances the physics (whole 240 Hz steps)."""
+    """Simulated time of a :class:`SimChair`; sleeping advances the physics (whole 240 Hz steps).
 
-    def __init__(self, chair: SimChair) -> None:
+    With ``motors``, their serial watchdog is served while sleeping: set points fall to zero at the
+    physics step where the watchdog period since the last speed command ends (as a Roboteq's ``^RWD``).
+    """
+
+    def __init__(self, chair: SimChair, motors: SimMotorController | None = None) -> None:
         self.chair = chair
+        self.motors = motors
 
     def now_ns(self) -> int:
         return self.chair.world.now_ns()
@@ -182,6 +187,12 @@ class SimClock:
         """Step the physics until simulated time reaches ``t_ns`` (rounded up to the next step)."""
         w = self.chair.world
         target_steps = -(-int(t_ns) * w.physics_hz // 1_000_000_000)  # ceil
+        m = self.motors
+        if m is not None and m.watchdog_ms is not None and m.moving:
+            trip = m.last_command_step + math.ceil(m.watchdog_ms * w.physics_hz / 1000.0)
+            if w.steps <= trip < target_steps:
+                self.chair.step(trip - w.steps)
+                m.watchdog_trip()
         if target_steps > w.steps:
             self.chair.step(target_steps - w.steps)
 
@@ -191,9 +202,22 @@ class SimMotorController(Device):
 
     name = "sim-motors"
 
-    def __init__(self, chair: SimChair) -> None:
+    def __init__(self, chair: SimChair, watchdog_ms: int | None = None) -> None:
+        if watchdog_ms is not None and (isinstance(watchdog_ms, bool) or not isinstance(watchdog_ms, int)
+                                        or watchdog_ms < 1):  # fmt: skip
+            raise SimError(f"watchdog_ms={watchdog_ms!r}: expected a whole number of ms >= 1, or None")
         self.chair = chair
         self._estop = False
+        self.watchdog_ms = watchdog_ms
+        self.watchdog_trips = 0  # times the watchdog stopped the motors
+        self.last_command_step = 0  # physics step of the last speed command
+        self.moving = False  # the last set point was not zero
+
+    def watchdog_trip(self) -> None:
+        """The watchdog period passed without a speed command: stop the motors (count it)."""
+        self.watchdog_trips += 1
+        self.moving = False
+        self.chair.robot.set_motor_rpm(0.0, 0.0)
 
     def close(self) -> None:
         if self._is_open:
@@ -204,6 +228,8 @@ class SimMotorController(Device):
         self._check_open()
         if self._estop:
             left_rpm = right_rpm = 0.0
+        self.last_command_step = self.chair.world.steps
+        self.moving = left_rpm != 0.0 or right_rpm != 0.0
         self.chair.robot.set_motor_rpm(left_rpm, right_rpm)
 
     def read_state(self) -> MotorState:
@@ -257,6 +283,10 @@ class SimSonarArray(Device):
             raise SimError(f"this simulated chair has no sonar array {mount!r}")
         self.chair, self.mount = chair, mount
         self.name = f"sim-{mount}"
+        self.has_servo = True
+        model = chair.sonars[mount].model
+        self.min_range_m, self.max_range_m = model.min_range_m, model.max_range_m
+        self.field_of_view_rad = model.field_of_view_rad
 
     def set_servo_deg(self, angle_deg: float) -> None:
         """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
@@ -292,12 +322,16 @@ class SimBackend(Backend):
                 self.chair.close()
 
 
-def backend_from_chair(chair: SimChair) -> SimBackend:
-    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend` (closing it closes the chair)."""
+def backend_from_chair(chair: SimChair, watchdog_ms: int | None = None) -> SimBackend:
+    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend` (closing it closes the chair).
+
+    ``watchdog_ms``: the motor controller's serial watchdog (None: none).
+    """
+    motors = SimMotorController(chair, watchdog_ms)
     return SimBackend(
         name="sim",
-        clock=SimClock(chair),
-        motors=SimMotorController(chair),
+        clock=SimClock(chair, motors),
+        motors=motors,
         sonar_arrays=tuple(SimSonarArray(chair, m) for m in SONAR_MOUNTS if m in chair.sonars),
         depth_camera=SimDepthCamera(chair) if chair.kinect is not None else None,
         chair=chair,
@@ -315,16 +349,18 @@ _CONFIG_KEYS = {
     "noise",
     "spec",
     "tyre_radius_error",
+    "watchdog_ms",
 }
 
 
 def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
-    """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of ``hw.registry``).
+    """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of :mod:`robchair.backends`).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
     ``scene`` (name or path), ``sensor`` (Kinect model, or None / ``"none"``), ``sonars`` (bool),
     ``seed`` (int),
     ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
+    ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
     (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
 
@@ -358,7 +394,10 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
         if len(st) != 3 or not all(math.isfinite(v) for v in st):
             raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
         kw["start"] = st
-    return backend_from_chair(SimChair(spec, **kw))
+    watchdog = cfg.get("watchdog_ms")
+    if watchdog is not None and (isinstance(watchdog, bool) or not isinstance(watchdog, int) or watchdog < 1):
+        raise SimError(f"sim backend config: watchdog_ms={watchdog!r}: expected a whole number of ms >= 1")
+    return backend_from_chair(SimChair(spec, **kw), watchdog)
 
 
 def robot_radius(spec: RobChairSpec) -> float:
