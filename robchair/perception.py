@@ -221,7 +221,7 @@ class Perception:
         s = self.camera_stride
         pts = np.asarray(frame.points)
         sub = pts[::s, ::s].reshape(-1, 3) if pts.ndim == 3 else pts[::s].reshape(-1, 3)
-        sub = transform_points(t_base_sensor, sub[np.isfinite(sub).all(axis=1)])
+        sub = transform_points(t_base_sensor, sub[np.isfinite(sub).all(axis=1)], np.float32)
         z0, z1 = self.band
         band = sub[(sub[:, 2] >= z0) & (sub[:, 2] <= z1)]
         self._depth = (self.corridor.distance_ahead(band[:, :2]), pose)
@@ -234,7 +234,7 @@ class Perception:
     def _insert_frame(self, frame: DepthFrame, placed: list[tuple[PointMap, np.ndarray, bool]]) -> None:
         pts = np.asarray(frame.points).reshape(-1, 3)
         for m, t, main in placed:
-            s = m.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
+            s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
             if main and s is not None:
                 with self._lock:
                     self.map_ms.append(float(getattr(s, "build_ms", math.nan)))

@@ -178,6 +178,10 @@ class RunResult:
     watchdog_trips: int = 0
     poses: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, x, y, theta)
     extra: dict[str, Any] = field(default_factory=dict)  # observers' sections (sim ground truth ...)
+    maps: dict[str, Any] = field(default_factory=dict)  # the perception's maps (and observers')
+    paths: dict[str, np.ndarray] = field(default_factory=dict)  # (N, 3) x, y, yaw per cycle; "t" ns
+    out_dir: Path | None = None  # the run folder, when one was written
+    exception: BaseException | None = None  # what ended the run early (raised after the folder was written)
 
     def metrics(self) -> dict[str, Any]:
         """The ``metrics.json`` document (one schema: keys a backend cannot fill are null)."""
@@ -608,6 +612,16 @@ class Runtime:
             {"t_s": (s.stamp_ns - self.t0_ns) / 1e9, "reason": s.reason.value, "detail": s.detail}
             for s in self.safety.stops
         ]
+        p = self.perception
+        res.maps["odometry"] = p.map
+        if p.sonar_map is not p.map:
+            res.maps["sonar"] = p.sonar_map
+        ms = np.asarray(p.map_ms) if p.map_ms else np.array([np.nan])
+        res.extra["frames"] = dict(p.stats)
+        res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
+        res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        poses = np.asarray(res.poses, dtype=np.float64).reshape(-1, 4)
+        res.paths["odometry"] = poses[:, 1:]
         trips = getattr(self.backend.motors, "watchdog_trips", None)
         if isinstance(trips, int):  # the controller counts its own trips (simulated chair)
             res.watchdog_trips = max(res.watchdog_trips, trips)

@@ -6,7 +6,8 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
 1. stops (v = w = 0) when any stop condition holds, in this order of precedence:
    ``driver_fault`` (latched: only :meth:`SafetyLayer.reset` clears it), ``deadline_missed`` (the
    previous cycle overran its period, or this one outlived its deadline before writing),
-   ``stale_sensor`` (a sensor gave nothing new for longer than ``stale_after_s``), ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
+   ``stale_sensor`` (a sensor gave nothing new for longer than ``stale_after_s``),
+   ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
    obstacle ahead closer than the stopping distance for the speed the chair would have);
 2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
    motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
