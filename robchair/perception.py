@@ -136,7 +136,7 @@ class Perception:
         grid: Any = None,
         sonar_map: PointMap | str | None = "default",
         band: tuple[float, float | None] = (DEFAULT_BAND_MIN_M, None),
-        camera_stride: int = 2,
+        camera_stride: int = 4,
         threaded: bool = False,
         frames: dict[str, np.ndarray] | None = None,
         tolerance: float = 0.05,
@@ -259,9 +259,11 @@ class Perception:
 
         Measured at the pose of its frame; the forward travel since then is taken off.
         """
-        if self._depth is None or self._depth[0] is None:
+        if self._depth is None:
             return None
         d, p0 = self._depth
+        if d is None:
+            return None
         fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
         return max(0.0, d - max(0.0, fwd))
 

@@ -354,6 +354,28 @@ class Runtime:
                     ob.episode_end(self, res)
         return res
 
+    def reset(self, start_pose: Pose2D | None = None, perception: Perception | None = None) -> None:
+        """Make the runtime ready for a new episode (call :meth:`start` next).
+
+        Stops the current episode if it runs, then starts a fresh result, odometry at ``start_pose``,
+        an unlatched safety layer with an empty stop log, and (if given) a new perception stage. The
+        chair itself is not moved: a simulated chair is placed with ``SimChair.teleport`` first.
+        """
+        if self._started and not self._stopped:
+            self.stop()
+        if perception is not None:
+            self.perception = perception
+        self.odometry = Odometry(self.spec, start_pose)
+        self.safety.reset()
+        self.safety.stops.clear()
+        self.result = RunResult(backend=self.backend.name, safety_enabled=self.safety_enabled,
+                                watchdog_ms=self.watchdog_ms)  # fmt: skip
+        self.k = 0
+        self.last_sonars, self.last_depth_frame, self.last_scan = [], None, None
+        self._last_fresh.clear()
+        self._missed, self._fault, self._last_motion_ns = False, None, None
+        self._stage, self._started, self._stopped = "start", False, False
+
     def run(self, duration_s: float) -> RunResult:
         """Run for ``duration_s`` seconds of the backend's clock, until the source is done or a driver
         fault ends it; the chair is stopped however the run ends."""

@@ -75,7 +75,8 @@ def scenario_grid(scenario: Any) -> Any:
 def scenario_route(scenario: Any) -> Route:
     """The scenario's route as a :class:`Route` from the start position (in ``map``)."""
     x, y, _ = scenario.start
-    return Route(((float(x), float(y)), *(tuple(map(float, w)) for w in scenario.route.waypoints)),
+    waypoints = [(float(w[0]), float(w[1])) for w in scenario.route.waypoints]
+    return Route(((float(x), float(y)), *waypoints),
                  speed=scenario.route.speed, lookahead_m=scenario.route.lookahead,
                  goal_tolerance_m=GOAL_TOLERANCE_M)  # fmt: skip
 

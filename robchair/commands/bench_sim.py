@@ -117,7 +117,7 @@ def measure(
     finally:
         if before is not None:
             os.sched_setaffinity(0, before)
-    m = res.metrics if old is not None else res.metrics()
+    m: dict[str, Any] = res.metrics if old is not None else res.metrics()  # type: ignore[assignment]
     frames = m["frames"]["kinect_frames"] if old is not None else m["frames"]["depth_frames"]
     main = m["wall_time_s"]["components"]
     return {

@@ -7,8 +7,8 @@ keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime.Runti
 (:class:`robchair.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route file).
 The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
 backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
-the backend's joystick.
-With ``--out`` the run is written as a ROS 2 bag (``run_bag/``), ``metrics.json`` and ``odometry.csv``.
+the backend's joystick. ``--backend sim`` without a route drives the ``office_corridor`` scenario.
+With ``--out`` the run is written as a ROS 2 bag (``bag/``, MCAP), ``metrics.json`` and ``odometry.csv``.
 """
 
 from __future__ import annotations
@@ -119,6 +119,12 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(
             "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
         )
+    observers = []
+    chair = getattr(backend, "chair", None)
+    if chair is not None:  # the simulated chair: evaluate against the physics and the scene
+        from robchair.observers.evaluation import GroundTruthEvaluation
+
+        observers.append(GroundTruthEvaluation(chair, chair.scene, ground_truth_map=False))
     result = run_to_dir(
         backend,
         source,
@@ -129,6 +135,7 @@ def _run(args: argparse.Namespace) -> int:
         safety=safety,
         start_pose=start_pose,
         safety_enabled=not args.no_safety,
+        observers=observers,
     )
-    print(json.dumps(result.metrics(), indent=2))
+    print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1
