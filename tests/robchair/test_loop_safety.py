@@ -13,6 +13,7 @@ import time
 import pytest
 
 from robchair.errors import ConfigError, RobChairError
+from robchair.observers import Observer
 from robchair.runtime import Observation, PolicySource, RuntimeConfig, run_to_dir
 from robchair.spec import load_spec
 from sim.errors import SimError
@@ -65,7 +66,11 @@ def test_a_cycle_that_outlived_its_freshness_limit_commands_zero(spec) -> None:
 
 @pytest.mark.parametrize(
     ("make_error", "where"),
-    [(lambda: ValueError("policy gave up"), "command source"), (lambda: SimError("sonar died"), "sonar")],
+    [
+        (lambda: ValueError("policy gave up"), "command source"),
+        (lambda: SimError("sonar died"), "sonar"),
+        (lambda: OSError("disk full"), "observer"),
+    ],
 )
 def test_an_exception_anywhere_in_the_loop_stops_the_motors_before_it_propagates(
     spec, make_error, where
@@ -93,17 +98,25 @@ def test_an_exception_anywhere_in_the_loop_stops_the_motors_before_it_propagates
     arr = Array()
     if where == "sonar":
         backend.sonar_arrays = (arr,)
+    state = {"fail": False}
+
+    class Recorder(Observer):
+        def after_cycle(self, runtime, cycle) -> None:
+            if state["fail"]:
+                raise make_error()
 
     def policy(obs: Observation) -> tuple[float, float]:
         if obs.pose.x > 0.3:
             if where == "sonar":
                 arr.fail = True
+            elif where == "observer":
+                state["fail"] = True
             else:
                 raise make_error()
         return 0.6, 0.0
 
     with pytest.raises(RobChairError, match=where) as info:
-        run_to_dir(backend, PolicySource(policy), 6.0, None, spec=spec)
+        run_to_dir(backend, PolicySource(policy), 6.0, None, spec=spec, observers=[Recorder()])
     assert "\n" not in str(info.value) and type(make_error()).__name__ in str(info.value)
     assert emu.setpoints_rpm == (0.0, 0.0)
     assert emu.estop  # zero speeds first, then the emergency stop

@@ -477,3 +477,26 @@ def test_robchair_run_sim_follows_a_scenario_route_in_the_world_frame(tmp_path: 
     assert m["route"]["goal_reached"] is True
     # the scenario's last waypoint is (10.0, -0.8) in the world frame; odometry starts at the start pose
     assert math.hypot(m["final_pose"][0] - 10.0, m["final_pose"][1] + 0.8) < 0.15
+
+
+def test_unknown_backend_or_runtime_key_is_one_line_naming_the_allowed_values(tmp_path: Path, capsys) -> None:
+    assert main(["run", "--backend", "warp", "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'warp'" in err and "sim, emulated, real" in err
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text("[runtime]\nrate = 5.0\n")
+    route = tmp_path / "route.toml"
+    route.write_text("waypoints = [[0, 0], [1, 0]]\n")
+    args = ["run", "--backend", "emulated", "--config", str(cfg), "--route", str(route), "--duration", "1"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'rate'" in err and "rate_hz" in err
+
+
+def test_robchair_run_sim_without_a_route_drives_the_default_scenario(tmp_path: Path, capsys) -> None:
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text('[sim]\nsensor = "none"\nsonars = false\n')
+    assert main(["run", "--backend", "sim", "--config", str(cfg), "--duration", "1"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["backend"] == "sim" and m["safety"]["enabled"] is True and m["collisions"] == 0
+    assert m["final_pose"][0] > 0.05  # it drove along the corridor scenario's first leg
