@@ -288,3 +288,89 @@ class Backend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@dataclass(frozen=True)
+class LaserScan:
+    """One planar laser scan in the ``sensor_msgs/LaserScan`` layout (REP-103, REP-117).
+
+    Beam ``i`` points at ``angle_min + i * angle_increment`` rad in the sensor frame (``laser_link``:
+    x forward, y left, z up; angle 0 is x, counter-clockwise positive) and was measured
+    ``i * time_increment`` s after the first beam.
+
+    Range values (REP-117): a finite value in ``[range_min, range_max]`` is a measurement, in m;
+    ``+inf`` means no return (nothing within ``range_max``, or the echo was too weak to measure);
+    ``-inf`` means an object closer than ``range_min``; ``NaN`` means an invalid measurement (the
+    sensor reported an error for that beam). Consumers keep only finite values in range.
+
+    Attributes:
+        stamp_ns: Acquisition time of the first beam, integer ns of the backend's clock.
+        frame_id: Sensor frame, ``laser_link``.
+        angle_min: Angle of the first beam, rad.
+        angle_max: Angle of the last beam, rad (``angle_min + (N - 1) * angle_increment``).
+        angle_increment: Angle between beams, rad (> 0: counter-clockwise).
+        time_increment: Time between beams, s.
+        scan_time: Time between scans, s.
+        range_min: Smallest valid range, m.
+        range_max: Largest valid range, m.
+        ranges: (N,) float32 ranges, m, with the special values above.
+        intensities: (N,) float32 intensities (device units) or None when not measured.
+    """
+
+    stamp_ns: int
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    time_increment: float
+    scan_time: float
+    range_min: float
+    range_max: float
+    ranges: npt.NDArray[np.float32]
+    intensities: npt.NDArray[np.float32] | None = None
+    frame_id: str = "laser_link"
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.ranges.shape[0])
+
+    def angles(self) -> npt.NDArray[np.float64]:
+        """(N,) beam angles, rad."""
+        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
+
+
+@runtime_checkable
+class LaserScanner(Protocol):
+    """A planar scanning laser range finder (Hokuyo URG-04LX on the chair; simulated in sim/).
+
+    Lifecycle as every device: ``open()`` (connect, identify, switch the laser on), ``read()`` any
+    number of times, ``close()`` (laser off; idempotent).
+    """
+
+    name: str
+
+    def open(self) -> None:
+        """Connect and start measuring.
+
+        Raises:
+            DeviceDisconnectedError: the port cannot be opened.
+            DeviceTimeoutError: the device does not answer.
+            ProtocolError: it answers, but not as the expected device / protocol.
+            DeviceFaultError: it reports a hardware fault (laser or motor malfunction).
+        """
+        ...
+
+    def close(self) -> None:
+        """Stop measuring (laser off) and release the port; never raises on a lost device."""
+        ...
+
+    def read(self) -> LaserScan:
+        """The next complete scan (blocks at most about two scan periods plus the reply deadline).
+
+        Raises:
+            DeviceClosedError: used before ``open()`` or after ``close()``.
+            DeviceTimeoutError: no scan within the deadline after the retries.
+            ProtocolError: replies stayed garbled or failed their checksums after the retries.
+            DeviceDisconnectedError: the link went away (cable pulled).
+            DeviceFaultError: the device reports a hardware fault.
+        """
+        ...

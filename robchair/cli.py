@@ -23,12 +23,16 @@ COMMANDS = (
     "robchair.commands.sim",
     "robchair.commands.run",
     "robchair.commands.hw",
+    "robchair.commands.sweep",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",
     "robchair.commands.bench_sim",
     "robchair.commands.bench_table52",
     "robchair.commands.bench_env",
+    "robchair.commands.bench_sweep",
+    "robchair.commands.bench_zoom",
+    "robchair.commands.bench_laser",
 )
 
 

@@ -1,12 +1,15 @@
 """``robchair hw``: hardware tools.
 
     robchair hw check --port PORT [--i2c BUS]     self-test of the Roboteq (and the SRF08 bus)
+    robchair hw check --laser PORT                self-test of the Hokuyo laser (with or without --port)
     robchair hw emulate roboteq [--no-echo] [--firmware TEXT] [--duration S]
                                                   a Roboteq on a pty; prints the device path
+    robchair hw emulate hokuyo [--duration S]     a Hokuyo URG-04LX on a pty; prints the device path
 
 ``hw check`` only reads: it probes ``?FID`` and queries; it writes no configuration, and the only
 runtime commands it sends are the zero speeds of the driver's close(). Point it at the emulator's
-path to see what a real controller would report.
+path to see what a real controller would report. ``--laser`` asks the Hokuyo for ``VV``/``PP``/``II``,
+switches its laser on for one ``GD`` scan and off again (``QT``); it changes no setting.
 """
 
 from __future__ import annotations
@@ -23,12 +26,15 @@ def register(subparsers: Any) -> None:
     c = sub.add_parser(
         "check", help="self-test: firmware id, encoder counts, voltages, sonar addresses and ranges"
     )
-    c.add_argument("--port", required=True, help="Roboteq serial device (/dev/ttyACM0, or an emulator's pty)")
+    c.add_argument("--port", help="Roboteq serial device (/dev/ttyACM0, or an emulator's pty)")
+    c.add_argument(
+        "--laser", metavar="PORT", help="Hokuyo URG serial device (/dev/ttyACM1, or an emulator's pty)"
+    )
     c.add_argument("--baudrate", type=int, default=115200)
     c.add_argument("--i2c", type=int, metavar="BUS", help="I2C bus number of the SRF08 sonars (e.g. 1)")
     c.set_defaults(func=_check)
     e = sub.add_parser("emulate", help="run a device emulator on a pseudo-terminal")
-    e.add_argument("device", choices=("roboteq",))
+    e.add_argument("device", choices=("roboteq", "hokuyo"))
     e.add_argument("--no-echo", action="store_true", help="do not echo commands (as after ^ECHOF 1)")
     e.add_argument("--firmware", default=None, help="?FID answer (its vMAJOR. sets the gain units)")
     e.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (default: until Ctrl-C)")
@@ -91,6 +97,8 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO | None = None, clock: Any
 
 
 def _check(args: argparse.Namespace) -> int:
+    if args.laser is not None or args.port is None:
+        return _check_with_laser(args)
     from hw.roboteq.driver import RoboteqMDC2230
 
     with RoboteqMDC2230(args.port, baudrate=args.baudrate, configure=False) as motors:
@@ -106,12 +114,98 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _emulate(args: argparse.Namespace) -> int:
+    if args.device == "hokuyo":
+        return _emulate_hokuyo(args)
     from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator
 
     emu = RoboteqEmulator(firmware=args.firmware or DEFAULT_FIRMWARE, echo=not args.no_echo)
     path = emu.start()
     print(path, flush=True)
     print(f"Roboteq emulator ({emu.firmware.text}) on {path}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    try:
+        t_end = time.monotonic() + args.duration if args.duration > 0 else None
+        while t_end is None or time.monotonic() < t_end:
+            time.sleep(0.1)
+    finally:
+        emu.stop()
+    return 0
+
+
+def laser_check(laser: Any, out: TextIO | None = None) -> int:
+    """Print what an opened Hokuyo driver reports (VV, PP, II, one scan); returns the exit code.
+
+    Exit code 0 when a scan arrived and the sensor states it works well, 1 otherwise.
+    """
+    import math
+
+    import numpy as np
+
+    from hw.errors import HardwareError
+    from hw.laser_scan import valid_mask
+
+    out = out if out is not None else sys.stdout
+    ok = True
+    for key in ("VEND", "PROD", "FIRM", "PROT", "SERI"):
+        print(f"laser: {key} {laser.version.get(key, '?')}", file=out)
+    p = laser.params
+    print(
+        f"laser: PP model {p.model}, range {p.dmin_mm}-{p.dmax_mm} mm, steps {p.amin}..{p.amax} "
+        f"(front {p.afrt}, {p.ares} per turn), {p.scan_rpm} rpm",
+        file=out,
+    )
+    stat = laser.state.get("STAT", "?")
+    print(f"laser: state {stat!r}, laser {laser.state.get('LASR', '?')}", file=out)
+    if stat != "?" and "works well" not in stat:
+        ok = False
+    try:
+        scan = laser.read()
+    except HardwareError as exc:
+        print(f"laser: FAILED: {exc}", file=out)
+        return 1
+    valid = valid_mask(scan)
+    r = scan.ranges[valid]
+    front = int(np.argmin(np.abs(scan.angles())))
+    front_txt = f"{scan.ranges[front]:.3f} m" if valid[front] else str(scan.ranges[front])
+    print(
+        f"laser: scan {scan.n_beams} beams "
+        f"{math.degrees(scan.angle_min):.1f}..{math.degrees(scan.angle_max):.1f} deg "
+        f"every {math.degrees(scan.angle_increment):.4f} deg; {int(valid.sum())} valid, "
+        f"{int(np.isposinf(scan.ranges).sum())} no return, {int(np.isnan(scan.ranges).sum())} invalid",
+        file=out,
+    )
+    if r.size:
+        print(
+            f"laser: ranges min {r.min():.3f} m, median {np.median(r):.3f} m, max {r.max():.3f} m; "
+            f"ahead {front_txt}",
+            file=out,
+        )
+    else:
+        print("laser: no valid range in the scan", file=out)
+    return 0 if ok else 1
+
+
+def _check_with_laser(args: argparse.Namespace) -> int:
+    from hw.errors import CommandError
+
+    if args.laser is None:
+        raise CommandError("hw check: give --port (Roboteq) and/or --laser (Hokuyo)")
+    from hw.hokuyo.driver import HokuyoURG
+
+    rc = 0
+    if args.port is not None:
+        args_motor = argparse.Namespace(**{**vars(args), "laser": None})
+        rc = _check(args_motor)
+    with HokuyoURG(args.laser, mode="GD") as laser:
+        return max(rc, laser_check(laser))
+
+
+def _emulate_hokuyo(args: argparse.Namespace) -> int:
+    from hw.hokuyo.emulator import HokuyoEmulator
+
+    emu = HokuyoEmulator()
+    path = emu.start()
+    print(path, flush=True)
+    print(f"Hokuyo URG-04LX emulator (SCIP 2.0) on {path}; Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
         t_end = time.monotonic() + args.duration if args.duration > 0 else None
         while t_end is None or time.monotonic() < t_end:

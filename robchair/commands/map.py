@@ -59,7 +59,13 @@ def register(subparsers: Any) -> None:
         help="point-cloud topic of bag inputs, PointCloud2 or PointCloud (default: the only one)",
     )
     p.add_argument(
-        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); replaced on success"
+        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); written on success"
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
     )
     p.add_argument(
         "--size",
@@ -169,26 +175,24 @@ class _Extent:
         for o in self.origins:  # the sensor belongs inside the grid too: free space is traced from it
             lo = [min(lo[k], o[k]) for k in range(2)]
             hi = [max(hi[k], o[k]) for k in range(2)]
-        sizes, centre, capped = [], [], False
+        margins = [2 * cell + 0.05 * (hi[k] - lo[k]) for k in range(2)]
+        capped = False
         for k in range(2):
-            margin = 2 * cell + 0.05 * (hi[k] - lo[k])
-            want = hi[k] - lo[k] + 2 * margin
-            if want > MAX_GRID_SIDE_M:
+            if hi[k] - lo[k] + 2 * margins[k] > MAX_GRID_SIDE_M:
                 capped = True
-                want = MAX_GRID_SIDE_M
                 # Far outliers should not drag a bounded grid away from the bulk of the points.
                 med = np.array([(m[k], m[2]) for m in self.medians])
                 order = np.argsort(med[:, 0])
                 cum = np.cumsum(med[order, 1])
-                centre.append(float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0]))
-            else:
-                centre.append((lo[k] + hi[k]) / 2)
-            # +1 cell: snapping the centre to the lattice may shift the grid by up to one cell.
-            sizes.append((math.ceil(want / cell) + 1) * cell)
+                mid = float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0])
+                # the covering grid spans at most one cell more than its box
+                half = (MAX_GRID_SIDE_M - cell) / 2
+                lo[k], hi[k], margins[k] = mid - half, mid + half, 0.0
         how = "data extent + margin" + (
             f" (capped at {MAX_GRID_SIDE_M:g} m per side, centred on the median)" if capped else ""
         )
-        return GridSpec(cell, sizes[0], sizes[1], (centre[0], centre[1]), args.axis), how
+        grid = GridSpec.covering((lo[0], lo[1]), (hi[0], hi[1]), cell, (margins[0], margins[1]), args.axis)
+        return grid, how
 
 
 def _unique_names(paths: list[Path]) -> list[str]:
@@ -270,21 +274,28 @@ def _row(label: str, points: int, structures: int, voxels: int, ms: float, width
 
 
 def _run(args: argparse.Namespace) -> int:
-    import json
-    import sys
-
-    from mapping.export import DEFAULT_BAND, write_map_outputs
     from mapping.io import open_clouds
-    from robchair.outdir import staged_output_dir
+    from robchair.outdir import check_output_dir, deferred_stdout
 
     _check_args(args)
-    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     # Open every input first: a bad path, extension or topic fails before any work is done.
     sources: list[Any] = (
         [_SampleSource()]
         if (args.sample or not args.inputs)
         else [open_clouds(p, topic=args.topic) for p in args.inputs]
     )
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    with deferred_stdout():
+        return _map_all(args, sources, out_dir)
+
+
+def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
+    import json
+    import sys
+
+    from mapping.export import DEFAULT_BAND, write_map_outputs
+
+    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     names = _unique_names([s.path for s in sources])
     progress = sys.stderr.isatty()
     width = max(12, *(len(str(s.path)) + (len(s.topic) + 3 if s.topic else 0) for s in sources))
@@ -293,7 +304,7 @@ def _run(args: argparse.Namespace) -> int:
         f"{'standard voxels':>15}  {'build ms':>9}"
     )
     results = []
-    with staged_output_dir(args.out) as stage:
+    with out_dir.stage() as stage:
         for source, name in zip(sources, names):
             r = _map_one(source, args, progress)
             m = r["map"]

@@ -38,6 +38,12 @@ def register(subparsers: Any) -> None:
         help="pass commands through without the safety layer (recorded in metrics.json)",
     )
     p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
+    )
+    p.add_argument(
         "--release-stop",
         action="store_true",
         help="release an emergency stop the motor controller still holds from an earlier run (!MG)",
@@ -78,6 +84,7 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.backends import BACKENDS, get_backend
     from robchair.errors import ConfigError
     from robchair.kinematics import DiffDrive
+    from robchair.outdir import check_output_dir, overwrite_allowed
     from robchair.route import PurePursuit, Route
     from robchair.runtime import RuntimeConfig, run_to_dir
     from robchair.safety import SafetyLayer, SafetyLimits
@@ -86,6 +93,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.backend not in BACKENDS:
         raise ConfigError(f"--backend {args.backend!r}: expected one of {', '.join(BACKENDS)}")
+    if args.out is not None:
+        check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)
     backend_cfg = dict(cfg.get(args.backend, {}))
     if isinstance(backend_cfg.get("sensor"), str) and backend_cfg["sensor"].lower() == "none":
@@ -125,17 +134,18 @@ def _run(args: argparse.Namespace) -> int:
         from robchair.observers.evaluation import GroundTruthEvaluation
 
         observers.append(GroundTruthEvaluation(chair, chair.scene, ground_truth_map=False))
-    result = run_to_dir(
-        backend,
-        source,
-        args.duration,
-        args.out,
-        spec=spec,
-        config=runtime_config,
-        safety=safety,
-        start_pose=start_pose,
-        safety_enabled=not args.no_safety,
-        observers=observers,
-    )
+    with overwrite_allowed(args.overwrite):
+        result = run_to_dir(
+            backend,
+            source,
+            args.duration,
+            args.out,
+            spec=spec,
+            config=runtime_config,
+            safety=safety,
+            start_pose=start_pose,
+            safety_enabled=not args.no_safety,
+            observers=observers,
+        )
     print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1

@@ -439,7 +439,7 @@ def test_robchair_run_emulated_writes_bag_metrics_and_odometry(tmp_path: Path, c
     assert rc == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed["route"]["goal_reached"] is True
-    assert {p.name for p in out.iterdir()} == {"bag", "metrics.json", "odometry.csv"}
+    assert {p.name for p in out.iterdir()} == {"bag", "metrics.json", "odometry.csv", ".robchair-output"}
     odo = np.loadtxt(out / "odometry.csv", delimiter=",", skiprows=1)
     assert odo[-1, 1] == pytest.approx(1.0, abs=0.1)
 
