@@ -542,8 +542,10 @@ class Runtime:
                 self._last_fresh[DEPTH_CAMERA] = min(now, frame.stamp_ns) if frame.stamp_ns else now
                 self.last_depth_frame = frame
                 self.result.map_frames += 1
-        laser = getattr(b, "laser_scanner", None)
+        laser = getattr(b, "laser_scanner", None)  # a backend with a laser carries it by this name
         if laser is not None:
+            from hw.laser_scan import scan_to_points
+
             self._stage = "laser scanner"
             try:
                 scan = laser.read()
@@ -552,7 +554,7 @@ class Runtime:
             else:
                 self.last_scan = scan
                 self._stage = "perception (laser)"
-                p.add_scan(scan.frame_id, scan.points, pose)
+                p.add_scan(scan.frame_id, scan_to_points(scan), pose)
 
     def _read_motors(self) -> tuple[MotorState | None, str | None]:
         try:

@@ -15,6 +15,7 @@ topic                                  type                             frame
 ``/sonar/<array>/<k>`` (k = 1, 2, 3    sensor_msgs/Range (ULTRASOUND,   ``<array>_<k>``
 left to right)                         +inf = no echo, REP-117)
 ``/kinect/points``                     sensor_msgs/PointCloud2          the frame's ``frame_id``
+``/scan``                              sensor_msgs/LaserScan            ``laser_link``
 =====================================  ===============================  ==================================
 
 Depth clouds are kept every ``cloud_every``-th delivered frame, decimated ``cloud_stride`` x
@@ -38,6 +39,7 @@ if TYPE_CHECKING:
 
 STORAGES = ("mcap", "sqlite3")
 CLOUD_TOPIC = "/kinect/points"
+SCAN_TOPIC = "/scan"
 SONAR_FOV_RAD = math.radians(60.0)
 SONAR_MIN_RANGE_M = 0.03
 
@@ -206,6 +208,7 @@ class RunRecorder(Observer):
         self.cloud_every, self.cloud_stride = int(cloud_every), int(cloud_stride)
         self._frames = 0
         self._last_frame: Any = None
+        self._last_scan: Any = None
 
     @property
     def counts(self) -> dict[str, int]:
@@ -216,6 +219,8 @@ class RunRecorder(Observer):
 
         stamp = max(runtime.t0_ns, 1)
         statics: list[tuple[str, str, np.ndarray]] = []
+        if getattr(runtime.backend, "laser_scanner", None) is not None:
+            statics.append((BASE_LINK, "laser_link", runtime.perception.t_base_sensor("laser_link")))
         cam = runtime.backend.depth_camera
         if cam is not None:
             for frame_id in ("kinect_link", getattr(cam, "frame_id", "kinect_link")):
@@ -250,6 +255,13 @@ class RunRecorder(Observer):
             if mount is not None:
                 joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
                 bag.tf(reading.stamp_ns, [(BASE_LINK, name, mount.transform(joint))])
+        scan = runtime.last_scan
+        if scan is not None and scan is not self._last_scan:
+            from hw.laser_scan import to_ros_laser_scan
+
+            self._last_scan = scan
+            bag.write(SCAN_TOPIC, "sensor_msgs/msg/LaserScan", scan.stamp_ns,
+                      to_ros_laser_scan(scan, typestore=bag.store))  # fmt: skip
         frame = runtime.last_depth_frame
         if frame is not None and frame is not self._last_frame:
             self._last_frame = frame

@@ -500,3 +500,35 @@ def test_robchair_run_sim_without_a_route_drives_the_default_scenario(tmp_path: 
     m = json.loads(capsys.readouterr().out)
     assert m["backend"] == "sim" and m["safety"]["enabled"] is True and m["collisions"] == 0
     assert m["final_pose"][0] > 0.05  # it drove along the corridor scenario's first leg
+
+
+def test_a_laser_scanner_on_the_backend_is_mapped_and_recorded(tmp_path: Path, spec) -> None:
+    from rosbags.rosbag2 import Reader
+
+    from hw.interfaces import LaserScan
+    from robchair.perception import Perception
+
+    class Laser(Device):
+        name = "laser"
+
+        def __init__(self, clock) -> None:
+            self.clock = clock
+
+        def read(self) -> LaserScan:
+            n = 181
+            inc = math.radians(1.0)
+            return LaserScan(self.clock.now_ns(), -math.pi / 2, -math.pi / 2 + (n - 1) * inc, inc, 0.0, 0.1,
+                             0.02, 4.0, np.full(n, 2.0, dtype=np.float32))  # fmt: skip
+
+    backend = emulated(sonars=False)
+    backend.laser_scanner = Laser(backend.clock)
+    perception = Perception(spec)
+    out = tmp_path / "run"
+    res = run_to_dir(backend, PolicySource(lambda o: (0.0, 0.0)), 0.5, out, spec=spec, perception=perception)
+    assert perception.stats["laser_scans"] == res.cycles == 5
+    perception.flush()
+    # a half circle of 2 m around the laser lands in the map
+    assert perception.map.n_structures > 100
+    with Reader(out / "bag") as r:
+        counts = {c.topic: (c.msgtype, c.msgcount) for c in r.connections}
+    assert counts["/scan"] == ("sensor_msgs/msg/LaserScan", 5)
