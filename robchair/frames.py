@@ -207,18 +207,19 @@ def invert(t: Any) -> FloatArray:
     return out
 
 
-def transform_points(t: Any, points: Any) -> FloatArray:
+def transform_points(t: Any, points: Any, dtype: Any = np.float64) -> Any:
     """Apply a rigid transform to points.
 
     Args:
         t: (4, 4) transform for 3D points, or (3, 3) for 2D points.
         points: (..., 3) or (..., 2) array; NaN rows stay NaN.
+        dtype: arithmetic and output type (``np.float32`` keeps large sensor clouds single precision).
 
     Returns:
-        Array of the same shape as ``points``, float64.
+        Array of the same shape as ``points``, of ``dtype``.
     """
-    m = np.asarray(t, dtype=float)
-    p = np.asarray(points, dtype=float)
+    m = np.asarray(t, dtype=dtype)
+    p = np.asarray(points, dtype=dtype)
     n = m.shape[0] - 1
     if p.shape[-1] != n:
         raise ValueError(f"points of shape {p.shape} do not match a {m.shape} transform")

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-#: Sweep parameter -> keyword of :func:`sim.runner.run_scenario`.
+#: Sweep parameter -> keyword of :func:`robchair.scenario.run_scenario`.
 PARAMETERS: dict[str, str] = {
     "scenario": "scenario",
     "seed": "seed",
@@ -52,12 +52,12 @@ def run_harness(params: Mapping[str, Any], run_dir: Path) -> dict[str, Any]:
     Raises:
         Whatever the harness raises for this run (recorded by :func:`execute`).
     """
-    from sim.runner import run_scenario
+    from robchair.scenario import run_scenario
 
     kwargs = {PARAMETERS[k]: v for k, v in params.items()}
     scenario = kwargs.pop("scenario", "office_corridor")
     res = run_scenario(scenario, out_dir=run_dir, progress=False, raycast_threads=1, **kwargs)
-    return dict(res.metrics)
+    return res.metrics()
 
 
 def execute(
