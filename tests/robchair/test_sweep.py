@@ -181,3 +181,10 @@ def test_safety_limits_in_a_sweep_reach_the_harness_as_safety_limits(monkeypatch
     assert seen["safety_limits"].max_speed == SafetyLimits.from_spec(load_spec()).max_speed  # the rest: spec
     with pytest.raises(SweepError, match=r"unknown parameter 'safety\.margin'"):
         parse_sweep({"runs": [{"safety.margin": 0.3}]}, ALLOWED)
+
+
+def test_the_example_sweep_files_parse() -> None:
+    examples = sorted((Path(__file__).parents[2] / "examples" / "sweeps").glob("*.toml"))
+    assert examples
+    for f in examples:
+        assert load_sweep(f, ALLOWED).points
