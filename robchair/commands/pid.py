@@ -44,7 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     d.add_argument("--omega-w", type=float, default=3.3, help="their natural frequency, rad/s (3.3)")
     d.add_argument("--p", type=float, default=None, help="extra real pole at -p (default 10 xi_w omega_w)")
     d.add_argument("--firmware", type=int, choices=(1, 2), default=1, help="Roboteq firmware major version")
-    d.add_argument("--scale", type=float, default=1.0, help="Roboteq units scale (see control.roboteq_gains)")
+    d.add_argument("--scale", type=float, default=1.0, help="Roboteq units scale (see hw.roboteq.gains)")
     d.add_argument(
         "--rate",
         type=float,
@@ -58,6 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _run(args: argparse.Namespace) -> int:
+    from hw.roboteq.gains import roboteq_gains
     from robchair import control as rc
     from robchair.errors import ConfigError
     from robchair.outdir import staged_output_dir
@@ -108,7 +109,7 @@ def _run(args: argparse.Namespace) -> int:
 
     for m in motors:
         m["design"] = rc.design_pid(m["plant"], xi_w=args.xi_w, omega_w=args.omega_w, p=args.p)
-        m["roboteq"] = rc.roboteq_gains(m["design"], args.firmware, scale=args.scale)
+        m["roboteq"] = roboteq_gains(m["design"], args.firmware, scale=args.scale)
         m["rates"] = sorted({rc.CONTROLLER_RATE_HZ, *args.rate}, reverse=True)
         kq = m["roboteq"].effective
         m["sampled"] = {r: rc.sampled_loop(m["plant"], kq[0], kq[1], kq[2], 1.0 / r) for r in m["rates"]}
@@ -355,16 +356,6 @@ def _plot_steps(motors: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def root_locus(design: Any, gains: Any) -> Any:
-    """Closed-loop poles of 1 + k C(s) G(s) = 0 for each k in ``gains`` (array (len(gains), 3))."""
-    import numpy as np
-
-    pl = design.plant
-    den = np.array([1.0, pl.a1, pl.a0, 0.0])
-    num = pl.b0 * np.array([0.0, design.kd, design.kp, design.ki])
-    return np.array([np.sort_complex(np.roots(den + k * num)) for k in gains])
-
-
 def _plot_root_locus(m: dict[str, Any], path: Path) -> None:
     import matplotlib
 
@@ -372,12 +363,11 @@ def _plot_root_locus(m: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from robchair.control import open_loop_poles_and_zeros, root_locus
+
     d = m["design"]
-    gains = np.concatenate([[0.0], np.logspace(-4, 3, 1500)])
-    locus = root_locus(d, gains)
-    pl = d.plant
-    ol_poles = np.roots([1.0, pl.a1, pl.a0, 0.0])
-    zeros = np.roots([d.kd, d.kp, d.ki]) if d.kd != 0 else np.roots([d.kp, d.ki])
+    locus, _gains = root_locus(d, np.concatenate([[0.0], np.logspace(-4, 3, 1500)]))
+    ol_poles, zeros = open_loop_poles_and_zeros(d)
     fig, ax = plt.subplots(figsize=(6.4, 5.0))
     ax.plot(
         locus.real.ravel(),

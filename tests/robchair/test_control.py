@@ -24,13 +24,11 @@ from robchair.control import (
     design_pid,
     designed_poles,
     evaluate_gains,
-    gains_from_roboteq,
     identify_from_step_metrics,
     identify_from_trace,
     pole_mismatch,
     pole_placement_gains,
     read_step_trace,
-    roboteq_gains,
     sampled_loop,
     write_step_trace,
 )
@@ -436,46 +434,6 @@ def test_motor_model_open_loop_saturates_at_max_rpm_and_closed_loop_reaches_the_
     assert closed.advance(300.0, 3.0) == pytest.approx(300.0, rel=2e-3)
     closed.reset()
     assert closed.speed_rpm == 0.0
-
-
-# --------------------------------------------------------------------------------------------- Roboteq
-
-
-def test_roboteq_firmware_1_and_2_encodings_of_motor_1():
-    d = design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant)
-    g1 = roboteq_gains(d, 1)
-    assert (g1.kp, g1.ki, g1.kd) == (round(d.kp * 10), round(d.ki * 10), round(d.kd * 10)) == (14, 37, 3)
-    g2 = roboteq_gains(d, 2)
-    assert (g2.kp, g2.ki, g2.kd) == (round(d.kp * 1e6), round(d.ki * 1e6), round(d.kd * 1e6))
-    assert gains_from_roboteq(g1.kp, g1.ki, g1.kd, 1) == pytest.approx((1.4, 3.7, 0.3))
-    assert gains_from_roboteq(g2.kp, g2.ki, g2.kd, 2) == pytest.approx((d.kp, d.ki, d.kd), abs=5e-7)
-
-
-def test_quantised_gains_poles_are_recomputed_and_close_to_the_design():
-    for name in MOTORS:
-        d = design_pid(identify_from_step_metrics(*MOTORS[name]).plant)
-        g2 = roboteq_gains(d, 2)
-        assert g2.max_pole_shift < 2e-3  # 1e-6 gain resolution (the double pole splits as sqrt)
-    g1 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant), 1)
-    # motor 1 on firmware 1.x: KP 14, KI 37, KD 3 -> the PID 0.3 s + 1.4 + 3.7 / s
-    expected = np.sort_complex(
-        np.asarray(ct.poles(ct.feedback(ct.tf([0.3, 1.4, 3.7], [1, 0]) * g1.quantised.plant.tf(), 1)))
-    )
-    np.testing.assert_allclose(np.sort_complex(g1.quantised.achieved_poles), expected, rtol=1e-9)
-    assert g1.max_pole_shift < 0.1  # 0.1 resolution of firmware 1.x still keeps motor 1 within 10 %
-    # motor 2 on firmware 1.x: K_d = 0.249 rounds to 0.2, which moves the poles by up to 96 %
-    g1_m2 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 2"]).plant), 1)
-    assert (g1_m2.kp, g1_m2.ki, g1_m2.kd) == (11, 32, 2)
-    assert 0.5 < g1_m2.max_pole_shift < 1.0
-    assert np.all(g1_m2.quantised.achieved_poles.real < 0)
-
-
-def test_gain_outside_firmware_range_is_refused():
-    d = design_pid(SecondOrderPlant(2.0, 0.5), omega_w=20.0)
-    with pytest.raises(ControlError, match=r"firmware 1\.x cannot hold"):
-        roboteq_gains(d, 1)
-    with pytest.raises(ControlError, match="firmware_major = 3"):
-        roboteq_gains(d, 3)
 
 
 def test_discrete_plant_integrates_its_output_exactly():
