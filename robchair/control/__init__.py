@@ -88,13 +88,26 @@ from robchair.control.identification import (
 )
 from robchair.control.plant import ControlError, SecondOrderPlant, step_response_2nd
 from robchair.control.rootlocus import open_loop_poles_and_zeros, root_locus
-from robchair.control.traces import read_step_trace, write_step_trace
+from robchair.control.traces import (
+    COMMAND_UNITS,
+    SPEED_UNITS,
+    TIME_UNITS,
+    TraceUnits,
+    check_trace_gain,
+    fit_step_trace,
+    normalise_trace,
+    read_step_trace,
+    write_step_trace,
+)
 
 __all__ = [
+    "COMMAND_UNITS",
     "CONTROLLER_RATE_HZ",
+    "SPEED_UNITS",
     "THESIS_OMEGA_W",
     "THESIS_P_FACTOR",
     "THESIS_XI_W",
+    "TIME_UNITS",
     "ControlError",
     "DiscretePID",
     "DiscretePlant",
@@ -106,11 +119,15 @@ __all__ = [
     "SecondOrderPlant",
     "StepMetrics",
     "TraceFit",
+    "TraceUnits",
+    "check_trace_gain",
     "design_pid",
     "designed_poles",
     "evaluate_gains",
+    "fit_step_trace",
     "identify_from_step_metrics",
     "identify_from_trace",
+    "normalise_trace",
     "open_loop_poles_and_zeros",
     "pid_tf",
     "pole_mismatch",

@@ -54,8 +54,13 @@ class PIDDesign:
         designed_poles: Roots of (s + p)(s^2 + 2 xi_w omega_w s + omega_w^2), sorted.
         achieved_poles: Poles of python-control's feedback(C G, 1), sorted the same way.
         margins: Gain and phase margins of the loop C G.
-        closed_loop: Step metrics of the closed loop (reference to speed).
+        closed_loop: Step metrics of the closed loop from reference to speed, for the structure
+            ``derivative_on_measurement`` names.
         open_loop: Step metrics of the plant alone.
+        derivative_on_measurement: The derivative acts on the measured speed only (set-point weight 0
+            on the D term, as :class:`~robchair.control.DiscretePID` runs by default), so the reference
+            path is (K_p + K_i / s) G / (1 + C G); False: on the error, C G / (1 + C G). The poles,
+            margins and gains are the same either way; only the zeros of the reference path differ.
     """
 
     kp: float
@@ -70,14 +75,23 @@ class PIDDesign:
     margins: Margins
     closed_loop: StepMetrics
     open_loop: StepMetrics
+    derivative_on_measurement: bool = True
 
     def controller_tf(self, tau_d: float = 0.0) -> ct.TransferFunction:
         """C(s) = K_p + K_i / s + K_d s / (tau_d s + 1) (tau_d = 0: the ideal PID of the design)."""
         return pid_tf(self.kp, self.ki, self.kd, tau_d)
 
-    def closed_loop_tf(self, tau_d: float = 0.0) -> ct.TransferFunction:
-        """Reference-to-speed closed loop C G / (1 + C G)."""
-        return ct.feedback(self.controller_tf(tau_d) * self.plant.tf(), 1)
+    def closed_loop_tf(
+        self, tau_d: float = 0.0, derivative_on_measurement: bool | None = None
+    ) -> ct.TransferFunction:
+        """Reference-to-speed closed loop (default: the structure of :attr:`derivative_on_measurement`).
+
+        Derivative on the error: C G / (1 + C G). On the measurement: (K_p + K_i / s) G / (1 + C G).
+        """
+        dom = (
+            self.derivative_on_measurement if derivative_on_measurement is None else derivative_on_measurement
+        )
+        return reference_tf(self.kp, self.ki, self.kd, self.plant, tau_d, dom)
 
     @property
     def max_pole_error(self) -> float:
@@ -92,6 +106,27 @@ def pid_tf(kp: float, ki: float, kd: float, tau_d: float = 0.0) -> ct.TransferFu
         num = [kp * tau_d + kd, kp + ki * tau_d, ki]
         return ct.tf(num, [tau_d, 1.0, 0.0])
     return ct.tf([kd, kp, ki], [1.0, 0.0])
+
+
+def reference_tf(
+    kp: float,
+    ki: float,
+    kd: float,
+    plant: SecondOrderPlant,
+    tau_d: float = 0.0,
+    derivative_on_measurement: bool = True,
+) -> ct.TransferFunction:
+    """Reference-to-speed transfer function of the loop, for either placement of the derivative."""
+    g = plant.tf()
+    c = pid_tf(kp, ki, kd, tau_d)
+    if not derivative_on_measurement:
+        return ct.feedback(c * g, 1)
+    if tau_d == 0.0:
+        # exact polynomials: b0 (K_p s + K_i) / (s^3 + (K_d b0 + a1) s^2 + (K_p b0 + a0) s + K_i b0)
+        b0, a1, a0 = plant.b0, plant.a1, plant.a0
+        return ct.tf([b0 * kp, b0 * ki], [1.0, kd * b0 + a1, kp * b0 + a0, ki * b0])
+    c_ref = ct.tf([kp, ki], [1.0, 0.0])
+    return ct.minreal(c_ref * ct.feedback(g, c), verbose=False)
 
 
 def pole_placement_gains(
@@ -110,6 +145,7 @@ def design_pid(
     xi_w: float = THESIS_XI_W,
     omega_w: float = THESIS_OMEGA_W,
     p: float | None = None,
+    derivative_on_measurement: bool = True,
 ) -> PIDDesign:
     """Design a PID by pole placement and check it with python-control.
 
@@ -118,6 +154,8 @@ def design_pid(
         xi_w: Damping ratio of the dominant closed-loop poles (thesis 1.0).
         omega_w: Their natural frequency, rad/s (thesis 3.3).
         p: The extra real pole at s = -p; default 10 xi_w omega_w (thesis).
+        derivative_on_measurement: Structure the closed-loop step metrics describe (see
+            :class:`PIDDesign`); the gains and poles do not depend on it.
 
     Raises:
         ControlError: A design parameter is not a finite positive number.
@@ -129,7 +167,7 @@ def design_pid(
             raise ControlError(f"{name} = {v!r}: expected a finite number > 0 (a stable closed-loop pole)")
     kp, ki, kd = pole_placement_gains(plant, xi_w, omega_w, p)
     designed = designed_poles(xi_w, omega_w, p)
-    return _evaluate(kp, ki, kd, plant, xi_w, omega_w, p, designed)
+    return _evaluate(kp, ki, kd, plant, xi_w, omega_w, p, designed, derivative_on_measurement)
 
 
 def designed_poles(xi_w: float, omega_w: float, p: float) -> np.ndarray:
@@ -143,7 +181,9 @@ def designed_poles(xi_w: float, omega_w: float, p: float) -> np.ndarray:
     return _sort_poles(np.array([-p, *pair], dtype=complex))
 
 
-def evaluate_gains(plant: SecondOrderPlant, kp: float, ki: float, kd: float) -> PIDDesign:
+def evaluate_gains(
+    plant: SecondOrderPlant, kp: float, ki: float, kd: float, derivative_on_measurement: bool = True
+) -> PIDDesign:
     """Evaluate arbitrary PID gains on ``plant`` (poles, margins, step metrics) as a :class:`PIDDesign`.
 
     ``designed_poles`` are then the achieved ones, and xi_w, omega_w, p are NaN.
@@ -151,7 +191,7 @@ def evaluate_gains(plant: SecondOrderPlant, kp: float, ki: float, kd: float) -> 
     cl = ct.feedback(pid_tf(kp, ki, kd) * plant.tf(), 1)
     achieved = _sort_poles(np.asarray(ct.poles(cl)))
     nan = float("nan")
-    return _evaluate(kp, ki, kd, plant, nan, nan, nan, achieved)
+    return _evaluate(kp, ki, kd, plant, nan, nan, nan, achieved, derivative_on_measurement)
 
 
 def _evaluate(
@@ -163,6 +203,7 @@ def _evaluate(
     omega_w: float,
     p: float,
     designed: np.ndarray,
+    derivative_on_measurement: bool = True,
 ) -> PIDDesign:
     g = plant.tf()
     loop = pid_tf(kp, ki, kd) * g
@@ -188,8 +229,13 @@ def _evaluate(
         designed_poles=designed,
         achieved_poles=achieved,
         margins=margins,
-        closed_loop=_step_metrics(cl) if stable else _unstable_metrics(),
+        closed_loop=(
+            _step_metrics(reference_tf(kp, ki, kd, plant, 0.0, derivative_on_measurement))
+            if stable
+            else _unstable_metrics()
+        ),
         open_loop=_step_metrics(g),
+        derivative_on_measurement=derivative_on_measurement,
     )
 
 

@@ -64,9 +64,16 @@ class DiscretePID:
     """A sampled PID with output saturation, anti-windup and a filtered derivative.
 
     At each sample k: e = r - y; P = K_p e; I += K_i dt e (backward Euler); D from a first-order filtered
-    derivative (backward Euler of K_d s / (tau_d s + 1)) of the error, or of -y with
-    ``derivative_on_measurement`` (no derivative kick on setpoint steps); u = P + I + D, saturated to
-    [u_min, u_max].
+    derivative (backward Euler of K_d s / (tau_d s + 1)) of -y (``derivative_on_measurement``, the
+    default) or of the error; u = P + I + D, saturated to [u_min, u_max].
+
+    Why the derivative acts on the measurement by default: on the error, every set-point step r enters
+    the D term as K_d r / dt for one sample (29,000 RPM for the thesis's K_d = 0.29 s and a 100 RPM step
+    at 1 kHz), far beyond the +-1000 command, so the command saturates on every step and the loop's
+    reference response is no longer the linear one the design computes. On the measurement the set point
+    reaches the command through P and I only (set-point weight 0 on D, Astrom & Hagglund); the poles,
+    and so the disturbance rejection, are those of the design, and the sampled loop's step response is
+    the design's :meth:`~robchair.control.PIDDesign.closed_loop_tf` at every step size.
 
     Anti-windup: ``"conditional"`` (default) skips the integration when the output is saturated and the
     error would drive it further into saturation; ``"back_calculation"`` feeds (u_sat - u) / t_t back
@@ -77,7 +84,7 @@ class DiscretePID:
         dt: Sample time, s (default 1 / CONTROLLER_RATE_HZ).
         u_min, u_max: Output limits.
         tau_d: Derivative filter time constant, s (0 = plain backward difference).
-        derivative_on_measurement: Differentiate -y instead of the error.
+        derivative_on_measurement: Differentiate -y (default) instead of the error.
         anti_windup: ``"conditional"``, ``"back_calculation"`` or ``"none"``.
         t_t: Tracking time constant for back-calculation, s.
     """
@@ -91,7 +98,7 @@ class DiscretePID:
         u_min: float = -math.inf,
         u_max: float = math.inf,
         tau_d: float = 0.0,
-        derivative_on_measurement: bool = False,
+        derivative_on_measurement: bool = True,
         anti_windup: str = "conditional",
         t_t: float | None = None,
     ) -> None:
@@ -126,22 +133,27 @@ class DiscretePID:
     def from_design(
         cls, design: PIDDesign, dt: float = 1.0 / CONTROLLER_RATE_HZ, **kwargs: Any
     ) -> DiscretePID:
-        """A discrete PID with the gains of ``design``; keyword arguments as for the constructor."""
+        """A discrete PID with the gains and derivative placement of ``design``; keyword arguments as for
+        the constructor."""
+        kwargs.setdefault("derivative_on_measurement", design.derivative_on_measurement)
         return cls(design.kp, design.ki, design.kd, dt=dt, **kwargs)
 
-    def reset(self, integral: float = 0.0, previous: float = 0.0) -> None:
+    def reset(self, integral: float = 0.0, previous: float | None = None) -> None:
         """Set the integral term and the derivative memory.
 
         Args:
             integral: Integral term (e.g. the current command, for a bumpless start).
-            previous: The differentiated signal at the previous sample: the error, or -measurement with
-                ``derivative_on_measurement``. The default 0 means "at rest at zero", like a continuous
-                system with zero initial conditions, so a setpoint step on the first update gives the
-                same derivative kick as the continuous PID. Pass the current value to start without a kick.
+            previous: The differentiated signal at the previous sample: -measurement with
+                ``derivative_on_measurement``, else the error. None: with the derivative on the
+                measurement, take the first update's measurement (no kick when a controller starts or
+                gets new gains on a turning motor); on the error, 0 ("at rest at zero", like a continuous
+                system with zero initial conditions, so a set-point step on the first update gives the
+                continuous PID's derivative kick).
         """
         self.integral = float(integral)
         self._d = 0.0
-        self._prev = float(previous)
+        self._prev_unset = previous is None and self.derivative_on_measurement
+        self._prev = 0.0 if previous is None else float(previous)
         self.saturated = False
         self.u = 0.0
 
@@ -149,6 +161,8 @@ class DiscretePID:
         """One sample: return the (saturated) command for this setpoint and measured value."""
         e = setpoint - measurement
         x = -measurement if self.derivative_on_measurement else e
+        if self._prev_unset:
+            self._prev, self._prev_unset = x, False
         a = self.tau_d / (self.tau_d + self.dt)
         self._d = a * self._d + self.kd * (x - self._prev) / (self.tau_d + self.dt)
         self._prev = x
@@ -287,7 +301,7 @@ class MotorModel:
         """Replace the PID gains (keeps the integral so a running motor does not jump)."""
         integral = self.pid.integral if self.pid is not None else 0.0
         tau = self.pid.tau_d if self.pid is not None else 0.0
-        previous = self.pid._prev if self.pid is not None else 0.0
+        previous = self.pid._prev if self.pid is not None and not self.pid._prev_unset else None
         self.pid = DiscretePID(
             kp, ki, kd, dt=self.dt, u_min=-self.max_motor_rpm, u_max=self.max_motor_rpm, tau_d=tau
         )

@@ -97,6 +97,9 @@ class TraceFit:
         u_step: Size of the command step (command units).
         y_initial: Output before the step (baseline).
         rms_residual: RMS of (measured - model) over the samples used (output units).
+        r_squared: Coefficient of determination 1 - SS_res / SS_tot of the fit over the samples used.
+        relative_residual: ``rms_residual`` over the size of the fitted output step |K du| (so 0.02
+            means the model misses the data by 2 % of the step, RMS).
         n_samples: Samples used.
         n_dropped_nonfinite: Samples dropped because t, u or y was NaN or inf.
         metrics: Identification from the fitted plant's t_p, M_p, with the trace's own 10-90 % rise
@@ -112,6 +115,8 @@ class TraceFit:
     n_samples: int
     n_dropped_nonfinite: int
     metrics: Identification | None = None
+    r_squared: float = float("nan")
+    relative_residual: float = float("nan")
 
 
 def identify_from_trace(
@@ -174,6 +179,7 @@ def identify_from_trace(
 
     # Initial guess from the data's own peak and overshoot.
     y_final = float(np.median(ya[ta >= 0.8 * ta[-1]]))
+    _check_response(y_a[:k_step], y_final, du)
     k0 = y_final / du if fit_gain else 1.0
     if not (np.isfinite(k0) and k0 > 0):
         raise ControlError(
@@ -213,6 +219,8 @@ def identify_from_trace(
     wn, xi, k, d = unpack(res.x)
     plant = SecondOrderPlant(omega_n=wn, xi=xi, gain=k)
     rms = float(np.sqrt(np.mean(res.fun**2)))
+    ss_tot = float(np.sum((ya - np.mean(ya)) ** 2))
+    r2 = 1.0 - float(np.sum(res.fun**2)) / ss_tot if ss_tot > 0 else float("nan")
     metrics = None
     if xi < 1.0:
         metrics = identify_from_step_metrics(
@@ -225,10 +233,29 @@ def identify_from_trace(
         u_step=du,
         y_initial=y0,
         rms_residual=rms,
+        r_squared=r2,
+        relative_residual=rms / abs(k * du),
         n_samples=int(ta.size),
         n_dropped_nonfinite=n_drop,
         metrics=metrics,
     )
+
+
+def _check_response(y_before: np.ndarray, y_change: float, du: float) -> None:
+    """Refuse a trace whose speed does not move with the command step.
+
+    The response counts as absent when the settled change (median of the last 20 % of the trace minus
+    the baseline) is below five standard deviations of the speed before the step, or below 2 % of the
+    command step (both in the trace's units; with no samples before the step only the second test).
+    """
+    noise = float(np.std(y_before)) if y_before.size >= 3 else 0.0
+    floor = max(5.0 * noise, 0.02 * abs(du))
+    if not abs(y_change) > floor:
+        raise ControlError(
+            f"trace has no response: the speed settles {y_change:.4g} from its level before the command "
+            f"step of {du:.4g}, within {floor:.3g} (5 x the noise before the step, or 2 % of the step); "
+            "check that the speed column belongs to the commanded motor"
+        )
 
 
 def _trace_rise_time_10_90(t: np.ndarray, y: np.ndarray, y_final: float) -> float | None:

@@ -355,16 +355,20 @@ def test_discrete_pid_at_1khz_tracks_the_continuous_closed_loop(tau_d):
     assert errors[1] == pytest.approx(errors[0] / 2, rel=0.1)
 
 
+@pytest.mark.parametrize("on_measurement", [False, True])
 @pytest.mark.parametrize("tau_d", [0.0, 0.02])
-def test_sample_by_sample_loop_equals_python_control_discrete_closed_loop(tau_d):
+def test_sample_by_sample_loop_equals_python_control_discrete_closed_loop(tau_d, on_measurement):
     # Independent z-domain model of the same loop: c2d plant and the PID's difference equations
     design = design_pid(identify_from_step_metrics(*MOTORS["motor 2"]).plant)
     dt = 1e-3
     pz = ct.c2d(design.plant.tf(), dt, method="zoh")
     z = ct.tf([1.0, 0.0], [1.0], dt)
-    c = design.kp + design.ki * dt * z / (z - 1) + design.kd * (z - 1) / ((tau_d + dt) * z - tau_d)
-    t, y = _closed_loop_discrete(design, dt, 2.0, tau_d=tau_d)
-    y_z = np.asarray(ct.step_response(ct.feedback(c * pz, 1), T=t).outputs).ravel() * 100.0
+    c_pi = design.kp + design.ki * dt * z / (z - 1)
+    c = c_pi + design.kd * (z - 1) / ((tau_d + dt) * z - tau_d)
+    t, y = _closed_loop_discrete(design, dt, 2.0, tau_d=tau_d, derivative_on_measurement=on_measurement)
+    # derivative on the measurement: the reference reaches the command through P and I only
+    reference = ct.ss(c_pi) * ct.feedback(ct.ss(pz), ct.ss(c)) if on_measurement else ct.feedback(c * pz, 1)
+    y_z = np.asarray(ct.step_response(reference, T=t).outputs).ravel() * 100.0
     np.testing.assert_allclose(y, y_z, atol=1e-7)
 
 
@@ -373,7 +377,7 @@ def test_derivative_on_measurement_has_no_setpoint_kick():
     pid.update(0.0, 0.0)
     u = pid.update(10.0, 0.0)
     assert u == pytest.approx(1.0 * 10 + 2.0 * 0.01 * 10, rel=1e-12)
-    kick = DiscretePID(1.0, 2.0, 0.3, dt=0.01)
+    kick = DiscretePID(1.0, 2.0, 0.3, dt=0.01, derivative_on_measurement=False)
     kick.update(0.0, 0.0)
     assert kick.update(10.0, 0.0) == pytest.approx(10 + 0.2 + 0.3 * 10 / 0.01, rel=1e-12)
 
