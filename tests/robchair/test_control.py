@@ -383,9 +383,11 @@ def test_derivative_on_measurement_has_no_setpoint_kick():
 
 
 def test_filtered_derivative_follows_first_order_lag_of_a_ramp():
-    # error ramps at 1/s: ideal D = kd; the filtered D approaches kd as 1 - a^k, a = tau / (tau + dt)
+    # -measurement ramps at 1/s: ideal D = kd; the filtered D approaches kd as 1 - a^k, a = tau / (tau + dt)
     pid = DiscretePID(0.0, 0.0, 0.5, dt=0.01, tau_d=0.05)
-    outs = [pid.update(0.01 * k, 0.0) for k in range(200)]
+    outs = [pid.update(0.0, -0.01 * k) for k in range(200)]
+    on_error = DiscretePID(0.0, 0.0, 0.5, dt=0.01, tau_d=0.05, derivative_on_measurement=False)
+    np.testing.assert_allclose([on_error.update(0.01 * k, 0.0) for k in range(200)], outs, atol=1e-12)
     a = 0.05 / 0.06
     expected = [0.5 * (1 - a**k) for k in range(200)]
     np.testing.assert_allclose(outs, expected, atol=1e-12)
