@@ -506,3 +506,26 @@ def test_fit_without_gain_and_delay_keeps_them_fixed():
     assert fit.plant.xi == pytest.approx(0.45, rel=0.01)
     assert fit.metrics is not None
     assert fit.metrics.t_p == pytest.approx(true.peak_time, rel=0.01)
+
+
+def _rise_10_90(y, r, dt):
+    return dt * (int(np.argmax(y >= 0.9 * r)) - int(np.argmax(y >= 0.1 * r)))
+
+
+@pytest.mark.parametrize("step", [100.0, 300.0, 644.0])
+def test_sampled_loop_with_the_command_limit_rises_as_the_design_says_at_every_step_size(step):
+    # derivative on the measurement (the default): no set-point kick into the +-1000 limit
+    design = design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant)
+    assert design.derivative_on_measurement
+    _, y = _closed_loop_discrete(design, 1e-3, 4.0, r=step, u_min=-1000.0, u_max=1000.0)
+    assert _rise_10_90(y, step, 1e-3) == pytest.approx(design.closed_loop.rise_time, abs=2e-3)
+    assert design.closed_loop.rise_time == pytest.approx(0.527, abs=1e-3)
+    # derivative on the error: the first sample saturates, and the loop leaves the design it claims
+    on_error = design_pid(design.plant, derivative_on_measurement=False)
+    pid = DiscretePID.from_design(on_error, dt=1e-3, u_min=-1000.0, u_max=1000.0)
+    plant = DiscretePlant(design.plant, 1e-3)
+    u0 = pid.update(step, plant.output)
+    assert u0 == 1000.0 and pid.saturated
+    assert on_error.closed_loop.rise_time == pytest.approx(0.944, abs=1e-3)
+    _, y_err = _closed_loop_discrete(on_error, 1e-3, 4.0, r=step, u_min=-1000.0, u_max=1000.0)
+    assert abs(_rise_10_90(y_err, step, 1e-3) - on_error.closed_loop.rise_time) > 0.3
