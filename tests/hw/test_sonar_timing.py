@@ -1,0 +1,112 @@
+"""SRF08 firing schedule: 65 ms echo windows within an array, both arrays in step, no stale echoes."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import pytest
+
+from hw.clock import ManualClock
+from hw.emulators.srf08 import SRF08Bus
+from hw.errors import CommandError
+from hw.sonar_array import ECHO_WINDOW_S, RangerSonarArray, SonarFiringGroup
+from hw.srf08 import SRF08
+
+ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
+
+
+class Scene:
+    """An object 3 m in front of the left array's first sonar only; every ping is recorded."""
+
+    def __init__(self, ranges=None):
+        self.ranges = ranges if ranges is not None else {0x70: 3.0}
+        self.pings: list[tuple[int, int]] = []
+
+    def __call__(self, address, stamp_ns):
+        self.pings.append((address, stamp_ns))
+        return self.ranges.get(address, math.nan)
+
+
+def _arrays(scene, grouped=True, max_range_m=2.0):
+    clock = ManualClock()
+    bus = SRF08Bus(clock, scene, addresses=ADDRESSES)
+    arrays = [
+        RangerSonarArray(
+            [SRF08(bus, a, clock=clock, max_range_m=max_range_m) for a in ADDRESSES[3 * k : 3 * k + 3]],
+            name=name,
+            clock=clock,
+        )
+        for k, name in enumerate(("left", "right"))
+    ]
+    group = SonarFiringGroup(arrays, clock=clock) if grouped else None
+    for arr in arrays:
+        arr.open()
+    return clock, bus, arrays, group
+
+
+@pytest.mark.parametrize("grouped", [False, True])
+def test_a_far_echo_of_the_previous_ping_is_not_read_as_a_near_obstacle(grouped):
+    # 2 m range setting: results are ready 11.9 ms after the ping; fired as soon as the previous result
+    # was read, the middle sonar heard the left one's 3 m echo as an obstacle at about 0.4 m
+    scene = Scene()
+    _, bus, arrays, _ = _arrays(scene, grouped=grouped)
+    for _ in range(3):
+        left, right = arrays[0].read(), arrays[1].read()
+        assert left.ranges_m == (math.inf,) * 3  # 3 m is beyond the 2.021 m setting: no return
+        assert right.ranges_m == (math.inf,) * 3
+    assert bus.stale_echoes == 0
+
+
+def test_pings_of_one_array_are_65_ms_apart_and_both_arrays_fire_in_step():
+    scene = Scene()
+    clock, _, arrays, group = _arrays(scene)
+    assert group.cycle_time_s == pytest.approx(0.195)
+    t0 = clock.now_ns()
+    for _ in range(4):
+        arrays[0].read()
+        arrays[1].read()
+    window = round(ECHO_WINDOW_S * 1e9)
+    by_array = [[t for a, t in scene.pings if a in ADDRESSES[3 * k : 3 * k + 3]] for k in range(2)]
+    for stamps in by_array:
+        assert len(stamps) == 12  # four cycles of three
+        assert min(b - a for a, b in itertools.pairwise(stamps)) >= window
+    assert by_array[0] == by_array[1]  # slot k fires sonar k of both arrays at once
+    for address in ADDRESSES:
+        own = [t for a, t in scene.pings if a == address]
+        assert min(b - a for a, b in itertools.pairwise(own)) >= 3 * window
+    # four cycles of six readings: 3 slots each, the last slot of a cycle 65 ms before the next cycle
+    assert clock.now_ns() - t0 >= 3 * 4 * window - window
+    assert group.cycles == 4
+
+
+def test_the_second_array_returns_the_reading_of_the_same_cycle():
+    scene = Scene({0x70: 0.5, 0x75: 0.8})
+    _, _, arrays, group = _arrays(scene)
+    left = arrays[0].read()
+    n = len(scene.pings)
+    right = arrays[1].read()
+    assert len(scene.pings) == n == 6 and group.cycles == 1
+    assert left.stamp_ns == right.stamp_ns
+    assert left.ranges_m[0] == 0.5 and right.ranges_m[2] == 0.8
+
+
+def test_an_echo_window_shorter_than_the_datasheet_allows_is_refused():
+    scene = Scene()
+    _, _, arrays, _ = _arrays(scene, grouped=False)
+    with pytest.raises(CommandError, match="every 65 ms"):
+        SonarFiringGroup(arrays, echo_window_s=0.012)
+    with pytest.raises(CommandError, match="distinct arrays"):
+        SonarFiringGroup([arrays[0], arrays[0]])
+
+
+def test_the_emulated_backend_fires_its_two_arrays_in_one_group():
+    from hw.registry import get_backend
+
+    backend = get_backend("emulated", {})
+    try:
+        left, right = backend.sonar_arrays
+        assert left.group is right.group is not None
+        assert left.group.cycle_time_s == pytest.approx(0.195)
+    finally:
+        backend.close()
