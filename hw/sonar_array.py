@@ -5,12 +5,12 @@ design, so one sonar hears another's ping: sonars of one array are never fired w
 echo window, :data:`ECHO_WINDOW_S` = 65 ms (the SRF08 datasheet's firing interval at the power-up
 gain; a ping fired sooner hears the distant echoes of the previous one). The two arrays of the chair are
 fired in step by a :class:`SonarFiringGroup`: slot k (65 ms long) fires sonar k of every array at
-once, so a whole cycle of six readings takes 3 x 65 ms = 195 ms (:attr:`SonarFiringGroup.cycle_time_s`),
-each sonar is fired every 195 ms, and the first array's :meth:`RangerSonarArray.read` runs the cycle
-while the other array's read returns the reading of that same cycle. Sonars of different arrays fired in
-the same instant may hear each other's echo of the same object, which reads at about that object's
-range (a bistatic echo), never a stale one. An array without a group fires its own three sonars one
-slot each, with the same spacing.
+once, so each sonar is fired at most every 3 x 65 ms = 195 ms (:attr:`SonarFiringGroup.cycle_time_s`).
+A read fires the next slot when it is due and returns every sonar's latest range: a loop at 10 Hz gets
+one fresh sonar per array per cycle and a whole fresh array every 300 ms. Sonars of different arrays
+fired in the same instant may hear each other's echo of the same object, which reads at about that
+object's range (a bistatic echo), never a stale one. An array without a group schedules its own three
+sonars the same way.
 
 A sonar that fails (I/O error, timeout, protocol error) gives NaN for that reading while the
 others go on; each failure is logged and counted in :attr:`RangerSonarArray.error_counts`, and a
@@ -116,9 +116,10 @@ class RangerSonarArray(Device):
         self.servo.set_angle_deg(angle_deg)
 
     def read(self) -> SonarArrayReading:
-        """The three ranges of one firing cycle (see the module docstring); a failing sonar reads NaN.
+        """Each sonar's latest range (see :class:`SonarFiringGroup`); a failing sonar reads NaN.
 
-        Blocks until the cycle is done: up to :attr:`SonarFiringGroup.cycle_time_s` (195 ms).
+        Fires the next slot when it is due and blocks for its ranging; the first read blocks until all
+        three sonars have been fired once (2 x 65 ms plus a ranging).
         """
         self._check_open()
         if self.group is None:
@@ -191,11 +192,16 @@ class RangerSonarArray(Device):
 class SonarFiringGroup:
     """Fires the sonars of several arrays in step, one slot of :data:`ECHO_WINDOW_S` per sonar index.
 
-    Slot k fires sonar k of every array at once and collects them; the next slot starts no sooner than
-    ``echo_window_s`` after this one, across cycles too, so no two pings of one array (nor two pings of
-    one sonar) are ever closer than ``echo_window_s``. One cycle (three slots) takes
-    :attr:`cycle_time_s` = 3 x 65 ms = 195 ms at the default. Each array's :meth:`read` returns the
-    reading of the latest cycle that array has not yet returned, running a new cycle when there is none.
+    Slot k fires sonar k of every array at once and collects them; slots go k = 0, 1, 2, 0, ... and a
+    slot never starts sooner than ``echo_window_s`` after the previous one, so no two pings of one
+    array are closer than 65 ms and each sonar is fired at most every :attr:`cycle_time_s` = 3 x 65 ms
+    = 195 ms.
+
+    :meth:`read` does not wait for a slot: it fires the next slot when one is due (blocking only for
+    that slot's ranging, 11.9 ms at a 2 m range setting) and returns each sonar's latest range, stamped
+    with the oldest ping among the three. The first read of an array blocks until all three of its
+    sonars have been fired once. So a loop that reads every 65 ms or slower refreshes one sonar of each
+    array per read and a whole array every three reads (300 ms at 10 Hz, 195 ms at the fastest).
 
     Args:
         arrays: The arrays (each :class:`RangerSonarArray`; attached to this group unless ``attach`` is
@@ -226,47 +232,56 @@ class SonarFiringGroup:
             )
         self.arrays = tuple(arrays)
         self.echo_window_s = float(echo_window_s)
+        self._window_ns = round(self.echo_window_s * 1e9)
         self._clock: Clock = clock if clock is not None else self.arrays[0]._clock
         self._last_slot_ns: int | None = None
-        self._unread: dict[int, SonarArrayReading] = {}
-        self.cycles = 0
+        self._next = 0
+        self._ranges = {id(a): [math.nan] * 3 for a in self.arrays}
+        self._stamps: dict[int, list[int | None]] = {id(a): [None] * 3 for a in self.arrays}
+        self.slots = 0
         if attach:
             for a in self.arrays:
                 a.group = self
 
     @property
     def cycle_time_s(self) -> float:
-        """Time between two firings of one sonar, and for one full set of readings, s (195 ms)."""
+        """Shortest time between two firings of one sonar, and for a whole set of readings, s (195 ms)."""
         return 3 * self.echo_window_s
 
-    def read(self, array: RangerSonarArray) -> SonarArrayReading:
-        """The reading of ``array`` from the latest cycle it has not returned yet (runs one if needed)."""
-        reading = self._unread.pop(id(array), None)
-        if reading is None:
-            self._unread = self._cycle()
-            reading = self._unread.pop(id(array))
-        return reading
+    @property
+    def cycles(self) -> int:
+        """Complete cycles (three slots) fired so far."""
+        return self.slots // 3
 
-    def _cycle(self) -> dict[int, SonarArrayReading]:
-        window_ns = round(self.echo_window_s * 1e9)
-        ranges = {id(a): [math.nan] * 3 for a in self.arrays}
-        stamp: int | None = None
-        for k in range(3):
-            if self._last_slot_ns is not None:
-                self._clock.sleep_until_ns(self._last_slot_ns + window_ns)
-            slot = self._clock.now_ns()
-            stamp = slot if stamp is None else stamp
-            self._last_slot_ns = slot
-            started = [(a, a._start(k)) for a in self.arrays if a.is_open]
-            for a, st in started:
-                ranges[id(a)][k] = a._finish(k, st)
-        self.cycles += 1
-        assert stamp is not None
-        return {
-            id(a): SonarArrayReading(
-                stamp_ns=stamp,
-                ranges_m=(ranges[id(a)][0], ranges[id(a)][1], ranges[id(a)][2]),
-                servo_angle_deg=a._servo_angle(),
-            )
-            for a in self.arrays
-        }
+    def read(self, array: RangerSonarArray) -> SonarArrayReading:
+        """``array``'s latest three ranges, after firing the next slot if it is due (see the class)."""
+        stamps = self._stamps[id(array)]
+        if any(t is None for t in stamps):
+            while any(t is None for t in stamps):
+                self._fire(wait=True)
+        else:
+            self._fire(wait=False)
+        r = self._ranges[id(array)]
+        return SonarArrayReading(
+            stamp_ns=min(t for t in stamps if t is not None),
+            ranges_m=(r[0], r[1], r[2]),
+            servo_angle_deg=array._servo_angle(),
+        )
+
+    def _fire(self, wait: bool) -> None:
+        """Fire and collect the next slot; when it is not due yet, wait for it or (``wait=False``) skip."""
+        if self._last_slot_ns is not None:
+            due = self._last_slot_ns + self._window_ns
+            if self._clock.now_ns() < due:
+                if not wait:
+                    return
+                self._clock.sleep_until_ns(due)
+        k = self._next
+        slot = self._clock.now_ns()
+        self._last_slot_ns = slot
+        started = [(a, a._start(k)) for a in self.arrays if a.is_open]
+        for a, st in started:
+            self._ranges[id(a)][k] = a._finish(k, st)
+            self._stamps[id(a)][k] = slot
+        self._next = (k + 1) % 3
+        self.slots += 1

@@ -28,9 +28,9 @@ class Scene:
         return self.ranges.get(address, math.nan)
 
 
-def _arrays(scene, grouped=True, max_range_m=2.0):
+def _arrays(scene, grouped=True, max_range_m=2.0, acoustic_groups=None):
     clock = ManualClock()
-    bus = SRF08Bus(clock, scene, addresses=ADDRESSES)
+    bus = SRF08Bus(clock, scene, addresses=ADDRESSES, groups=acoustic_groups)
     arrays = [
         RangerSonarArray(
             [SRF08(bus, a, clock=clock, max_range_m=max_range_m) for a in ADDRESSES[3 * k : 3 * k + 3]],
@@ -45,17 +45,34 @@ def _arrays(scene, grouped=True, max_range_m=2.0):
     return clock, bus, arrays, group
 
 
-@pytest.mark.parametrize("grouped", [False, True])
-def test_a_far_echo_of_the_previous_ping_is_not_read_as_a_near_obstacle(grouped):
+APART = [ADDRESSES[:3], ADDRESSES[3:]]  # arrays that do not hear each other
+
+
+@pytest.mark.parametrize(("grouped", "acoustic_groups"), [(True, None), (False, APART)])
+def test_a_far_echo_of_the_previous_ping_is_not_read_as_a_near_obstacle(grouped, acoustic_groups):
     # 2 m range setting: results are ready 11.9 ms after the ping; fired as soon as the previous result
     # was read, the middle sonar heard the left one's 3 m echo as an obstacle at about 0.4 m
     scene = Scene()
-    _, bus, arrays, _ = _arrays(scene, grouped=grouped)
-    for _ in range(3):
+    clock, bus, arrays, _ = _arrays(scene, grouped=grouped, acoustic_groups=acoustic_groups)
+    for _ in range(6):
+        clock.advance(0.1)
         left, right = arrays[0].read(), arrays[1].read()
         assert left.ranges_m == (math.inf,) * 3  # 3 m is beyond the 2.021 m setting: no return
         assert right.ranges_m == (math.inf,) * 3
     assert bus.stale_echoes == 0
+
+
+def test_arrays_that_hear_each_other_but_fire_on_their_own_read_stale_echoes():
+    # why the two arrays share one firing group: fired 15 ms after the left array's ping, the right
+    # array's sonar hears its 3 m echo as an obstacle at 3 - 343 x 0.015 / 2 = 0.43 m
+    scene = Scene()
+    clock, bus, arrays, _ = _arrays(scene, grouped=False)
+    seen = []
+    for _ in range(6):
+        clock.advance(0.1)
+        arrays[0].read()
+        seen.append(arrays[1].read().ranges_m[0])
+    assert bus.stale_echoes > 0 and min(seen) == pytest.approx(0.43)
 
 
 def test_pings_of_one_array_are_65_ms_apart_and_both_arrays_fire_in_step():
@@ -63,7 +80,10 @@ def test_pings_of_one_array_are_65_ms_apart_and_both_arrays_fire_in_step():
     clock, _, arrays, group = _arrays(scene)
     assert group.cycle_time_s == pytest.approx(0.195)
     t0 = clock.now_ns()
-    for _ in range(4):
+    arrays[0].read()  # the first read fires all three slots
+    arrays[1].read()
+    for _ in range(9):  # a 10 Hz loop: one slot per cycle
+        clock.advance(0.1)
         arrays[0].read()
         arrays[1].read()
     window = round(ECHO_WINDOW_S * 1e9)
@@ -75,20 +95,25 @@ def test_pings_of_one_array_are_65_ms_apart_and_both_arrays_fire_in_step():
     for address in ADDRESSES:
         own = [t for a, t in scene.pings if a == address]
         assert min(b - a for a, b in itertools.pairwise(own)) >= 3 * window
-    # four cycles of six readings: 3 slots each, the last slot of a cycle 65 ms before the next cycle
-    assert clock.now_ns() - t0 >= 3 * 4 * window - window
-    assert group.cycles == 4
+    assert group.cycles == 4 and clock.now_ns() - t0 >= 2 * window + 9 * round(0.1e9)
 
 
-def test_the_second_array_returns_the_reading_of_the_same_cycle():
+def test_a_read_fires_at_most_the_one_slot_that_is_due_and_stamps_the_oldest_ping():
     scene = Scene({0x70: 0.5, 0x75: 0.8})
-    _, _, arrays, group = _arrays(scene)
-    left = arrays[0].read()
-    n = len(scene.pings)
-    right = arrays[1].read()
-    assert len(scene.pings) == n == 6 and group.cycles == 1
-    assert left.stamp_ns == right.stamp_ns
-    assert left.ranges_m[0] == 0.5 and right.ranges_m[2] == 0.8
+    # arrays that do not hear each other (in one acoustic space, 0x73, fired with 0x70, would also
+    # hear 0x70's echo of the object in front of the left array)
+    clock, _, arrays, group = _arrays(scene, acoustic_groups=[ADDRESSES[:3], ADDRESSES[3:]])
+    left = arrays[0].read()  # first read: all three slots, for both arrays
+    right = arrays[1].read()  # nothing due yet: the same cycle's ranges
+    assert len(scene.pings) == 6 and group.cycles == 1
+    assert left.stamp_ns == right.stamp_ns == 0
+    assert left.ranges_m == (0.5, math.inf, math.inf) and right.ranges_m == (math.inf, math.inf, 0.8)
+    clock.advance(0.05)  # slots at 0, 65, 130 ms, each read 15 ms later: at 195 ms slot 0 is due again
+    arrays[1].read()
+    assert [a for a, _ in scene.pings[6:]] == [0x70, 0x73]
+    # now sonar 2 (slot 1, at 65 ms) is the oldest of each array
+    assert arrays[0].read().stamp_ns == round(ECHO_WINDOW_S * 1e9)
+    assert len(scene.pings) == 8
 
 
 def test_an_echo_window_shorter_than_the_datasheet_allows_is_refused():
