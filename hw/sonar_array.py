@@ -97,6 +97,11 @@ class RangerSonarArray(Device):
                 dev.close()
             raise
         self._is_open = True
+        try:
+            self._scheduler().prime(self)  # fire each sonar once now, so no read has to wait for three
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
         for dev in reversed(self._devices()):
@@ -118,15 +123,18 @@ class RangerSonarArray(Device):
     def read(self) -> SonarArrayReading:
         """Each sonar's latest range (see :class:`SonarFiringGroup`); a failing sonar reads NaN.
 
-        Fires the next slot when it is due and blocks for its ranging; the first read blocks until all
-        three sonars have been fired once (2 x 65 ms plus a ranging).
+        Fires the next slot when it is due and blocks for its ranging (:meth:`open` has fired each
+        sonar once already, blocking 2 x 65 ms plus a ranging).
         """
         self._check_open()
-        if self.group is None:
-            if self._own_group is None:
-                self._own_group = SonarFiringGroup([self], clock=self._clock, attach=False)
-            return self._own_group.read(self)
-        return self.group.read(self)
+        return self._scheduler().read(self)
+
+    def _scheduler(self) -> SonarFiringGroup:
+        if self.group is not None:
+            return self.group
+        if self._own_group is None:
+            self._own_group = SonarFiringGroup([self], clock=self._clock, attach=False)
+        return self._own_group
 
     def _servo_angle(self) -> float:
         return self.servo.angle_deg() if self.servo is not None else self.fixed_angle_deg
@@ -200,7 +208,8 @@ class SonarFiringGroup:
     :meth:`read` does not wait for a slot: it fires the next slot when one is due (blocking only for
     that slot's ranging, 11.9 ms at a 2 m range setting) and returns each sonar's latest range, stamped
     with the oldest ping among the three. The first read of an array blocks until all three of its
-    sonars have been fired once. So a loop that reads every 65 ms or slower refreshes one sonar of each
+    sonars have been fired once (:meth:`RangerSonarArray.open` does that). So a loop that reads every
+    65 ms or slower refreshes one sonar of each
     array per read and a whole array every three reads (300 ms at 10 Hz, 195 ms at the fastest).
 
     Args:
@@ -253,12 +262,16 @@ class SonarFiringGroup:
         """Complete cycles (three slots) fired so far."""
         return self.slots // 3
 
+    def prime(self, array: RangerSonarArray) -> None:
+        """Fire slots (waiting for each) until every sonar of ``array`` has been fired once."""
+        while any(t is None for t in self._stamps[id(array)]):
+            self._fire(wait=True)
+
     def read(self, array: RangerSonarArray) -> SonarArrayReading:
         """``array``'s latest three ranges, after firing the next slot if it is due (see the class)."""
         stamps = self._stamps[id(array)]
         if any(t is None for t in stamps):
-            while any(t is None for t in stamps):
-                self._fire(wait=True)
+            self.prime(array)
         else:
             self._fire(wait=False)
         r = self._ranges[id(array)]
