@@ -32,7 +32,7 @@ def _good(dt=0.01, delay=0.02, noise=1.0, seed=1, t_end=3.0, step=100.0):
 def _run(tmp_path, capsys, t, u, y, *extra):
     csv = tmp_path / "trace.csv"
     write_step_trace(csv, t, u, y)
-    out = tmp_path / "o"
+    out = tmp_path / f"o{len(list(tmp_path.glob('o*')))}"  # a new folder for each run
     code = main(["pid", "--trace", str(csv), "--out", str(out), "--no-plots", *extra])
     cap = capsys.readouterr()
     return code, cap.out, cap.err, out
