@@ -104,8 +104,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hw.roboteq.gains import GAIN_EQUIVALENCE_NOTE, roboteq_gains
-    from robchair import control as rc
     from robchair.errors import ConfigError
     from robchair.outdir import check_output_dir, deferred_stdout
 
@@ -125,6 +123,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
+    from hw.roboteq.gains import GAIN_EQUIVALENCE_NOTE, roboteq_gains
     from robchair import control as rc
 
     motors: list[dict[str, Any]] = []

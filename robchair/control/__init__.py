@@ -58,8 +58,6 @@ loop) and :mod:`~robchair.control.rootlocus` (root locus through python-control)
 
 from __future__ import annotations
 
-from typing import Any
-
 from robchair.control.design import (
     THESIS_OMEGA_W,
     THESIS_P_FACTOR,
@@ -140,22 +138,3 @@ __all__ = [
     "step_response_2nd",
     "write_step_trace",
 ]
-
-# Transitional, and against the layering (core must not import hw): the Roboteq register encoding moved
-# to hw.roboteq.gains; these names resolve lazily for callers not yet switched over. Remove this hook
-# once hw/roboteq/driver.py, hw/roboteq/emulator.py and tests/hw/test_roboteq.py import hw.roboteq.gains.
-_MOVED_TO_HW = (
-    "FIRMWARE_MULTIPLIER",
-    "FIRMWARE_RANGE",
-    "RoboteqGains",
-    "gains_from_roboteq",
-    "roboteq_gains",
-)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED_TO_HW:
-        import importlib  # a static import would put core and hw in one import cycle for type checkers
-
-        return getattr(importlib.import_module("hw.roboteq.gains"), name)
-    raise AttributeError(f"module 'robchair.control' has no attribute {name!r}")
