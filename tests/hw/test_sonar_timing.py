@@ -127,7 +127,7 @@ def test_an_echo_window_shorter_than_the_datasheet_allows_is_refused():
 
 
 def test_the_emulated_backend_fires_its_two_arrays_in_one_group():
-    from hw.registry import get_backend
+    from robchair.backends import get_backend
 
     backend = get_backend("emulated", {})
     try:
