@@ -312,3 +312,15 @@ def test_exports_carry_three_values_and_read_back(tmp_path):
     np.testing.assert_array_equal(data, codes.T)  # row-major by y: -1 / 0 / 100 survive the bag
     for name in ("occupancy.png", "elevation.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_beam_points_fill_the_beam_cross_section_at_the_range():
+    from mapping.sonar import beam_points
+
+    p = beam_points(0.8, -10.0, 20.0, 5.0)
+    np.testing.assert_allclose(np.linalg.norm(p, axis=1), 0.8)
+    bearing = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    elevation = np.degrees(np.arcsin(p[:, 2] / 0.8))
+    assert bearing.min() == pytest.approx(-10.0) and bearing.max() == pytest.approx(10.0)
+    assert elevation.min() == pytest.approx(-5.0) and elevation.max() == pytest.approx(5.0)
+    assert np.any((np.abs(bearing) < 0.5) & (np.abs(elevation) < 0.5))  # the axis is sampled
