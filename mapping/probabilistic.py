@@ -214,6 +214,27 @@ class ProbabilisticVHV:
                 pts = kept
         return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
 
+    def _insert_with_free(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
+    ) -> EvidenceStats:
+        """``insert`` plus free-only targets (already at the range's end)."""
+        t0 = time.perf_counter()
+        stats_origin = self._check_origin(origin)
+        pts = as_points(points)
+        n_in = int(pts.shape[0])
+        from mapping import _evidence_kernels as E
+
+        assert stats_origin is not None
+        n_trunc = int(E.count_beyond(pts, *stats_origin, max_range))
+        targets = free_targets
+        if n_trunc:
+            kept = np.empty_like(pts)
+            truncated = np.empty((n_trunc, 3), np.float64)
+            E.split_beyond(pts, *stats_origin, max_range, kept, truncated)
+            pts = kept
+            targets = np.concatenate([truncated, free_targets])
+        return self._counted(pts, n_in, targets, stats_origin, "auto", t0, n_trunc)
+
     def _counted(
         self,
         pts: NDArray[np.floating],
@@ -249,7 +270,11 @@ class ProbabilisticVHV:
         )
 
     def insert_frame(
-        self, points_world: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None
+        self,
+        points_world: ArrayLike,
+        sensor_origin: ArrayLike,
+        max_range: float | None = None,
+        no_return_directions: ArrayLike | None = None,
     ) -> EvidenceStats:
         """One depth frame, for a perception stage: ``insert`` with a required sensor origin.
 
@@ -257,10 +282,36 @@ class ProbabilisticVHV:
             points_world: ``(N, 3)`` / ``(H, W, 3)`` world xyz, metres, NaN for no return.
             sensor_origin: world xyz of the sensor's optical centre, metres.
             max_range: metres; farther points clear up to this range and give no hit.
+            no_return_directions: optional ``(M, 3)`` world directions (any length) of pixels that
+                returned nothing; each clears up to ``max_range`` (required with it). A no-return
+                carries no position, so the cloud alone cannot clear behind a walker seen against the
+                sky or beyond the range; the camera model knows the pixels' directions. Use it only
+                for sensors whose no-return means "nothing within range" (not black or specular
+                surfaces a time-of-flight camera may miss).
+
+        Raises:
+            MappingError: no sensor origin, or directions without ``max_range`` / of the wrong shape.
         """
         if sensor_origin is None:
             raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
-        return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+        if no_return_directions is None:
+            return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+        if max_range is None:
+            raise MappingError("insert_frame no_return_directions need max_range (how far they clear)")
+        d = np.asarray(no_return_directions, dtype=np.float64)
+        if d.ndim != 2 or d.shape[1] != 3:
+            raise MappingError(f"insert_frame no_return_directions: expected (M, 3), got shape {d.shape}")
+        norm = np.linalg.norm(d, axis=1)
+        ok = np.isfinite(norm) & (norm > 0)
+        mr = float(max_range)
+        if not (math.isfinite(mr) and mr > 0):
+            raise MappingError(
+                f"insert_frame max_range={max_range!r}: expected a finite number of metres > 0"
+            )
+        o = self._check_origin(sensor_origin)
+        assert o is not None
+        ends = np.asarray(o) + d[ok] * (mr / norm[ok])[:, None]
+        return self._insert_with_free(points_world, o, mr, ends)
 
     def insert_free(self, targets: ArrayLike, sensor_origin: ArrayLike) -> EvidenceStats:
         """Free evidence only: space from the sensor up to (not into) the cells of ``targets`` is free.
