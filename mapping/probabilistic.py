@@ -225,7 +225,7 @@ class ProbabilisticVHV:
         from mapping import _evidence_kernels as E
 
         assert stats_origin is not None
-        n_trunc = int(E.count_beyond(pts, *stats_origin, max_range))
+        n_trunc = int(E.count_beyond(pts, *stats_origin, max_range)) if math.isfinite(max_range) else 0
         targets = free_targets
         if n_trunc:
             kept = np.empty_like(pts)
@@ -274,7 +274,7 @@ class ProbabilisticVHV:
         points_world: ArrayLike,
         sensor_origin: ArrayLike,
         max_range: float | None = None,
-        no_return_directions: ArrayLike | None = None,
+        no_return_ends: ArrayLike | None = None,
     ) -> EvidenceStats:
         """One depth frame, for a perception stage: ``insert`` with a required sensor origin.
 
@@ -282,35 +282,29 @@ class ProbabilisticVHV:
             points_world: ``(N, 3)`` / ``(H, W, 3)`` world xyz, metres, NaN for no return.
             sensor_origin: world xyz of the sensor's optical centre, metres.
             max_range: metres; farther points clear up to this range and give no hit.
-            no_return_directions: optional ``(M, 3)`` world directions (any length) of pixels that
-                returned nothing; each clears up to ``max_range`` (required with it). A no-return
-                carries no position, so the cloud alone cannot clear behind a walker seen against the
-                sky or beyond the range; the camera model knows the pixels' directions. Use it only
-                for sensors whose no-return means "nothing within range" (not black or specular
-                surfaces a time-of-flight camera may miss).
+            no_return_ends: optional ``(M, 3)`` world points: for pixels that returned nothing, where
+                their ray stops being known free (e.g. the pixel's ray at the camera's maximum depth:
+                ``T_world_cam @ (ray_with_unit_depth * max_depth)``). A NaN carries no direction, so
+                without them nothing clears behind a walker seen against the sky or beyond the range.
+                Use them only where a no-return means "nothing within range": a depth camera also
+                misses black or specular surfaces and surfaces seen at grazing incidence.
 
         Raises:
-            MappingError: no sensor origin, or directions without ``max_range`` / of the wrong shape.
+            MappingError: no sensor origin, or ends of the wrong shape.
         """
         if sensor_origin is None:
             raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
-        if no_return_directions is None:
+        if no_return_ends is None:
             return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
-        if max_range is None:
-            raise MappingError("insert_frame no_return_directions need max_range (how far they clear)")
-        d = np.asarray(no_return_directions, dtype=np.float64)
-        if d.ndim != 2 or d.shape[1] != 3:
-            raise MappingError(f"insert_frame no_return_directions: expected (M, 3), got shape {d.shape}")
-        norm = np.linalg.norm(d, axis=1)
-        ok = np.isfinite(norm) & (norm > 0)
-        mr = float(max_range)
-        if not (math.isfinite(mr) and mr > 0):
-            raise MappingError(
-                f"insert_frame max_range={max_range!r}: expected a finite number of metres > 0"
-            )
+        ends = np.asarray(no_return_ends, dtype=np.float64)
+        if ends.ndim != 2 or ends.shape[1] != 3:
+            raise MappingError(f"insert_frame no_return_ends: expected (M, 3), got shape {ends.shape}")
+        ends = ends[np.isfinite(ends).all(axis=1)]
         o = self._check_origin(sensor_origin)
         assert o is not None
-        ends = np.asarray(o) + d[ok] * (mr / norm[ok])[:, None]
+        mr = math.inf if max_range is None else float(max_range)
+        if not (mr > 0 and not math.isnan(mr)):
+            raise MappingError(f"insert_frame max_range={max_range!r}: expected a number of metres > 0")
         return self._insert_with_free(points_world, o, mr, ends)
 
     def insert_free(self, targets: ArrayLike, sensor_origin: ArrayLike) -> EvidenceStats:

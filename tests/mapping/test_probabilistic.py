@@ -344,9 +344,9 @@ def test_no_return_directions_clear_a_walker_seen_against_the_sky():
         m.insert_frame(nothing, o)  # NaN carries no direction: nothing is cleared
     assert _code(m.occupancy_2d(MID), m, 1.52, 0.0) == 100
     for _ in range(10):
-        m.insert_frame(nothing, o, max_range=4.0, no_return_directions=dirs)
+        m.insert_frame(nothing, o, no_return_ends=o + 4.0 * dirs / np.linalg.norm(dirs, axis=1)[:, None])
     codes = m.occupancy_2d(MID)
     assert _code(codes, m, 1.52, 0.0) == 0 and _code(codes, m, 3.0, 0.0) == 0
     assert _code(codes, m, 4.5, 0.0) == -1  # beyond the range: still unknown
-    with pytest.raises(MappingError, match="need max_range"):
-        m.insert_frame(nothing, o, no_return_directions=dirs)
+    with pytest.raises(MappingError, match=r"expected \(M, 3\)"):
+        m.insert_frame(nothing, o, no_return_ends=dirs[:, :2])
