@@ -206,13 +206,51 @@ class ProbabilisticVHV:
                 raise MappingError("insert max_range needs a sensor_origin (the range is measured from it)")
             from mapping import _evidence_kernels as E
 
+            # Build first: when every structure (hence every point) lies within the range and no point
+            # fell outside the grid, nothing needs cutting and the pass over the points is saved.
+            built = self._build(pts, method)
+            if built[4] == 0 and self._within(built[0], built[1], built[2], origin, mr):
+                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
             n_trunc = int(E.count_beyond(pts, *origin, mr))
             if n_trunc:
                 kept = np.empty_like(pts)
                 truncated = np.empty((n_trunc, 3), np.float64)
                 E.split_beyond(pts, *origin, mr, kept, truncated)
                 pts = kept
+            elif built is not None:
+                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
         return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
+
+    def _build(self, pts: NDArray[np.floating], method: str) -> tuple[Any, ...]:
+        """The frame's VHV structures: (key, bottom, top, n_nonfinite, n_outside, path)."""
+        from mapping.vhv import _build_compiled, _build_numpy
+
+        if method not in ("auto", "bins", "sort", "numpy"):
+            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
+        if method == "numpy":
+            with np.errstate(over="ignore"):
+                return (*_build_numpy(pts, self.spec, self.tolerance), "numpy")
+        return tuple(_build_compiled(pts, self.spec, self.tolerance, method))
+
+    def _within(
+        self,
+        key: NDArray[np.int64],
+        bot: NDArray[np.float64],
+        top: NDArray[np.float64],
+        origin: tuple[float, float, float],
+        max_range: float,
+    ) -> bool:
+        """True when the box of the structures' cells and heights lies within ``max_range`` of origin."""
+        if key.shape[0] == 0:
+            return True
+        ny, cs = self.spec.shape[1], self.spec.cell_size
+        (ou, ov) = self.spec.origin
+        i, j = key // ny, key % ny
+        su, sv, sh = (float(c) for c in self.spec.to_grid_frame(np.asarray(origin)))
+        du = max(abs((int(i.min()) + ou) * cs - su), abs((int(i.max()) + ou + 1) * cs - su))
+        dv = max(abs((int(j.min()) + ov) * cs - sv), abs((int(j.max()) + ov + 1) * cs - sv))
+        dh = max(abs(float(bot.min()) - sh), abs(float(top.max()) - sh))
+        return math.sqrt(du * du + dv * dv + dh * dh) <= max_range
 
     def _insert_with_free(
         self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
@@ -244,8 +282,9 @@ class ProbabilisticVHV:
         method: str,
         t0: float,
         n_free_only: int,
+        built: tuple[Any, ...] | None = None,
     ) -> EvidenceStats:
-        stats = self._insert(pts, free_only, origin, method)
+        stats = self._insert(pts, free_only, origin, method, built)
         n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - (n_free_only if n_in else 0)
         self.frames += 1
         self.points_inserted += n_ins
@@ -392,8 +431,9 @@ class ProbabilisticVHV:
         free_only: NDArray[np.float64] | None,
         origin: tuple[float, float, float] | None,
         method: str,
+        built: tuple[Any, ...] | None = None,
     ) -> dict[str, Any]:
-        ev = self._evidence(pts, free_only, origin, method)
+        ev = self._evidence(pts, free_only, origin, method, built)
         ncells = 0
         if ev["okey"].shape[0] or ev["fkey"].shape[0]:
             ncells = self._update(ev["okey"], ev["olo"], ev["ohi"], ev["fkey"], ev["flo"], ev["fhi"])
@@ -407,20 +447,14 @@ class ProbabilisticVHV:
         free_only: NDArray[np.float64] | None,
         origin: tuple[float, float, float] | None,
         method: str,
+        built: tuple[Any, ...] | None = None,
     ) -> dict[str, Any]:
         """One frame's occupied slabs and merged free intervals (lattice units), without touching the map."""
         from mapping import _evidence_kernels as E
         from mapping.vhv import _build_compiled, _build_numpy
 
         spec, tol = self.spec, self.tolerance
-        if method not in ("auto", "bins", "sort", "numpy"):
-            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
-        if method == "numpy":
-            with np.errstate(over="ignore"):
-                key, bot, top, n_nf, n_out = _build_numpy(pts, spec, tol)
-            used = "numpy"
-        else:
-            key, bot, top, n_nf, n_out, used = _build_compiled(pts, spec, tol, method)
+        key, bot, top, n_nf, n_out, used = built if built is not None else self._build(pts, method)
         r = self._r
         lim = _LATTICE_LIMIT * r * 0.5
         ok = (bot > -lim) & (top < lim)
