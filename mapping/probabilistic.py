@@ -128,7 +128,7 @@ class ProbabilisticVHV:
 
     def __init__(self, spec: GridSpec, tolerance: float = 0.05, params: EvidenceParams | None = None) -> None:
         # VHVMap validates spec and tolerance with the project's messages.
-        self._occ_base = VHVMap(spec, tolerance)
+        VHVMap(spec, tolerance)
         self.spec = spec
         self.tolerance = float(tolerance)
         self.params = params if params is not None else EvidenceParams()
