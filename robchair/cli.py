@@ -24,6 +24,7 @@ COMMANDS = (
     "robchair.commands.run",
     "robchair.commands.hw",
     "robchair.commands.sweep",
+    "robchair.commands.view",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",
