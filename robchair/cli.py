@@ -25,6 +25,7 @@ COMMANDS = (
     "robchair.commands.hw",
     "robchair.commands.sweep",
     "robchair.commands.view",
+    "robchair.commands.report",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",

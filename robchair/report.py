@@ -58,12 +58,14 @@ TIMESERIES_COLUMNS = (
 _PLOT_CONFIG = {"displaylogo": False, "responsive": True}
 
 
-def build_report(run_dir: Path | str, out: Path | str | None = None) -> Path:
+def build_report(run_dir: Path | str, out: Path | str | None = None, *, name: str | None = None) -> Path:
     """Write the run's ``report.html`` (default ``<run_dir>/report.html``) and return its path.
 
     Args:
-        run_dir: a run folder of ``robchair sim`` / ``robchair run``.
+        run_dir: a run folder of ``robchair sim`` / ``robchair run`` (complete: ``metrics.json`` written).
         out: where to write the page instead.
+        name: the run's name on the page (default: the folder's name; pass the final name when
+            ``run_dir`` is a staging folder).
 
     Raises:
         RunFolderError: ``run_dir`` is not a folder or one of its files cannot be read.
@@ -80,13 +82,18 @@ def build_report(run_dir: Path | str, out: Path | str | None = None) -> Path:
         _section("Over time", _time_plots(run, stops)),
         _section("Safety stops", _stops_table(stops, metrics)),
     ]
-    name = metrics.get("scenario") or run.path.resolve().name
+    run_name = name if name is not None else run.path.resolve().name
+    title = f"RobChair run {metrics.get('scenario') or run_name}"
     status = metrics.get("status", "")
-    title = f"RobChair run {name}"
+    facts = [f"run folder {run_name}"] + [
+        f"{k.replace('_', ' ')} {_fmt(metrics[k])}"
+        for k in ("backend", "scene", "sensor", "seed", "sim_time_s")
+        if metrics.get(k) is not None
+    ]
     page = _PAGE.format(
         title=html.escape(str(title)),
         heading=html.escape(str(title)) + (f" <small>({html.escape(str(status))})</small>" if status else ""),
-        subtitle=html.escape(str(run.path.resolve())),
+        subtitle=html.escape(" · ".join(facts)),
         plotlyjs=plotly.offline.get_plotlyjs(),
         body="\n".join(sections),
     )

@@ -71,6 +71,13 @@ def import_rerun() -> Any:
     return rerun
 
 
+def rerun_available() -> bool:
+    """True when the Rerun SDK (the ``viz`` extra) is installed."""
+    import importlib.util
+
+    return importlib.util.find_spec("rerun") is not None
+
+
 def frame_entities(parents: dict[str, str]) -> dict[str, str]:
     """Entity path of every frame of a TF tree given as child -> parent (roots under ``world``).
 
@@ -96,6 +103,7 @@ def write_recording(
     *,
     max_cloud_points: int = MAX_CLOUD_POINTS,
     max_boxes: int = MAX_BOXES,
+    name: str | None = None,
 ) -> Path:
     """Write the run's Rerun recording (default ``<run_dir>/recording.rrd``) and return its path.
 
@@ -106,6 +114,8 @@ def write_recording(
         out: where to write the recording instead.
         max_cloud_points: points kept per depth cloud at most.
         max_boxes: VHV boxes logged per map at most.
+        name: the recording's id in the viewer (default: the folder's name; pass the final name when
+            ``run_dir`` is a staging folder).
 
     Raises:
         RunFolderError: the folder or one of its files cannot be read, or the Rerun SDK is missing.
@@ -114,7 +124,7 @@ def write_recording(
     run = RunFolder(run_dir)
     target = Path(out) if out is not None else run.path / RECORDING_NAME
     partial = target.with_name(target.name + ".partial")
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=run.path.resolve().name)
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=name or run.path.resolve().name)
     rec.save(partial)
     try:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

@@ -150,3 +150,23 @@ def test_bag_times_start_at_the_run_start(run):
     first = next(RunFolder(run.path).messages(["/odom"]))
     assert first.t_s == pytest.approx(1 / 60)  # the first cycle, 1/60 s after /tf_static at the start
     assert Path(run.path / "bag" / "metadata.yaml").is_file()
+
+
+def test_report_names_the_run_by_its_final_folder_and_metrics(run, tmp_path):
+    page = build_report(run.path, tmp_path / "r.html", name="office-run").read_text(encoding="utf-8")
+    assert "run folder office-run · backend sim · sim time s 1" in page
+    assert "<title>RobChair run synthetic_quarter_circle</title>" in page
+
+
+def test_report_command_writes_the_page_and_prints_its_path(run, capsys):
+    from robchair.cli import main
+
+    (run.path / "report.html").unlink(missing_ok=True)
+    assert main(["report", str(run.path)]) == 0
+    assert capsys.readouterr().out == f"{run.path / 'report.html'}\n"
+    assert (run.path / "report.html").stat().st_size > 1_000_000
+    assert main(["report", str(run.path / "missing")]) == 2
+    assert (
+        capsys.readouterr().err
+        == f"robchair report: error: {run.path / 'missing'}: not a run folder (no such directory)\n"
+    )
