@@ -5,8 +5,9 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
 
 1. stops (v = w = 0) when any stop condition holds, in this order of precedence:
    ``driver_fault`` (latched: only :meth:`SafetyLayer.reset` clears it), ``deadline_missed`` (the
-   previous cycle overran its period), ``stale_sensor`` (a sensor gave nothing new for longer than
-   ``stale_after_s``), ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
+   previous cycle overran its period, or this one outlived its deadline before writing),
+   ``stale_sensor`` (a sensor gave nothing new for longer than ``stale_after_s``),
+   ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
    obstacle ahead closer than the stopping distance for the speed the chair would have);
 2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
    motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
@@ -17,6 +18,10 @@ Obstacle distances are measured from the front of the chair (sonar ranges from t
 distances from the footprint's front edge), so ``margin`` is the gap left when stopped. The chair's
 sonars and camera look forward only: obstacle stops apply while the wanted or current speed is
 forward; reversing and turning in place are bounded by the speed and acceleration limits alone.
+
+The runtime adds stops found when the command is about to be written (:meth:`SafetyLayer.stop_now`):
+a deadline or freshness limit passed while the cycle ran, or a gap since the last command longer than
+the motor controller's watchdog (``controller_watchdog``: the controller has stopped the motors).
 
 A stop is logged (``logging.warning``) and recorded in :attr:`SafetyLayer.stops` once when it starts,
 with its reason and a detail text; it is not logged again while the same reason persists.
@@ -41,6 +46,7 @@ class StopReason(enum.StrEnum):
     DEADMAN_RELEASED = "deadman_released"
     OBSTACLE_SONAR = "obstacle_sonar"
     OBSTACLE_MAP = "obstacle_map"
+    CONTROLLER_WATCHDOG = "controller_watchdog"
 
 
 @dataclass(frozen=True)
@@ -179,6 +185,15 @@ class SafetyLayer:
                 if dist is not None and math.isfinite(dist) and dist < d_stop:
                     return reason, f"obstacle at {dist:.2f} m ahead < stopping distance {d_stop:.2f} m"
         return None
+
+    def stop_now(self, stamp_ns: int, reason: StopReason, detail: str) -> SafetyDecision:
+        """Stop this cycle for ``reason`` (found after :meth:`filter`, when the command is written)."""
+        if reason != self._active:
+            self.stops.append(StopRecord(stamp_ns, reason, detail))
+            log.warning("safety stop: %s (%s)", reason.value, detail)
+        self._active = reason
+        self._v = self._w = 0.0
+        return SafetyDecision(0.0, 0.0, reason, detail)
 
     def filter(self, v: float, w: float, inputs: SafetyInputs, dt: float) -> SafetyDecision:
         """Return the twist to command this cycle (``dt`` = loop period, s)."""

@@ -11,13 +11,16 @@ simulated sensors (S2's :mod:`sim.kinect` and :mod:`sim.sonar`). The devices bel
 * :class:`SimDepthCamera` - the simulated Kinect at ``kinect_link``'s current world pose.
 * :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
 
-:func:`make_sim_backend` builds all of it from a small config mapping (what ``hw.registry`` passes).
+:func:`make_sim_backend` builds all of it from a small config mapping (what :mod:`robchair.backends` passes).
 """
 
 from __future__ import annotations
 
 import math
+import threading
+import time
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,6 +36,8 @@ from hw.interfaces import (
     PIDConfig,
     SonarArrayReading,
 )
+from robchair.frames import quat_from_yaw
+from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec, load_spec
 from sim.errors import SimError
 from sim.robot import SimRobot
@@ -78,6 +83,9 @@ class SimChair:
         tyre_radius_error: float = 0.002,
     ) -> None:
         self.spec = spec if spec is not None else load_spec()
+        self.timing = {"physics": 0.0, "kinect_capture": 0.0, "sonar": 0.0}  # wall s per component
+        self.captures_in_flight: list[Future[DepthFrame]] = []
+        self.capture_pool: ThreadPoolExecutor | None = None
         self.world = World()
         try:
             self.scene = load_scene(scene) if isinstance(scene, str | Path) else scene
@@ -138,17 +146,80 @@ class SimChair:
                 p.setCollisionFilterPair(self.robot.body, body, link, -1, 0, physicsClientId=c)
 
     def step(self, n: int = 1) -> None:
-        """Advance the physics by ``n`` steps, moving the scripted people first."""
+        """Advance the physics by ``n`` steps, moving the scripted people first.
+
+        Scripted people never move while a depth frame is being captured in the background: those
+        captures are waited for first (so a threaded run sees what a serial one sees).
+        """
+        if n <= 0:
+            return
+        if self.bodies.moving and self.captures_in_flight:
+            for fut in self.captures_in_flight:
+                fut.result()
+            self.captures_in_flight.clear()
+        t0 = time.perf_counter()
         for _ in range(n):
             if self.bodies.moving:
                 self.bodies.update(self.world.client, self.world.time)
             self.world.step(1)
+        self.timing["physics"] += time.perf_counter() - t0
 
     def kinect_pose(self) -> np.ndarray:
         """World <- kinect_link (ground truth, from the physics)."""
         return self.robot.link_transform("kinect_link")
 
+    # --- powers only a simulation has (ground truth, contacts, teleport) ---------------------------
+
+    def ground_truth_pose(self) -> Pose2D:
+        """Planar pose (x, y, yaw) of ``base_link`` in ``map`` from the physics.
+
+        Raises:
+            SimulationDivergedError: the physics produced a non-finite pose.
+        """
+        return self.robot.pose2d()
+
+    def ground_truth_transform(self) -> np.ndarray:
+        """``T_map_base_link`` (4, 4) from the physics (roll and pitch included)."""
+        return self.robot.link_transform("base_link")
+
+    def contacts(self) -> set[str]:
+        """Names of the scene objects the chair touches now (walking people, which pass through the
+        chair, count when they overlap it)."""
+        import pybullet as p
+
+        c = self.world.client
+        names = {v: k for k, v in self.bodies.ids.items()}
+        hit = {
+            names[pt[2]]
+            for pt in p.getContactPoints(bodyA=self.robot.body, physicsClientId=c)
+            if pt[2] in names
+        }
+        for body, _ in self.bodies.moving:
+            if body in names and p.getClosestPoints(self.robot.body, body, 0.0, physicsClientId=c):
+                hit.add(names[body])
+        return hit
+
+    def teleport(self, pose: Pose2D | tuple[float, float, float]) -> None:
+        """Place the chair at rest at ``pose`` (x, y, yaw in ``map``): base, velocities, motors reset."""
+        import pybullet as p
+
+        x, y, yaw = (pose.x, pose.y, pose.theta) if isinstance(pose, Pose2D) else pose
+        c = self.world.client
+        dyn = p.getDynamicsInfo(self.robot.body, -1, physicsClientId=c)
+        pos, orn = p.multiplyTransforms((x, y, 0.0), quat_from_yaw(yaw), tuple(dyn[3]), tuple(dyn[4]))
+        p.resetBasePositionAndOrientation(self.robot.body, pos, orn, physicsClientId=c)
+        p.resetBaseVelocity(self.robot.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=c)
+        for motor in (self.robot.left, self.robot.right):
+            motor.reset()
+        self.robot.set_motor_rpm(0.0, 0.0)
+
     def close(self) -> None:
+        for fut in self.captures_in_flight:
+            fut.cancel()
+        self.captures_in_flight.clear()
+        if self.capture_pool is not None:
+            self.capture_pool.shutdown(wait=True)
+            self.capture_pool = None
         self.world.close()
 
 
@@ -170,10 +241,15 @@ def _make_sonars(chair: SimChair, rng: np.random.Generator, noise: bool) -> dict
 
 
 class SimClock:
-    """Simulated time of a :class:`SimChair`; sleeping advances the physics (whole 240 Hz steps)."""
+    """Simulated time of a :class:`SimChair`; sleeping advances the physics (whole 240 Hz steps).
 
-    def __init__(self, chair: SimChair) -> None:
+    With ``motors``, their serial watchdog is served while sleeping: set points fall to zero at the
+    physics step where the watchdog period since the last speed command ends (as a Roboteq's ``^RWD``).
+    """
+
+    def __init__(self, chair: SimChair, motors: SimMotorController | None = None) -> None:
         self.chair = chair
+        self.motors = motors
 
     def now_ns(self) -> int:
         return self.chair.world.now_ns()
@@ -182,6 +258,12 @@ class SimClock:
         """Step the physics until simulated time reaches ``t_ns`` (rounded up to the next step)."""
         w = self.chair.world
         target_steps = -(-int(t_ns) * w.physics_hz // 1_000_000_000)  # ceil
+        m = self.motors
+        if m is not None and m.watchdog_ms is not None and m.moving:
+            trip = m.last_command_step + math.ceil(m.watchdog_ms * w.physics_hz / 1000.0)
+            if w.steps <= trip < target_steps:
+                self.chair.step(trip - w.steps)
+                m.watchdog_trip()
         if target_steps > w.steps:
             self.chair.step(target_steps - w.steps)
 
@@ -191,9 +273,22 @@ class SimMotorController(Device):
 
     name = "sim-motors"
 
-    def __init__(self, chair: SimChair) -> None:
+    def __init__(self, chair: SimChair, watchdog_ms: int | None = None) -> None:
+        if watchdog_ms is not None and (isinstance(watchdog_ms, bool) or not isinstance(watchdog_ms, int)
+                                        or watchdog_ms < 1):  # fmt: skip
+            raise SimError(f"watchdog_ms={watchdog_ms!r}: expected a whole number of ms >= 1, or None")
         self.chair = chair
         self._estop = False
+        self.watchdog_ms = watchdog_ms
+        self.watchdog_trips = 0  # times the watchdog stopped the motors
+        self.last_command_step = 0  # physics step of the last speed command
+        self.moving = False  # the last set point was not zero
+
+    def watchdog_trip(self) -> None:
+        """The watchdog period passed without a speed command: stop the motors (count it)."""
+        self.watchdog_trips += 1
+        self.moving = False
+        self.chair.robot.set_motor_rpm(0.0, 0.0)
 
     def close(self) -> None:
         if self._is_open:
@@ -204,6 +299,8 @@ class SimMotorController(Device):
         self._check_open()
         if self._estop:
             left_rpm = right_rpm = 0.0
+        self.last_command_step = self.chair.world.steps
+        self.moving = left_rpm != 0.0 or right_rpm != 0.0
         self.chair.robot.set_motor_rpm(left_rpm, right_rpm)
 
     def read_state(self) -> MotorState:
@@ -236,17 +333,63 @@ class SimMotorController(Device):
 
 
 class SimDepthCamera(Device):
-    """:class:`hw.interfaces.DepthCamera`: the simulated Kinect at the chair's ``kinect_link``."""
+    """:class:`hw.interfaces.DepthCamera`: the simulated Kinect at the chair's ``kinect_link``.
 
-    def __init__(self, chair: SimChair) -> None:
+    Besides :meth:`read`, :meth:`submit_read` captures in the background (with ``threaded``): up to
+    :attr:`max_inflight` frames (two with the ray caster, one with PyBullet's renderer, which is not
+    thread-safe) are captured on other cores while the physics goes on. The ray-casting mirror is
+    synced and each frame's random words are drawn on the calling thread in frame order, and scripted
+    people wait for captures in flight (:meth:`SimChair.step`), so every frame is the one a serial
+    run captures.
+
+    Args:
+        chair: the simulated chair.
+        threaded: capture on background threads (False: :meth:`submit_read` captures at once).
+    """
+
+    def __init__(self, chair: SimChair, threaded: bool = True) -> None:
         if chair.kinect is None:
             raise SimError("this simulated chair has no depth camera (sensor=None)")
         self.chair = chair
         self.name = f"sim-{chair.kinect.model.name}"
+        self.frame_id: str = chair.kinect.frame_id
+        self.max_inflight = 2 if chair.kinect.backend == "raycast" else 1
+        self.threaded = threaded
+        self._lock = threading.Lock()
+
+    def link_to_frame(self) -> np.ndarray:
+        """``T_kinect_link_frame`` (4, 4): where the frames' ``frame_id`` sits on the camera."""
+        return np.asarray(self.chair.kinect.output_pose(np.eye(4)), dtype=float)
+
+    def _capture(self, pose: np.ndarray, stamp: int, bits: Any = None) -> DepthFrame:
+        t0 = time.perf_counter()
+        frame: DepthFrame = self.chair.kinect.capture(pose, stamp_ns=stamp, noise_bits=bits)
+        with self._lock:  # two capture threads add to the same total
+            self.chair.timing["kinect_capture"] += time.perf_counter() - t0
+        return frame
 
     def read(self) -> DepthFrame:
         self._check_open()
-        return self.chair.kinect.capture(self.chair.kinect_pose(), stamp_ns=self.chair.world.now_ns())
+        return self._capture(self.chair.kinect_pose(), self.chair.world.now_ns())
+
+    def submit_read(self) -> Future[DepthFrame]:
+        """Start capturing a frame at the camera's current pose; the future holds the frame."""
+        self._check_open()
+        chair = self.chair
+        pose, stamp = chair.kinect_pose(), chair.world.now_ns()
+        if not self.threaded:
+            done: Future[DepthFrame] = Future()
+            done.set_result(self._capture(pose, stamp))
+            return done
+        if chair.capture_pool is None:
+            chair.capture_pool = ThreadPoolExecutor(self.max_inflight, thread_name_prefix="kinect")
+        if chair.mirror is not None:
+            chair.mirror.sync()  # here, so the capture thread's own sync finds nothing to do
+        bits = chair.kinect.noise_bits()  # in frame order, on this thread
+        fut = chair.capture_pool.submit(self._capture, pose, stamp, bits)
+        chair.captures_in_flight = [f for f in chair.captures_in_flight if not f.done()]
+        chair.captures_in_flight.append(fut)
+        return fut
 
 
 class SimSonarArray(Device):
@@ -257,6 +400,10 @@ class SimSonarArray(Device):
             raise SimError(f"this simulated chair has no sonar array {mount!r}")
         self.chair, self.mount = chair, mount
         self.name = f"sim-{mount}"
+        self.has_servo = True
+        model = chair.sonars[mount].model
+        self.min_range_m, self.max_range_m = model.min_range_m, model.max_range_m
+        self.field_of_view_rad = model.field_of_view_rad
 
     def set_servo_deg(self, angle_deg: float) -> None:
         """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
@@ -270,8 +417,10 @@ class SimSonarArray(Device):
 
     def read(self) -> SonarArrayReading:
         self._check_open()
+        t0 = time.perf_counter()
         # the link pose already includes the servo's turn, so the sonar model gets servo angle 0
         ranges = self.chair.sonars[self.mount].measure(self.chair.robot.link_transform(self.mount), 0.0)
+        self.chair.timing["sonar"] += time.perf_counter() - t0
         return SonarArrayReading(
             stamp_ns=self.chair.world.now_ns(), ranges_m=ranges, servo_angle_deg=self.servo_deg()
         )
@@ -292,14 +441,19 @@ class SimBackend(Backend):
                 self.chair.close()
 
 
-def backend_from_chair(chair: SimChair) -> SimBackend:
-    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend` (closing it closes the chair)."""
+def backend_from_chair(chair: SimChair, watchdog_ms: int | None = None, threaded: bool = True) -> SimBackend:
+    """Wrap a :class:`SimChair` into an :class:`hw.interfaces.Backend` (closing it closes the chair).
+
+    ``watchdog_ms``: the motor controller's serial watchdog (None: none). ``threaded``: the depth
+    camera captures on background threads.
+    """
+    motors = SimMotorController(chair, watchdog_ms)
     return SimBackend(
         name="sim",
-        clock=SimClock(chair),
-        motors=SimMotorController(chair),
+        clock=SimClock(chair, motors),
+        motors=motors,
         sonar_arrays=tuple(SimSonarArray(chair, m) for m in SONAR_MOUNTS if m in chair.sonars),
-        depth_camera=SimDepthCamera(chair) if chair.kinect is not None else None,
+        depth_camera=SimDepthCamera(chair, threaded) if chair.kinect is not None else None,
         chair=chair,
     )
 
@@ -315,16 +469,18 @@ _CONFIG_KEYS = {
     "noise",
     "spec",
     "tyre_radius_error",
+    "watchdog_ms",
 }
 
 
 def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
-    """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of ``hw.registry``).
+    """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of :mod:`robchair.backends`).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
     ``scene`` (name or path), ``sensor`` (Kinect model, or None / ``"none"``), ``sonars`` (bool),
     ``seed`` (int),
     ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
+    ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
     (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
 
@@ -358,7 +514,10 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
         if len(st) != 3 or not all(math.isfinite(v) for v in st):
             raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
         kw["start"] = st
-    return backend_from_chair(SimChair(spec, **kw))
+    watchdog = cfg.get("watchdog_ms")
+    if watchdog is not None and (isinstance(watchdog, bool) or not isinstance(watchdog, int) or watchdog < 1):
+        raise SimError(f"sim backend config: watchdog_ms={watchdog!r}: expected a whole number of ms >= 1")
+    return backend_from_chair(SimChair(spec, **kw), watchdog)
 
 
 def robot_radius(spec: RobChairSpec) -> float:

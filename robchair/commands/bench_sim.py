@@ -1,25 +1,25 @@
-"""`robchair bench sim`: real-time factor of the whole simulated chair, on one core and on two.
+"""`robchair bench sim`: real-time factor of the whole simulated chair driven by the runtime, 1 and 2 cores.
 
-Workload (issue 4): physics at 240 Hz with the motor plants and PIDs, a Kinect v2 (512x424) at 30 Hz,
-six sonars (two arrays) at 20 Hz, and every Kinect frame inserted into a VHV map (the odometry map
-only: what the real chair would compute), while the chair drives the office corridor route.
+Workload: physics at 240 Hz with the motor plants and PIDs, the runtime at 60 Hz with the safety layer
+on, a Kinect v2 (512x424) at 30 Hz, six sonars (two arrays) at 20 Hz, and every Kinect frame inserted
+into a VHV map by the perception stage (the odometry map only: what the real chair would compute),
+while the chair drives the office corridor route (:func:`robchair.scenario.run_scenario`).
 
 Configurations, all measured in the same run:
 
 * ``1 core``: the process is pinned to one CPU (``os.sched_setaffinity``), Embree casts on 1 thread
-  and capture and mapping run inline on the simulation thread.
+  and capture and mapping run inline on the loop's thread.
 * ``2 cores``: pinned to two CPUs; Embree casts on 2 threads, Kinect frames are captured on two
-  background threads (up to two frames in flight) while the simulation thread steps the physics and
-  reads the sonars, and the VHV mapping runs on another thread (Embree, the numba kernels and numpy
-  release the GIL). The result is bit for bit the serial run's (a test checks it).
-* ``2 cores, pybullet camera``: as ``2 cores`` but the depth image comes from PyBullet's CPU renderer
-  (``ER_TINY_RENDERER``) instead of ray casting, one frame in flight (PyBullet is not thread-safe):
-  the baseline the issue measured at RTF ~0.4.
+  background threads (up to two frames in flight) and mapped on another thread. The result is bit for
+  bit the serial run's (a test checks it).
+* ``2 cores, pybullet camera`` (``--pybullet-camera``): as ``2 cores`` with PyBullet's CPU renderer.
 
-Real-time factor = simulated time / wall time of the simulation loop (setup excluded). The median of
-``--repeats`` runs is reported with the main-thread time per component. Targets: RTF >= 1.5 on two
-cores, >= 1.0 on one core. Wall-clock numbers depend on the machine's load: the JSON records the load
-average before and after.
+Baseline: the scenario runner this loop replaced (its own loop without the runtime or the safety
+layer), loaded from the last git revision that had it (``sim/runner.py``) and run on the same
+simulator, alternating with the new loop so both see the same machine load. Reported: medians of
+``--repeats`` runs, and new / old. Real-time factor = simulated time / wall time of the loop (setup
+excluded). The process keeps freed heap blocks (``robchair sim --keep-freed-memory``), as the old
+runner always did. The JSON records the load average before and after.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--duration", type=float, default=4.0, help="simulated seconds per run (default 4)")
     p.add_argument("--repeats", type=int, default=1, help="runs per configuration (median; default 1)")
     p.add_argument("--scenario", default="office_corridor", help="scenario (default office_corridor)")
-    p.add_argument("--no-pybullet-camera", action="store_true", help="skip the PyBullet-renderer baseline")
+    p.add_argument("--pybullet-camera", action="store_true", help="also measure PyBullet's renderer")
+    p.add_argument("--no-baseline", action="store_true", help="do not measure the replaced scenario runner")
     p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
     p.set_defaults(func=_run)
 
@@ -71,39 +72,60 @@ def _pin(n: int) -> set[int] | None:
     return before
 
 
-def measure(config: dict[str, Any], scenario: str, duration: float, seed: int = 0) -> dict[str, Any]:
-    """One run of the workload under ``config``; returns RTF and the per-component times."""
-    from sim.runner import run_scenario
+OLD_RUNNER = "sim/runner.py"
 
+
+def load_old_runner() -> Any:
+    """The replaced scenario runner as a module, from the last git revision that had it (None: no git)."""
+    import importlib.util
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        gone = subprocess.run(
+            ["git", "-C", str(root), "log", "-1", "--diff-filter=D", "--format=%H", "--", OLD_RUNNER],
+            capture_output=True, text=True, check=True,
+        ).stdout.strip()  # fmt: skip
+        if not gone:
+            return None
+        src = subprocess.run(["git", "-C", str(root), "show", f"{gone}^:{OLD_RUNNER}"],
+                             capture_output=True, text=True, check=True).stdout  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    spec = importlib.util.spec_from_loader("robchair_bench_old_runner", loader=None)
+    assert spec is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    exec(compile(src, f"{gone[:10]}:{OLD_RUNNER}", "exec"), mod.__dict__)  # our own history
+    return mod
+
+
+def measure(
+    config: dict[str, Any], scenario: str, duration: float, seed: int = 0, old: Any = None
+) -> dict[str, Any]:
+    """One run of the workload under ``config`` (``old``: the replaced runner module); RTF and components."""
+    from robchair.scenario import run_scenario
+
+    kw = dict(duration=duration, sensor="kinect2", seed=seed, progress=False, write=False,
+              camera_backend=config["camera_backend"], mapping_thread=config["mapping_thread"],
+              pipeline=config["mapping_thread"], sonar_hz=20.0, raycast_threads=config["raycast_threads"],
+              ground_truth_map=False)  # fmt: skip
     before = _pin(config["cpus"])
     try:
-        res = run_scenario(
-            scenario,
-            duration=duration,
-            sensor="kinect2",
-            seed=seed,
-            progress=False,
-            write=False,
-            camera_backend=config["camera_backend"],
-            mapping_thread=config["mapping_thread"],
-            pipeline=config["mapping_thread"],
-            sonar_hz=20.0,  # the issue's workload (faster than an SRF08's 65 ms ranging allows)
-            raycast_threads=config["raycast_threads"],
-            ground_truth_map=False,
-        )
+        res = old.run_scenario(scenario, **kw) if old is not None else run_scenario(scenario, **kw)
     finally:
         if before is not None:
             os.sched_setaffinity(0, before)
-    m = res.metrics
-    frames = max(m["frames"]["kinect_frames"], 1)
+    m: dict[str, Any] = res.metrics if old is not None else res.metrics()  # type: ignore[assignment]
+    frames = m["frames"]["kinect_frames"] if old is not None else m["frames"]["depth_frames"]
     main = m["wall_time_s"]["components"]
     return {
         "rtf": m["real_time_factor"],
         "sim_time_s": m["sim_time_s"],
         "loop_wall_s": m["wall_time_s"]["loop"],
-        "kinect_frames": m["frames"]["kinect_frames"],
-        "sonar_readings": m["frames"]["sonar_readings"] * 3,
-        "kinect_ms_per_frame": 1e3 * main["kinect_capture"] / frames,
+        "kinect_frames": frames,
+        "kinect_ms_per_frame": 1e3 * main["kinect_capture"] / max(frames, 1),
         "mapping_ms_per_frame": m["mapping_ms_per_frame_median"],
         "sonar_ms_per_array_reading": 1e3 * main["sonar"] / max(m["frames"]["sonar_readings"], 1),
         "physics_ms_per_sim_s": 1e3 * main["physics"] / max(m["sim_time_s"], 1e-9),
@@ -113,12 +135,19 @@ def measure(config: dict[str, Any], scenario: str, duration: float, seed: int = 
 def _run(args: argparse.Namespace) -> int:
     import statistics
 
+    from robchair.commands.sim import retain_freed_memory
     from robchair.errors import RobChairError
 
     if args.duration <= 0 or args.repeats < 1:
         raise RobChairError(f"--duration must be > 0 and --repeats >= 1, got {args.duration}, {args.repeats}")
+    retain_freed_memory()
     ncpu = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    configs = [c for c in CONFIGS if not (args.no_pybullet_camera and c["camera_backend"] == "pybullet")]
+    configs = [c for c in CONFIGS if args.pybullet_camera or c["camera_backend"] != "pybullet"]
+    old = None if args.no_baseline else load_old_runner()
+    if old is None and not args.no_baseline:
+        print(
+            "baseline: the replaced runner is not in this checkout's git history; measuring the new loop only"
+        )
     load0 = os.getloadavg()
     # warm-up (imports, numba kernels, Open3D): not timed
     measure(CONFIGS[0], args.scenario, 0.1)
@@ -127,33 +156,42 @@ def _run(args: argparse.Namespace) -> int:
         if cfg["cpus"] > ncpu:
             print(f"skipping {cfg['name']!r}: only {ncpu} CPU(s) available")
             continue
-        runs = [measure(cfg, args.scenario, args.duration, seed=k) for k in range(args.repeats)]
+        runs, old_runs = [], []
+        for k in range(args.repeats):  # alternate new and old: the same machine load for both
+            runs.append(measure(cfg, args.scenario, args.duration, seed=k))
+            if old is not None:
+                old_runs.append(measure(cfg, args.scenario, args.duration, seed=k, old=old))
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
-        rows.append({"config": cfg, "median": med, "runs": runs})
+        old_med = {k: statistics.median(r[k] for r in old_runs) for k in old_runs[0]} if old_runs else None
+        rows.append({"config": cfg, "median": med, "runs": runs, "baseline_median": old_med,
+                     "baseline_runs": old_runs})  # fmt: skip
     load1 = os.getloadavg()
-    cols = ("RTF", "kinect ms/fr", "map ms/fr", "sonar ms/arr", "physics ms/s")
-    head = f"{'configuration':28s} " + " ".join(f"{c:>{max(6, len(c))}s}" for c in cols)
+    cols = ("RTF", "old RTF", "new/old", "kinect ms/fr", "map ms/fr", "sonar ms/arr", "physics ms/s")
+    head = f"{'configuration':28s} " + " ".join(f"{c:>{max(7, len(c))}s}" for c in cols)
     print(f"robchair bench sim: {args.scenario}, {args.duration:g} sim s per run, median of {args.repeats}")
     print(head)
     print("-" * len(head))
     for r in rows:
-        m = r["median"]
+        m, o = r["median"], r["baseline_median"]
+        old_rtf = f"{o['rtf']:7.2f}" if o else f"{'-':>7s}"
+        ratio = f"{m['rtf'] / o['rtf']:7.2f}" if o else f"{'-':>7s}"
         print(
-            f"{r['config']['name']:28s} {m['rtf']:6.2f} {m['kinect_ms_per_frame']:12.1f} "
+            f"{r['config']['name']:28s} {m['rtf']:7.2f} {old_rtf} {ratio} {m['kinect_ms_per_frame']:12.1f} "
             f"{m['mapping_ms_per_frame']:9.1f} {m['sonar_ms_per_array_reading']:12.1f} "
             f"{m['physics_ms_per_sim_s']:12.1f}"
         )
-    by = {r["config"]["name"]: r["median"]["rtf"] for r in rows}
+    by = {r["config"]["name"]: r for r in rows}
     targets = {"2 cores": 1.5, "1 core": 1.0}
     for name, target in targets.items():
         if name in by:
-            verdict = "meets" if by[name] >= target else "misses"
-            print(f"{name}: RTF {by[name]:.2f} {verdict} the target {target}")
-    if "2 cores" in by and "2 cores, pybullet camera" in by:
-        print(
-            "ray casting vs PyBullet renderer (2 cores): "
-            f"{by['2 cores'] / by['2 cores, pybullet camera']:.2f}x"
-        )
+            rtf = by[name]["median"]["rtf"]
+            verdict = "meets" if rtf >= target else "misses"
+            line = f"{name}: RTF {rtf:.2f} {verdict} the target {target}"
+            if by[name]["baseline_median"]:
+                ratio = rtf / by[name]["baseline_median"]["rtf"]
+                verdict = "meets" if ratio >= 0.9 else "misses"
+                line += f"; {100 * ratio:.0f} % of the replaced runner ({verdict} 90 %)"
+            print(line)
     print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -3,12 +3,12 @@
     robchair run --backend sim|emulated|real [--config FILE] [--route FILE] [--duration S] [--out DIR]
 
 The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
-keys of :mod:`hw.registry`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
+keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
 (:class:`robchair.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route file).
 The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
 backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
-the backend's joystick.
-With ``--out`` the run is written as a ROS 2 bag (``run_bag/``), ``metrics.json`` and ``odometry.csv``.
+the backend's joystick. ``--backend sim`` without a route drives the ``office_corridor`` scenario.
+With ``--out`` the run is written as a ROS 2 bag (``bag/``, MCAP), ``metrics.json`` and ``odometry.csv``.
 """
 
 from __future__ import annotations
@@ -22,9 +22,7 @@ from typing import Any
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("run", help="run the control loop on the sim, emulated or real chair")
-    p.add_argument(
-        "--backend", choices=("sim", "emulated", "real"), default="sim", help="which chair (default sim)"
-    )
+    p.add_argument("--backend", default="sim", help="which chair: sim, emulated or real (default sim)")
     p.add_argument(
         "--config", type=Path, help="TOML config: [sim]/[emulated]/[real], [runtime], [safety], [route]"
     )
@@ -33,7 +31,12 @@ def register(subparsers: Any) -> None:
         "--duration", type=float, default=60.0, help="maximum run time in seconds of the backend clock"
     )
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
-    p.add_argument("--out", type=Path, help="output folder: run_bag/, metrics.json, odometry.csv")
+    p.add_argument("--out", type=Path, help="output folder: bag/, metrics.json, odometry.csv")
+    p.add_argument(
+        "--no-safety",
+        action="store_true",
+        help="pass commands through without the safety layer (recorded in metrics.json)",
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -67,7 +70,7 @@ def load_run_config(path: Path | None) -> dict[str, Any]:
 def _scenario_route(name: str, spec: Any) -> tuple[Any, Any]:
     """The route of a sim scenario as a runtime Route starting at the scenario's start pose."""
     from robchair.kinematics import Pose2D
-    from robchair.runtime import Route
+    from robchair.route import Route
     from sim.backend import robot_radius
     from sim.scene import load_scenario
 
@@ -78,14 +81,18 @@ def _scenario_route(name: str, spec: Any) -> tuple[Any, Any]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hw.registry import get_backend
+    from robchair.backends import BACKENDS, get_backend
     from robchair.errors import ConfigError
     from robchair.kinematics import DiffDrive
     from robchair.outdir import check_output_dir, overwrite_allowed
-    from robchair.runtime import JoystickSource, PurePursuit, Route, RuntimeConfig, run_to_dir
+    from robchair.route import PurePursuit, Route
+    from robchair.runtime import RuntimeConfig, run_to_dir
     from robchair.safety import SafetyLayer, SafetyLimits
+    from robchair.sources import JoystickSource
     from robchair.spec import load_spec
 
+    if args.backend not in BACKENDS:
+        raise ConfigError(f"--backend {args.backend!r}: expected one of {', '.join(BACKENDS)}")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)
@@ -96,10 +103,7 @@ def _run(args: argparse.Namespace) -> int:
     rt_cfg = dict(cfg.get("runtime", {}))
     if args.rate is not None:
         rt_cfg["rate_hz"] = args.rate
-    try:
-        runtime_config = RuntimeConfig(**rt_cfg)
-    except TypeError as exc:
-        raise ConfigError(f"[runtime]: {exc}") from exc
+    runtime_config = RuntimeConfig.from_dict(rt_cfg)
     safety = SafetyLayer(SafetyLimits.from_spec(spec, **cfg.get("safety", {})))
     route = None
     if args.route is not None:
@@ -107,11 +111,14 @@ def _run(args: argparse.Namespace) -> int:
     elif "route" in cfg:
         route = Route.from_dict(cfg["route"], f"{args.config} [route]")
     start_pose = None
-    if route is None and args.backend == "sim" and backend_cfg.get("scenario"):
-        route, start_pose = _scenario_route(str(backend_cfg["scenario"]), spec)
+    if route is None and args.backend == "sim":
+        if not backend_cfg.get("scene"):
+            backend_cfg.setdefault("scenario", "office_corridor")
+        if backend_cfg.get("scenario"):
+            route, start_pose = _scenario_route(str(backend_cfg["scenario"]), spec)
     if args.release_stop and args.backend != "sim":
         backend_cfg["release_stop"] = True
-    backend = get_backend(args.backend, backend_cfg)
+    backend = get_backend(args.backend, backend_cfg, loop_rate_hz=runtime_config.rate_hz)
     if route is not None:
         source: Any = PurePursuit(route, DiffDrive(spec))
     elif backend.joystick is not None:
@@ -121,6 +128,12 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(
             "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
         )
+    observers = []
+    chair = getattr(backend, "chair", None)
+    if chair is not None:  # the simulated chair: evaluate against the physics and the scene
+        from robchair.observers.evaluation import GroundTruthEvaluation
+
+        observers.append(GroundTruthEvaluation(chair, chair.scene, ground_truth_map=False))
     with overwrite_allowed(args.overwrite):
         result = run_to_dir(
             backend,
@@ -131,6 +144,8 @@ def _run(args: argparse.Namespace) -> int:
             config=runtime_config,
             safety=safety,
             start_pose=start_pose,
+            safety_enabled=not args.no_safety,
+            observers=observers,
         )
-    print(json.dumps(result.metrics(), indent=2))
+    print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1

@@ -55,13 +55,13 @@ def _fail_inside_the_output_block(command: str, tmp_path: Path, monkeypatch) -> 
         (tmp_path / "bad.pcd").write_bytes(TRUNCATED_PCD)
         return ["map", str(tmp_path / "bad.pcd")]
     if command == "sim":  # a simulation that fails (no need to simulate for that)
-        import sim.runner
+        import robchair.scenario
         from sim.errors import SimError
 
         def fail(*args, **kwargs):
             raise SimError("the simulation failed")
 
-        monkeypatch.setattr(sim.runner, "_simulate", fail)
+        monkeypatch.setattr(robchair.scenario, "_drive", fail)
         return _argv(command, tmp_path)
     # The others cannot fail on bad data inside the block: make the last step, moving the finished
     # folder into place, fail as on a full disk.

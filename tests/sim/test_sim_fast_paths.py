@@ -160,7 +160,10 @@ def test_lateral_offset_buckets_give_the_offset_of_the_rounded_normal():
 
 
 def test_compiled_point_transform_matches_numpy_and_keeps_nan():
-    from sim.runner import transform_points
+    from sim._kinect_kernels import transform_points as kernel
+
+    def transform_points(t, pts):
+        return kernel(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(pts, dtype=np.float32))
 
     rng = np.random.default_rng(2)
     pts = rng.normal(size=(40, 30, 3)).astype(np.float32)

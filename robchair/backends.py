@@ -1,9 +1,16 @@
-"""One registry for the three backends the runtime can drive: ``sim``, ``emulated`` and ``real``.
+"""The registry of the chairs the runtime can drive: ``sim``, ``emulated`` and ``real``.
 
-``get_backend(name, config)`` returns an unopened :class:`hw.interfaces.Backend`; the runtime opens
-and closes it. Swapping the simulated chair for the real one is one setting: the name.
+Each name maps to a lazy ``"module:factory"`` entry (:data:`BACKENDS`); ``get_backend(name, config)``
+imports the factory and returns an unopened :class:`hw.interfaces.Backend`; the runtime opens and
+closes it. Swapping the simulated chair for the real one is one setting: the name. The registry lives
+in the application floor so that ``hw/`` never imports ``sim/``; the motor PID the emulated and real
+Roboteq are configured with is designed here (:mod:`robchair.control`), not in ``hw/``.
 
-* ``sim`` — the PyBullet digital twin (:func:`sim.backend.make_sim_backend`, imported lazily).
+The controller's serial watchdog follows the loop: unless ``watchdog_ms`` is configured it is
+:data:`WATCHDOG_PERIODS` loop periods (``loop_rate_hz``); the runtime refuses a watchdog outside
+1.5-10 periods.
+
+* ``sim`` — the PyBullet digital twin (:func:`sim.backend.make_sim_backend`).
 * ``emulated`` — the *real drivers* talking to protocol emulators: the Roboteq driver over a pty to
   :class:`hw.roboteq.emulator.RoboteqEmulator`, and SRF08 drivers on an emulated I2C bus
   (:class:`hw.emulators.srf08.SRF08Bus`). Time is simulated by default (a
@@ -30,25 +37,34 @@ Config keys (all optional unless stated; unknown keys are an error naming the al
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from hw.errors import HardwareError
 from hw.interfaces import Backend, Clock, PIDConfig
+from robchair.errors import ConfigError
 
 
-class BackendConfigError(HardwareError, ValueError):
+class BackendConfigError(ConfigError):
     """A backend name or config value is invalid."""
 
 
-BACKENDS = ("sim", "emulated", "real")
+#: name -> lazy "module:factory"; the factory takes the config mapping and returns an unopened Backend
+BACKENDS: dict[str, str] = {
+    "sim": "sim.backend:make_sim_backend",
+    "emulated": "robchair.backends:make_emulated_backend",
+    "real": "robchair.backends:make_real_backend",
+}
+#: default controller watchdog, in loop periods (the runtime accepts 1.5 to 10)
+WATCHDOG_PERIODS = 2.5
 SONAR_ARRAY_NAMES = ("sonar_array_left", "sonar_array_right")
 DEFAULT_SONAR_ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
-# Sonars are read one after the other (their beams overlap); with 6 sonars at the default 11 m range
-# setting (65 ms each) a cycle would take 390 ms. Safety looks at obstacles within a few metres, so
-# the range register is set for 2 m: (46 x 43 mm), 11.9 ms per ranging, 71 ms for all six.
+# The two arrays fire in step, one sonar of each per 65 ms slot (the SRF08 datasheet's interval at the
+# power-up gain; hw.sonar_array.SonarFiringGroup): all six readings every 195 ms. Safety looks at
+# obstacles within a few metres, so the range register is set for 2 m (46 x 43 mm): each result is
+# ready 11.9 ms after its ping, but the next ping of an array still waits for the 65 ms echo window.
 DEFAULT_SONAR_MAX_RANGE_M = 2.0
 
 _EMULATED_KEYS = {
@@ -76,18 +92,32 @@ class ManagedBackend(Backend):
                 fn()
 
 
-def get_backend(name: str, config: Mapping[str, Any] | None = None) -> Backend:
-    """Build the backend called ``name`` (``sim``, ``emulated`` or ``real``) from ``config``."""
-    cfg = dict(config or {})
-    if name == "sim":
-        from sim.backend import make_sim_backend
+def get_backend(name: str, config: Mapping[str, Any] | None = None, *, loop_rate_hz: float = 10.0) -> Backend:
+    """Build the backend called ``name`` from ``config`` (unopened).
 
-        return make_sim_backend(cfg)
-    if name == "emulated":
-        return _emulated(cfg)
-    if name == "real":
-        return _real(cfg)
-    raise BackendConfigError(f"backend name {name!r} is not one of {BACKENDS}")
+    Args:
+        name: a key of :data:`BACKENDS`.
+        config: the backend's keys (see the module docstring); unknown keys are refused.
+        loop_rate_hz: rate of the loop that will drive it; sets the default controller watchdog
+            (:data:`WATCHDOG_PERIODS` periods) when ``watchdog_ms`` is not configured.
+
+    Raises:
+        BackendConfigError: unknown name, unknown key or bad value (one line naming it).
+    """
+    if name not in BACKENDS:
+        raise BackendConfigError(f"backend {name!r}: expected one of {', '.join(BACKENDS)}")
+    if not (math.isfinite(loop_rate_hz) and loop_rate_hz > 0):
+        raise BackendConfigError(f"loop_rate_hz = {loop_rate_hz!r}: expected a finite number > 0")
+    cfg = dict(config or {})
+    cfg.setdefault("watchdog_ms", default_watchdog_ms(loop_rate_hz))
+    module, factory = BACKENDS[name].split(":")
+    fn: Callable[[dict[str, Any]], Backend] = getattr(importlib.import_module(module), factory)
+    return fn(cfg)
+
+
+def default_watchdog_ms(loop_rate_hz: float) -> int:
+    """Controller watchdog for a loop at ``loop_rate_hz``: :data:`WATCHDOG_PERIODS` periods, in whole ms."""
+    return max(1, round(WATCHDOG_PERIODS * 1000.0 / loop_rate_hz))
 
 
 def _check_keys(cfg: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -137,7 +167,7 @@ def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
 
 
 def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
-    from hw.sonar_array import RangerSonarArray
+    from hw.sonar_array import RangerSonarArray, SonarFiringGroup
     from hw.srf08 import SRF08
 
     if len(addresses) != 6:
@@ -151,10 +181,12 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
             for i, a in enumerate(addresses[3 * k : 3 * k + 3])
         ]
         arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+    SonarFiringGroup(arrays, clock=clock)
     return tuple(arrays)
 
 
-def _emulated(cfg: dict[str, Any]) -> Backend:
+def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
+    """The real drivers over protocol emulators (the ``emulated`` entry)."""
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
     from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
@@ -207,7 +239,8 @@ def _emulated(cfg: dict[str, Any]) -> Backend:
     )
 
 
-def _real(cfg: dict[str, Any]) -> Backend:
+def make_real_backend(cfg: dict[str, Any]) -> Backend:
+    """The Roboteq on a serial port and the SRF08 arrays on I2C (the ``real`` entry)."""
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
 

@@ -1,0 +1,159 @@
+"""A scripted route and the one route follower (pure pursuit) every loop uses.
+
+A :class:`Route` is a polyline of waypoints in the frame the odometry runs in (``odom``, which a
+scenario places at its start pose in ``map``) with a cruise speed and a look-ahead distance; it loads
+from TOML. :class:`PurePursuit` turns the pose estimate into a body twist (v, w) each cycle and says
+when the route is done.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robchair.errors import ConfigError
+from robchair.frames import invert, se2, transform_points
+from robchair.kinematics import DiffDrive, Pose2D
+from robchair.sources import Command, Observation
+
+ROUTE_KEYS = ("waypoints", "speed", "lookahead_m", "goal_tolerance_m")
+
+
+@dataclass(frozen=True)
+class Route:
+    """A scripted route: waypoints (m) and how to follow them.
+
+    TOML file::
+
+        waypoints = [[0.0, 0.0], [2.0, 0.0], [2.0, 1.5]]
+        speed = 0.3            # cruise speed, m/s
+        lookahead_m = 0.6      # pure-pursuit look-ahead distance, m
+        goal_tolerance_m = 0.1 # done when this close to the last waypoint, m
+
+    Raises:
+        ConfigError: fewer than two waypoints, a non-finite waypoint, or a non-positive number.
+    """
+
+    waypoints: tuple[tuple[float, float], ...]
+    speed: float = 0.3
+    lookahead_m: float = 0.6
+    goal_tolerance_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        if len(self.waypoints) < 2:
+            raise ConfigError(f"route.waypoints: expected at least 2 points, got {len(self.waypoints)}")
+        for i, p in enumerate(self.waypoints):
+            if len(p) != 2 or not all(math.isfinite(c) for c in p):
+                raise ConfigError(f"route.waypoints[{i}] = {p!r}: expected finite [x, y]")
+        for name in ROUTE_KEYS[1:]:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"route.{name} = {v!r}: expected a finite number > 0")
+
+    @classmethod
+    def load(cls, path: Path | str) -> Route:
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"route file {path}: not valid TOML: {exc}") from exc
+        except OSError as exc:
+            raise ConfigError(f"route file {path}: cannot be read: {exc.strerror}") from exc
+        return cls.from_dict(data, str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> Route:
+        unknown = set(data) - set(ROUTE_KEYS)
+        if unknown:
+            raise ConfigError(
+                f"route {source}: unknown key(s) {sorted(unknown)}; allowed: {', '.join(ROUTE_KEYS)}"
+            )
+        if "waypoints" not in data:
+            raise ConfigError(f"route {source}: 'waypoints' is required")
+        try:
+            wps = tuple((float(p[0]), float(p[1])) if len(p) == 2 else tuple(p) for p in data["waypoints"])
+            kw = {k: float(data[k]) for k in ROUTE_KEYS[1:] if k in data}
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f"route {source}: waypoints must be [[x, y], ...] numbers: {exc}") from exc
+        return cls(wps, **kw)  # type: ignore[arg-type]
+
+
+class PurePursuit:
+    """Follow a :class:`Route` with pure pursuit (Coulter 1992) on the differential drive.
+
+    The goal point is ``lookahead_m`` along the path beyond the closest point of the path (progress
+    never goes backwards). Curvature to reach it: ``k = 2 y_r / l^2`` with ``y_r`` its lateral offset
+    in the chair's frame and ``l`` its distance; ``w = v k``. The speed is the cruise speed, lowered
+    in tight turns (``v / (1 + 0.6 |k|)``) and so the chair can stop at the last waypoint
+    (``v <= sqrt(2 a d)``); the twist is scaled to the platform's wheel limits keeping the curvature.
+    A goal point behind the chair turns it in place. Done within ``goal_tolerance_m`` of the last
+    waypoint once the progress is within one look-ahead of the end.
+    """
+
+    def __init__(self, route: Route, drive: DiffDrive, decel: float = 0.4) -> None:
+        self.route = route
+        self.drive = drive
+        self.decel = decel
+        self._pts = np.asarray(route.waypoints, dtype=float)
+        seg = np.diff(self._pts, axis=0)
+        self._seg_len = np.hypot(seg[:, 0], seg[:, 1])
+        self._cum = np.concatenate([[0.0], np.cumsum(self._seg_len)])
+        self.length = float(self._cum[-1])
+        self._s = 0.0  # progress along the path, m
+        self.done = False
+
+    def _point_at(self, s: float) -> np.ndarray:
+        s = min(max(s, 0.0), self.length)
+        i = int(np.searchsorted(self._cum, s, side="right") - 1)
+        i = min(i, len(self._seg_len) - 1)
+        t = (s - self._cum[i]) / self._seg_len[i] if self._seg_len[i] > 0 else 0.0
+        return self._pts[i] + t * (self._pts[i + 1] - self._pts[i])  # type: ignore[no-any-return]
+
+    def _project(self, p: np.ndarray) -> float:
+        """Arc length of the closest path point to ``p`` at or after the current progress."""
+        best_s, best_d = self._s, math.inf
+        for i in range(len(self._seg_len)):
+            a, b, ln = self._pts[i], self._pts[i + 1], self._seg_len[i]
+            if ln == 0 or self._cum[i + 1] < self._s:
+                continue
+            t = float(np.clip(np.dot(p - a, b - a) / ln**2, 0.0, 1.0))
+            s = max(self._cum[i] + t * ln, self._s)
+            d = float(np.hypot(*(p - self._point_at(s))))
+            if d < best_d - 1e-12:
+                best_s, best_d = s, d
+        return best_s
+
+    def cross_track_error(self, pose: Pose2D) -> float:
+        """Distance (m) from ``pose`` to the path at the current progress."""
+        p = np.array([pose.x, pose.y])
+        return float(np.hypot(*(p - self._point_at(self._project(p)))))
+
+    def command(self, obs: Observation) -> Command:
+        pose = obs.pose
+        p = np.array([pose.x, pose.y])
+        goal = self._pts[-1]
+        to_goal = float(np.hypot(*(goal - p)))
+        self._s = self._project(p)
+        if self.done or (
+            to_goal <= self.route.goal_tolerance_m and self._s >= self.length - self.route.lookahead_m
+        ):
+            self.done = True
+            return Command(0.0, 0.0, done=True)
+        target = self._point_at(self._s + self.route.lookahead_m)
+        if self._s + self.route.lookahead_m >= self.length:
+            target = goal
+        # the goal point in base_link: T_base_odom = inverse(T_odom_base)
+        x_r, y_r = transform_points(invert(se2(pose.x, pose.y, pose.theta)), target)
+        l2 = x_r * x_r + y_r * y_r
+        if x_r <= 0.0:  # goal point behind: turn in place toward it
+            w = math.copysign(0.5 * self.drive.max_yaw_rate, y_r if y_r != 0 else 1.0)
+            return Command(0.0, w)
+        k = 2.0 * y_r / l2 if l2 > 0 else 0.0
+        v = min(self.route.speed / (1.0 + 0.6 * abs(k)), math.sqrt(2.0 * self.decel * to_goal))
+        v, w = self.drive.limit(v, v * k)
+        return Command(v, w)

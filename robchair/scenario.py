@@ -1,0 +1,307 @@
+"""The scenario harness behind ``robchair sim``: scene + simulated chair + route follower + perception +
+observers, then the one drive loop (:class:`robchair.runtime.Runtime`), then the run folder.
+
+One run:
+
+1. loads the scenario (scene, start, route, sensor, duration, seed) and builds the simulated chair
+   behind the hardware interfaces (:func:`sim.backend.backend_from_chair`), its motor controller's
+   watchdog set from the loop period;
+2. drives the runtime at :data:`CONTROL_HZ` (physics at 240 Hz underneath): the route follower
+   (:class:`robchair.route.PurePursuit`) on the odometry pose, the safety layer on by default, the
+   Kinect every other cycle (30 Hz) and both sonar arrays as fast as their ranging time allows (SRF08:
+   15 Hz) or at ``sonar_hz``; every frame goes through the perception stage into the odometry map
+   (and, for the evaluation, a map placed with the physics' poses);
+3. observers: the run recorder (MCAP bag), the ground-truth evaluation (odometry drift, maps against
+   the scene, collisions), a progress bar;
+4. writes the run folder atomically (:mod:`robchair.outdir`): ``metrics.json`` (the schema of every
+   run), ``maps.npz``, the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
+   ``scene.png`` and the bag.
+
+A failure inside the loop (e.g. the physics diverging) stops the chair; what was recorded so far is
+written (``status`` = ``"error"`` in the metrics) and the error is raised afterwards. Same scenario +
+same seed -> the same maps, paths and frame data bit for bit, threaded or not (wall-clock metrics
+aside).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robchair.errors import ConfigError
+from robchair.kinematics import DiffDrive, Pose2D
+from robchair.observers import Observer
+from robchair.route import PurePursuit, Route
+from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
+from robchair.safety import SafetyLayer, SafetyLimits
+from robchair.spec import RobChairSpec, load_spec
+
+CONTROL_HZ = 60.0
+KINECT_EVERY = 2  # cycles: 30 Hz at 60 Hz
+CELL_SIZE = 0.05
+MAP_TOLERANCE = 0.05
+GRID_MARGIN = 1.0
+GOAL_TOLERANCE_M = 0.15
+
+
+def grid_covering(xy_min: tuple[float, float], xy_max: tuple[float, float], cell_size: float = CELL_SIZE,
+                  margin: float = GRID_MARGIN) -> Any:  # fmt: skip
+    """A :class:`mapping.grid.GridSpec` covering the box ``xy_min``-``xy_max`` plus ``margin`` m each side,
+    a whole even number of cells each way (as the grid requires)."""
+    from mapping.grid import GridSpec
+
+    x0, y0 = xy_min[0] - margin, xy_min[1] - margin
+    x1, y1 = xy_max[0] + margin, xy_max[1] + margin
+    nx, ny = (2 * math.ceil((b - a) / (2 * cell_size) - 1e-9) for a, b in ((x0, x1), (y0, y1)))
+    return GridSpec(cell_size=cell_size, size_x=nx * cell_size, size_y=ny * cell_size,
+                    centre=((x0 + x1) / 2, (y0 + y1) / 2))  # fmt: skip
+
+
+def scenario_grid(scenario: Any) -> Any:
+    """The map grid of a scenario: its scene's bounds and its route, plus :data:`GRID_MARGIN`."""
+    x0, y0, x1, y1 = scenario.scene.bounds_xy()
+    pts = np.array([*scenario.route.waypoints, scenario.start[:2]], dtype=float)
+    lo = (min(x0, pts[:, 0].min()), min(y0, pts[:, 1].min()))
+    hi = (max(x1, pts[:, 0].max()), max(y1, pts[:, 1].max()))
+    return grid_covering(lo, hi)
+
+
+def scenario_route(scenario: Any) -> Route:
+    """The scenario's route as a :class:`Route` from the start position (in ``map``)."""
+    x, y, _ = scenario.start
+    waypoints = [(float(w[0]), float(w[1])) for w in scenario.route.waypoints]
+    return Route(((float(x), float(y)), *waypoints),
+                 speed=scenario.route.speed, lookahead_m=scenario.route.lookahead,
+                 goal_tolerance_m=GOAL_TOLERANCE_M)  # fmt: skip
+
+
+def default_out_dir(scenario: Any) -> Path:
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    return Path("runs") / f"{scenario.name}-{stamp}"
+
+
+class ProgressBar(Observer):
+    """A tqdm bar of simulated seconds with the real-time factor."""
+
+    def __init__(self, name: str, duration_s: float) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=round(duration_s, 3), unit="sim s", desc=f"sim {name}",
+                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} sim s "
+                        "[{elapsed} wall, {rate_fmt}{postfix}]")  # fmt: skip
+        self._shown = 0.0
+        self._wall0 = time.perf_counter()
+
+    def after_cycle(self, runtime: Runtime, cycle: Any) -> None:
+        t = (cycle.stamp_ns - runtime.t0_ns) / 1e9
+        if t - self._shown >= 1.0:
+            self.bar.set_postfix_str(f"RTF {t / max(time.perf_counter() - self._wall0, 1e-9):.2f}")
+            self.bar.update(t - self._shown)
+            self._shown = t
+
+    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+        self.bar.close()
+
+
+def sonar_every(chair: Any, sonar_hz: float | None, rate_hz: float = CONTROL_HZ) -> int:
+    """Cycles between sonar readings: ``sonar_hz``, or the ranging time (SRF08: 65 ms -> every 4th)."""
+    if sonar_hz is not None:
+        if not (math.isfinite(sonar_hz) and 0 < sonar_hz <= rate_hz):
+            raise ConfigError(f"sonar_hz = {sonar_hz!r}: expected a rate in (0, {rate_hz:g}] Hz")
+        return max(1, round(rate_hz / sonar_hz))
+    if not chair.sonars:
+        return 0
+    ranging = max(arr.model.ranging_time_s for arr in chair.sonars.values())
+    return max(1, math.ceil(ranging * rate_hz - 1e-9))
+
+
+def run_scenario(
+    scenario: Any = "office_corridor",
+    *,
+    out_dir: Path | str | None = None,
+    duration: float | None = None,
+    sensor: str | None = None,
+    seed: int | None = None,
+    spec: RobChairSpec | None = None,
+    progress: bool = True,
+    write_bag: bool = True,
+    pictures: bool = True,
+    camera_backend: str = "raycast",
+    write: bool = True,
+    sensors: bool = True,
+    mapping_thread: bool = True,
+    raycast_threads: int = 0,
+    ground_truth_map: bool = True,
+    pipeline: bool = True,
+    sonar_hz: float | None = None,
+    safety: bool = True,
+    safety_limits: SafetyLimits | None = None,
+    bag_storage: str = "mcap",
+) -> RunResult:
+    """Run a scenario through the runtime and (with ``write``) write its run folder.
+
+    Args:
+        scenario: a :class:`sim.scene.Scenario`, or a scenario name / file.
+        out_dir: run folder (default ``runs/<scenario>-<UTC timestamp>``).
+        duration, sensor, seed: override the scenario's values.
+        spec: platform spec (default ``assets/robchair.toml``).
+        progress: show a progress bar (simulated vs wall time) on stderr.
+        write_bag, pictures: write the bag / the pictures and map exports.
+        camera_backend: ``"raycast"`` or ``"pybullet"``.
+        write: write the run folder at all (False: return the result only).
+        sensors: simulate the Kinect and sonars (False: physics, motors and route following only).
+        mapping_thread: insert frames into the maps on a second thread.
+        raycast_threads: Embree threads of the ray caster (0 = all cores).
+        ground_truth_map: also build the map placed with ground-truth poses.
+        pipeline: capture Kinect frames on background threads.
+        sonar_hz: sonar reading rate; None = as fast as the model's ranging time allows.
+        safety: the safety layer on (default) or off (recorded in the metrics).
+        safety_limits: limits of the safety layer (default: from the spec).
+        bag_storage: ``"mcap"`` or ``"sqlite3"``.
+
+    Raises:
+        ScenarioError: the scenario is invalid (nothing is written).
+        LoopAborted: the loop failed (e.g. the physics diverged) after the partial run folder was written.
+    """
+    from robchair.backends import default_watchdog_ms
+    from robchair.outdir import staged_output_dir
+    from sim.backend import SimChair, backend_from_chair, robot_radius
+    from sim.scene import Scenario, load_scenario
+
+    spec = spec if spec is not None else load_spec()
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario, robot_radius=robot_radius(spec))
+    duration = scenario.duration if duration is None else float(duration)
+    if not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"duration = {duration!r}: expected a positive number of seconds")
+    sensor = scenario.sensor if sensor is None else sensor
+    camera = None if not sensors or sensor in (None, "none") else sensor
+    seed = scenario.seed if seed is None else int(seed)
+    if seed < 0:
+        raise ConfigError(f"seed = {seed}: expected >= 0")
+    wall0 = time.perf_counter()
+    chair = SimChair(spec, scenario.scene, scenario.start, sensor=camera,
+                     sonars=scenario.sonars and sensors, seed=seed, camera_backend=camera_backend,
+                     raycast_threads=raycast_threads)  # fmt: skip
+    backend = backend_from_chair(chair, default_watchdog_ms(CONTROL_HZ), threaded=pipeline)
+    config = RuntimeConfig(rate_hz=CONTROL_HZ, camera_every=KINECT_EVERY,
+                           sonar_every=sonar_every(chair, sonar_hz))  # fmt: skip
+    target = None
+    if write:
+        target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
+    try:
+        if target is None:
+            return _drive(scenario, spec, chair, backend, config, duration, None, _options(
+                progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
+                pictures, sensor, seed, camera_backend, wall0))  # fmt: skip
+        with staged_output_dir(target) as stage:
+            res = _drive(scenario, spec, chair, backend, config, duration, stage, _options(
+                progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
+                pictures, sensor, seed, camera_backend, wall0))  # fmt: skip
+        res.out_dir = target.resolve()
+        if res.error is not None and res.exception is not None:
+            raise res.exception
+        return res
+    finally:
+        backend.close()
+
+
+def _options(progress: bool, write_bag: bool, mapping_thread: bool, ground_truth_map: bool, safety: bool,
+            safety_limits: SafetyLimits | None, bag_storage: str, pictures: bool, sensor: str, seed: int,
+            camera_backend: str, wall0: float) -> dict[str, Any]:  # fmt: skip
+    return dict(progress=progress, write_bag=write_bag, mapping_thread=mapping_thread,
+                ground_truth_map=ground_truth_map, safety=safety, safety_limits=safety_limits,
+                bag_storage=bag_storage, pictures=pictures, sensor=sensor, seed=seed,
+                camera_backend=camera_backend, wall0=wall0)  # fmt: skip
+
+
+def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: RuntimeConfig,
+           duration: float, stage: Path | None, o: dict[str, Any]) -> RunResult:  # fmt: skip
+    from robchair.observers.evaluation import GroundTruthEvaluation
+    from robchair.observers.recorder import RunRecorder
+    from robchair.perception import Perception
+
+    frames = {}
+    cam = backend.depth_camera
+    if cam is not None and cam.frame_id not in spec.mounts:  # HD/qHD clouds are in the colour camera
+        frames[cam.frame_id] = spec.mounts["kinect_link"].transform() @ cam.link_to_frame()
+    perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
+                            tolerance=MAP_TOLERANCE)  # fmt: skip
+    evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
+    observers: list[Observer] = [evaluation]
+    if stage is not None and o["write_bag"]:
+        observers.append(RunRecorder(stage / "bag", storage=o["bag_storage"]))
+    if o["progress"]:
+        observers.append(ProgressBar(scenario.name, duration))
+    follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))
+    limits = o["safety_limits"] or SafetyLimits.from_spec(spec)
+    backend.open()
+    rt = Runtime(backend, follower, spec=spec, config=config, safety=SafetyLayer(limits),
+                 perception=perception, observers=observers, start_pose=Pose2D(*scenario.start),
+                 safety_enabled=o["safety"])  # fmt: skip
+    setup_s = time.perf_counter() - o["wall0"]
+    try:
+        res = rt.run(duration)
+        res.exception = None
+    except LoopAborted as exc:
+        res = rt.result
+        res.exception = exc
+    res.extra.update(
+        scenario=scenario.name,
+        scene=scenario.scene.name,
+        sensor=o["sensor"],
+        seed=o["seed"],
+        duration_s=duration,
+        camera_backend=o["camera_backend"],
+        tyre_radius_scale=list(chair.wheel_radius_scale),
+        wall_time_s={"setup": setup_s, "components": dict(chair.timing)},
+    )
+    res.extra["odometry_drift"] = {
+        **(res.extra.get("odometry_drift") or {}),
+        "source": "the simulated tyres' true radii differ from the spec's by tyre_radius_scale (seeded, "
+        "0.2 % sd); the odometry assumes the spec's radius, plus wheel slip from the physics",
+    }
+    if stage is not None:
+        write_run_folder(res, scenario, spec, stage, o["pictures"])
+    return res
+
+
+def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
+    """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
+    arrays: dict[str, np.ndarray] = {}
+    for name, m in res.maps.items():
+        s = m.structures()
+        for field in ("i", "j", "bottom", "top"):
+            arrays[f"{name}_{field}"] = np.asarray(getattr(s, field))
+    for name, p in res.paths.items():
+        arrays[f"path_{name}"] = p
+    np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
+    files = ["metrics.json", "maps.npz"]
+    timing = res.extra.setdefault("wall_time_s", {})
+    if pictures:
+        from mapping.export import write_map_outputs
+        from sim.render import render_scene
+
+        t0 = time.perf_counter()
+        (out / "map").mkdir()
+        band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
+        write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
+                          build_ms=res.extra.get("mapping_ms_total"),
+                          parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip
+        import matplotlib.pyplot as plt
+
+        plt.imsave(out / "scene.png", render_scene(scenario, spec))
+        files += ["map", "scene.png"]
+        timing["pictures"] = time.perf_counter() - t0
+    if "bag" in res.extra:
+        files.append("bag")
+    res.extra["files"] = sorted(files)
+    (out / "metrics.json").write_text(
+        json.dumps(res.metrics(), indent=2, allow_nan=False, default=_json_default) + "\n"
+    )

@@ -1,0 +1,327 @@
+"""The scenario harness (`robchair sim`): the simulated chair driven by the runtime, the run folder,
+determinism, the safety layer against the scene, the bag against the emulated chair's, the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robchair.errors import ConfigError
+from robchair.kinematics import DiffDrive, Pose2D
+from robchair.route import PurePursuit, Route
+from robchair.runtime import LoopAborted
+from robchair.scenario import run_scenario, scenario_grid
+from robchair.sources import Observation
+from sim.errors import ScenarioError, SimulationDivergedError
+
+pytest.importorskip("pybullet")
+
+SHORT = 0.2  # simulated seconds: 12 cycles at 60 Hz, 6 Kinect frames, 3 readings per sonar array
+METRICS_KEYS = {
+    "real_time_factor",
+    "route",
+    "odometry_drift",
+    "map",
+    "safety",
+    "collisions",
+    "controller",
+}
+
+
+def _obs(pose: Pose2D) -> Observation:
+    return Observation(0, pose, None, (), None)
+
+
+def test_pure_pursuit_curvature_is_two_y_over_l_squared() -> None:
+    drive = DiffDrive()
+    pp = PurePursuit(Route(((0.0, 0.0), (3.0, 3.0)), speed=0.4, lookahead_m=math.sqrt(2.0)), drive)
+    cmd = pp.command(_obs(Pose2D(0.0, 0.0, 0.0)))
+    # goal point (1, 1) in the chair's frame: y = 1, l^2 = 2 -> k = 2 * 1 / 2 = 1
+    assert cmd.v > 0 and cmd.w / cmd.v == pytest.approx(1.0)
+    straight = PurePursuit(Route(((0.0, 0.0), (5.0, 0.0)), speed=0.4, lookahead_m=1.0), drive)
+    cmd = straight.command(_obs(Pose2D(0.0, 0.0, 0.0)))
+    assert cmd.v == pytest.approx(0.4) and cmd.w == pytest.approx(0.0)
+
+
+def test_precision_and_recall_allow_one_cell_either_way() -> None:
+    from robchair.observers.evaluation import precision_recall
+
+    truth = np.zeros((6, 6), bool)
+    truth[2, 2] = True
+    pred = np.zeros((6, 6), bool)
+    pred[3, 3] = True  # diagonal neighbour: counts
+    pred[5, 0] = True  # far away: does not
+    assert precision_recall(pred, truth) == {"precision": 0.5, "recall": 1.0}
+
+
+def test_chair_tracks_the_first_legs_of_the_route_through_the_corridor() -> None:
+    res = run_scenario("office_corridor", duration=8.0, write=False, progress=False, sensors=False)
+    gt = res.paths["ground_truth"]
+    assert gt[-1, 0] > 3.0  # it made progress along +x
+    # route: (0, 0) -> (3, 0) -> (6, 0): the chair stays within a few cm of the corridor's centre line
+    assert np.abs(gt[:, 1]).max() < 0.1
+    m = res.metrics()
+    assert m["collisions"] == 0 and m["safety"]["enabled"] is True
+
+
+@pytest.mark.slow
+def test_chair_follows_the_route_to_its_goal_on_odometry() -> None:
+    res = run_scenario("office_corridor", duration=30.0, write=False, progress=False, sensors=False)
+    m = res.metrics()
+    assert m["route"]["goal_reached"]
+    gt = res.paths["ground_truth"]
+    assert np.hypot(gt[-1, 0] - 10.0, gt[-1, 1] + 0.8) < 0.4  # odometry drift + goal tolerance
+    in_corridor = gt[gt[:, 0] < 5.9]  # the corridor is 2.4 m wide
+    assert np.abs(in_corridor[:, 1]).max() < 0.6
+    assert 0.0 < m["odometry_drift"]["final_position_error_m"] < 0.3
+    assert m["collisions"] == 0
+
+
+def _arrays(res) -> dict[str, np.ndarray]:
+    out = {f"path_{k}": v for k, v in res.paths.items()}
+    for name, mp in res.maps.items():
+        s = mp.structures()
+        out.update(
+            {f"{name}_i": np.asarray(s.i), f"{name}_b": np.asarray(s.bottom), f"{name}_t": np.asarray(s.top)}
+        )
+    return out
+
+
+@pytest.mark.parametrize("scenario", ["outdoor_people", "office_corridor"])
+def test_same_seed_gives_the_same_run_bit_for_bit_threaded_or_not_and_another_seed_does_not(scenario) -> None:
+    a = run_scenario(scenario, duration=SHORT, write=False, progress=False, seed=5)
+    b = run_scenario(
+        scenario, duration=SHORT, write=False, progress=False, seed=5, pipeline=False, mapping_thread=False
+    )
+    c = run_scenario(scenario, duration=SHORT, write=False, progress=False, seed=6)
+    aa, bb, cc = _arrays(a), _arrays(b), _arrays(c)
+    assert aa.keys() == bb.keys()
+    for k in aa:
+        assert aa[k].dtype == bb[k].dtype and aa[k].tobytes() == bb[k].tobytes(), k
+    ma, mb = a.metrics(), b.metrics()
+    assert ma["frames"] == mb["frames"] and ma["map"] == mb["map"] and ma["safety"] == mb["safety"]
+    assert aa["odometry_b"].tobytes() != cc["odometry_b"].tobytes()  # the noise really is seeded
+
+
+def test_short_headless_run_writes_the_run_folder_with_the_one_metrics_schema(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    res = run_scenario("office_corridor", duration=SHORT, out_dir=out, progress=False)
+    assert res.out_dir == out.resolve()
+    for name in ("metrics.json", "maps.npz", "scene.png", "map/summary.json"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    m = json.loads((out / "metrics.json").read_text())
+    assert METRICS_KEYS <= set(m) and m["status"] == "ok" and m["backend"] == "sim"
+    assert m["frames"]["depth_frames"] == 6  # cycles 0, 2, ..., 10 at 60 Hz
+    assert m["frames"]["sonar_readings"] == 2 * 3  # SRF08 ranging 65 ms: cycles 0, 4, 8
+    assert m["safety"]["enabled"] is True and isinstance(m["safety"]["stops"], list)
+    assert m["controller"] == {"watchdog_ms": 42, "watchdog_trips": 0}  # 2.5 periods of 60 Hz
+    assert m["collisions"] == 0
+    assert set(m["route"]) >= {"goal_reached", "distance_travelled_m"}
+    assert set(m["map"]) >= {"odometry_map_vs_scene", "ground_truth_pose_map_vs_scene"}
+    assert 0 <= m["map"]["odometry_map_vs_scene"]["precision"] <= 1
+    assert m["real_time_factor"] > 0
+    assert set(m["files"]) >= {"metrics.json", "maps.npz", "scene.png", "map", "bag"}
+    from rosbags.rosbag2 import Reader
+
+    with Reader(out / "bag") as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert (out / "bag" / "bag.mcap").is_file()
+    assert types["/kinect/points"] == "sensor_msgs/msg/PointCloud2"
+    assert types["/odom"] == "nav_msgs/msg/Odometry"
+    assert types["/sonar/sonar_array_left/1"] == "sensor_msgs/msg/Range"
+    assert counts == m["bag"]["messages"]
+
+
+def test_decoded_bag_cloud_matches_a_kinect_v2_frame(tmp_path: Path) -> None:
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from mapping.pointcloud2 import decode
+
+    out = tmp_path / "run"
+    run_scenario("office_corridor", duration=0.1, out_dir=out, progress=False, pictures=False)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with Reader(out / "bag") as reader:
+        conn = [c for c in reader.connections if c.topic == "/kinect/points"]
+        _, _, raw = next(iter(reader.messages(connections=conn)))
+        msg = store.deserialize_cdr(raw, conn[0].msgtype)
+    pts = decode(msg, organized=True)
+    assert pts.shape == (424 // 4, 512 // 4, 3)
+    finite = np.isfinite(pts).all(axis=-1)
+    assert finite.mean() > 0.3
+    assert (pts[finite][:, 0] >= 0.5 - 1e-3).all() and (pts[finite][:, 0] <= 4.5 + 1e-3).all()
+
+
+def test_diverging_simulation_stops_with_an_error_and_keeps_what_was_recorded(tmp_path, monkeypatch) -> None:
+    from sim.robot import SimRobot
+
+    real = SimRobot.pose2d
+    calls = {"n": 0}
+
+    def flaky(self):
+        calls["n"] += 1
+        if calls["n"] > 10:
+            raise SimulationDivergedError("the chair's pose became non-finite at t = 0.1667 s (test)")
+        return real(self)
+
+    monkeypatch.setattr(SimRobot, "pose2d", flaky)
+    out = tmp_path / "run"
+    with pytest.raises(LoopAborted, match="non-finite") as info:
+        run_scenario("office_corridor", duration=2.0, out_dir=out, progress=False, pictures=False)
+    assert isinstance(info.value.__cause__, SimulationDivergedError)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["status"] == "error" and "non-finite" in m["error"]
+    assert m["cycles"] == 11  # the 11th cycle wrote its command, then its ground-truth pose failed
+    assert (out / "maps.npz").is_file()
+
+
+def test_invalid_scenario_file_stops_before_anything_is_written(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[scenario]\nscene = "office"\nwarp = 9\n[route]\nwaypoints = [[1.0, 0.0]]\n')
+    out = tmp_path / "run"
+    with pytest.raises(ScenarioError, match=r"bad.toml:3: scenario.warp: unknown key"):
+        run_scenario(bad, out_dir=out, progress=False)
+    assert not out.exists()
+
+
+def test_cli_lists_scenarios_and_reports_bad_input_with_exit_code_2(tmp_path: Path, capsys) -> None:
+    from robchair.cli import main
+
+    assert main(["sim", "--list"]) == 0
+    listed = capsys.readouterr().out
+    assert "office_corridor" in listed and "outdoor_people" in listed
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[scenario]\nscene = "office"\nstart = [9.2, 1.3, 0.0]\n[route]\nwaypoints = [[1.0, 0.0]]\n'
+    )
+    assert main(["sim", str(bad), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml:3" in err and "overlaps object 'table'" in err
+    assert main(["sim", "no_such_scenario", "--out", str(tmp_path / "p"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "no_such_scenario" in err
+
+
+def test_every_shipped_scenario_gets_a_whole_cell_grid_covering_scene_and_route() -> None:
+    from sim.scene import list_scenarios, load_scenario
+
+    for path in list_scenarios():
+        sc = load_scenario(path)
+        grid = scenario_grid(sc)
+        pts = np.array([*sc.route.waypoints, sc.start[:2]])
+        i, j = grid.world_to_index(pts[:, 0], pts[:, 1])
+        assert ((i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])).all(), path.name
+        x0, y0, x1, y1 = sc.scene.bounds_xy()
+        i, j = grid.world_to_index(np.array([x0, x1]), np.array([y0, y1]))
+        assert ((i >= 0) & (i < grid.shape[0]) & (j >= 0) & (j < grid.shape[1])).all(), path.name
+
+
+def test_bad_duration_and_seed_are_refused() -> None:
+    with pytest.raises(ConfigError, match="duration"):
+        run_scenario("office_corridor", duration=-1.0, write=False)
+    with pytest.raises(ConfigError, match="seed"):
+        run_scenario("office_corridor", seed=-3, write=False)
+
+
+def _wall_scenario(tmp_path: Path) -> Path:
+    (tmp_path / "wall_scene.toml").write_text(
+        '[scene]\nname = "wall"\ndescription = "one wall across the way"\n'
+        '[[object]]\nname = "wall"\nshape = "box"\nsize = [0.1, 3.0, 2.0]\nxyz = [2.5, 0.0, 1.0]\n'
+    )
+    path = tmp_path / "wall.toml"
+    path.write_text(
+        '[scenario]\nname = "wall"\ndescription = "a route straight through a wall"\n'
+        'scene = "wall_scene"\nduration = 9.0\nsensor = "kinect2"\nsonars = true\nseed = 0\n'
+        "start = [0.0, 0.0, 0.0]\n[route]\nwaypoints = [[5.0, 0.0]]\nspeed = 0.55\nlookahead = 0.7\n"
+    )
+    return path
+
+
+def test_a_route_through_a_wall_stops_the_chair_before_it_with_the_margin_left(tmp_path: Path) -> None:
+    from robchair.spec import load_spec
+
+    res = run_scenario(_wall_scenario(tmp_path), write=False, progress=False)
+    m = res.metrics()
+    stops = m["safety"]["stops"]
+    assert stops and stops[0]["reason"] in ("obstacle_map", "obstacle_sonar")
+    assert m["collisions"] == 0 and m["route"]["goal_reached"] is False
+    spec = load_spec()
+    front = res.paths["ground_truth"][-1, 0] + spec.body.centre_x + spec.body.depth / 2
+    gap = 2.45 - front  # the wall's near face is at x = 2.45
+    assert 0.15 <= gap < 0.8  # at least the safety margin kept, and it did get near
+
+
+def test_without_the_safety_layer_the_same_route_hits_the_wall_and_says_so(tmp_path: Path) -> None:
+    res = run_scenario(_wall_scenario(tmp_path), write=False, progress=False, safety=False, duration=7.0)
+    m = res.metrics()
+    assert m["safety"] == {**m["safety"], "enabled": False, "stops": []}
+    assert m["collisions"] >= 1 and res.extra["contact_events"][0]["body"] == "wall"
+
+
+def _bag_names(folder: Path) -> dict[str, tuple[str, frozenset[str]]]:
+    """topic -> (message type, frame ids and child frame ids seen on it)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    out: dict[str, tuple[str, set[str]]] = {}
+    with Reader(folder) as reader:
+        for conn, _, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            frames = out.setdefault(conn.topic, (conn.msgtype, set()))[1]
+            for m in getattr(msg, "transforms", None) or [msg]:
+                frames.add(m.header.frame_id)
+                if hasattr(m, "child_frame_id"):
+                    frames.add(m.child_frame_id)
+    return {k: (t, frozenset(f)) for k, (t, f) in out.items()}
+
+
+def test_sim_and_emulated_bags_of_the_same_sensors_have_the_same_topics_types_and_frames(
+    tmp_path: Path,
+) -> None:
+    from robchair.cli import main
+
+    sim_out, emu_out = tmp_path / "sim", tmp_path / "emulated"
+    assert main(["sim", "--sensor", "none", "--duration", "0.5", "--out", str(sim_out), "--no-progress",
+                 "--no-pictures"]) == 0  # fmt: skip
+    route = tmp_path / "route.toml"
+    route.write_text("waypoints = [[0, 0], [1.5, 0]]\nspeed = 0.3\n")
+    assert main(["run", "--backend", "emulated", "--route", str(route), "--duration", "0.5",
+                 "--out", str(emu_out)]) == 0  # fmt: skip
+    a, b = _bag_names(sim_out / "bag"), _bag_names(emu_out / "bag")
+    assert a == b
+    assert "/sonar/sonar_array_right/3" in a and "/odom" in a
+    for name in ("metrics.json",):
+        ma = json.loads((sim_out / name).read_text())
+        mb = json.loads((emu_out / name).read_text())
+        assert METRICS_KEYS <= set(ma) and METRICS_KEYS <= set(mb)
+        assert mb["collisions"] is None and ma["collisions"] == 0
+
+
+@pytest.mark.slow
+def test_default_cli_run_drives_through_the_runtime_with_safety_on(tmp_path: Path, monkeypatch) -> None:
+    from robchair import runtime
+    from robchair.cli import main
+
+    cycles = {"n": 0}
+    real = runtime.Runtime.step
+
+    def counting(self, command=None):
+        cycles["n"] += 1
+        return real(self, command)
+
+    monkeypatch.setattr(runtime.Runtime, "step", counting)
+    monkeypatch.chdir(tmp_path)
+    assert main(["sim", "--no-progress"]) == 0
+    (out,) = (tmp_path / "runs").iterdir()
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["scenario"] == "office_corridor" and m["status"] == "ok"
+    assert cycles["n"] == m["cycles"] > 0
+    assert m["safety"]["enabled"] is True and METRICS_KEYS <= set(m)
+    assert m["collisions"] == 0
+    assert m["map"]["iou_odometry_vs_ground_truth_pose"] > 0.5
