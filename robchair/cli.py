@@ -25,6 +25,8 @@ COMMANDS = (
     "robchair.commands.run",
     "robchair.commands.hw",
     "robchair.commands.sweep",
+    "robchair.commands.view",
+    "robchair.commands.report",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",
