@@ -180,3 +180,28 @@ def test_view_of_a_missing_folder_is_one_line_and_exit_code_2(tmp_path, capsys):
     assert main(["view", str(tmp_path / "nope"), "--no-viewer"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "nope: not a run folder or a .rrd recording" in err
+
+
+def test_2d_map_cells_land_on_the_grid_cells_they_came_from(tmp_path):
+    from mapping.export import map_codes, write_map_outputs
+    from mapping.export.rosmap import FREE, OCCUPIED
+    from mapping.grid import GridSpec
+    from mapping.vhv import VHVMap
+
+    rng = np.random.default_rng(5)
+    spec = GridSpec(cell_size=0.1, size_x=3.0, size_y=2.0, centre=(0.9, -0.4))
+    m = VHVMap(spec, tolerance=0.05)
+    m.insert(rng.uniform((-0.5, -1.3, 0.0), (2.3, 0.5, 1.2), (300, 3)))
+    (tmp_path / "map").mkdir()
+    write_map_outputs(m, tmp_path / "map", band=(0.3, 1.0))
+    codes = map_codes(m, (0.3, 1.0))
+    rrd = write_recording(tmp_path)
+    ((_, verts),) = _columns(rrd, "/world/map/occupancy", "Mesh3D:vertex_positions")
+    ((_, colors),) = _columns(rrd, "/world/map/occupancy", "Mesh3D:vertex_colors")
+    quads = np.asarray(verts).reshape(-1, 4, 3)
+    centres = quads.mean(axis=1)
+    i, j = spec.world_to_index(centres[:, 0], centres[:, 1])
+    dark = (np.asarray(colors, dtype=np.uint64)[::4] >> 24) < 128  # RGBA packed as 0xRRGGBBAA
+    assert sorted(zip(i[dark], j[dark])) == sorted(zip(*np.nonzero(codes == OCCUPIED)))
+    assert sorted(zip(i[~dark], j[~dark])) == sorted(zip(*np.nonzero(codes == FREE)))
+    np.testing.assert_allclose(quads[:, 2, :2] - quads[:, 0, :2], 0.1, atol=1e-6)  # one cell each
