@@ -139,6 +139,7 @@ class CycleResult:
         stops: stop events that began in this cycle.
         done: the command source has finished, or a driver fault ended the run.
         fault: text of a driver fault, if any.
+        motor_state: the motor controller's reading at the start of the cycle (None if it failed).
     """
 
     k: int
@@ -150,6 +151,7 @@ class CycleResult:
     stops: tuple[StopRecord, ...]
     done: bool
     fault: str | None = None
+    motor_state: MotorState | None = None
 
 
 @dataclass
@@ -490,7 +492,7 @@ class Runtime:
             if self.config.stop_on_driver_fault:
                 log.error("run ended by a driver fault: %s", self._fault)
                 done = True
-        cycle = CycleResult(k, now, pose, command, decision, intervened, new_stops, done, self._fault)
+        cycle = CycleResult(k, now, pose, command, decision, intervened, new_stops, done, self._fault, state)
         self._stage = "observer"
         for ob in self.observers:
             ob.after_cycle(self, cycle)

@@ -237,6 +237,10 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     observers: list[Observer] = [evaluation]
     if stage is not None and o["write_bag"]:
         observers.append(RunRecorder(stage / "bag", storage=o["bag_storage"]))
+    if stage is not None:
+        from robchair.observers.timeseries import TimeseriesWriter
+
+        observers.append(TimeseriesWriter(stage / "timeseries.csv"))
     if o["progress"]:
         observers.append(ProgressBar(scenario.name, duration))
     follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))
@@ -301,7 +305,22 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
         timing["pictures"] = time.perf_counter() - t0
     if "bag" in res.extra:
         files.append("bag")
+    if (out / "timeseries.csv").exists():
+        files.append("timeseries.csv")
+    looks = pictures and res.exception is None  # the report and the recording of a complete run
+    if looks:
+        from robchair.viz.rerun_recording import rerun_available
+
+        files += ["report.html", *(["recording.rrd"] if rerun_available() else [])]
     res.extra["files"] = sorted(files)
     (out / "metrics.json").write_text(
         json.dumps(res.metrics(), indent=2, allow_nan=False, default=_json_default) + "\n"
     )
+    if looks:
+        from robchair.report import build_report
+
+        build_report(out, name=scenario.name)
+        if "recording.rrd" in files:
+            from robchair.viz.rerun_recording import write_recording
+
+            write_recording(out, name=scenario.name)

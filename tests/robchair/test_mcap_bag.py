@@ -77,8 +77,7 @@ def sim_run(tmp_path_factory):
 
 def test_sim_run_bag_is_read_by_the_mcap_reader(sim_run):
     meta = (sim_run / "bag" / "metadata.yaml").read_text()
-    if not re.search(r"storage_identifier:\s*mcap", meta):
-        pytest.skip("robchair sim wrote its bag in another storage than MCAP")
+    assert re.search(r"storage_identifier:\s*mcap", meta), "robchair sim must write MCAP by default"
     topics = read_with_mcap(sim_run / "bag")
     counts = {t: e["count"] for t, e in topics.items()}
     recorded = RunFolder(sim_run).metrics.get("bag", {}).get("messages")
@@ -106,3 +105,25 @@ def test_report_and_recording_of_a_sim_run(sim_run):
     sonar_topics = [t for t in RunFolder(sim_run).bag_topics() if t.startswith("/sonar/")]
     readings = sum(1 for _ in RunFolder(sim_run).messages(sonar_topics))
     assert readings > 0 and sum(counts[k] for k in counts if k.endswith("/cone")) == readings
+
+
+def test_a_sim_run_writes_its_report_recording_and_time_series(sim_run):
+    import csv
+    import itertools
+
+    from robchair.observers.timeseries import COLUMNS
+
+    metrics = RunFolder(sim_run).metrics
+    assert {"report.html", "timeseries.csv"} <= set(metrics["files"])
+    assert (sim_run / "report.html").stat().st_size > 0
+    rerun_recording = pytest.importorskip("robchair.viz.rerun_recording")
+    if rerun_recording.rerun_available():
+        assert "recording.rrd" in metrics["files"] and (sim_run / "recording.rrd").stat().st_size > 0
+    with (sim_run / "timeseries.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == COLUMNS
+    odom = sum(1 for _ in RunFolder(sim_run).messages(["/odom"]))
+    assert len(rows) == odom  # one row per cycle, as the bag has one /odom per cycle
+    t = [float(r["t_s"]) for r in rows]
+    assert t[0] == 0.0 and all(b > a for a, b in itertools.pairwise(t))
+    assert any(r["left_rpm_meas"] for r in rows) and any(r["mapping_ms"] for r in rows)
