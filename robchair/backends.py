@@ -190,6 +190,7 @@ def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
     from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
+    from hw.roboteq.settings import RoboteqProtections
 
     where = "emulated"
     _check_keys(cfg, _EMULATED_KEYS, where)
@@ -212,6 +213,9 @@ def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
             watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
             encoder_ppr=int(spec.encoder_ppr),
             max_rpm=int(spec.max_motor_rpm),
+            gear_ratio=float(spec.gear_ratio),
+            encoder_on=spec.encoder_on,
+            protections=RoboteqProtections.from_spec(spec),
             pid=design_pid_configs(spec),
             clock=clock,
             release_on_open=bool(cfg.get("release_stop", False)),
@@ -243,6 +247,7 @@ def make_real_backend(cfg: dict[str, Any]) -> Backend:
     """The Roboteq on a serial port and the SRF08 arrays on I2C (the ``real`` entry)."""
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
+    from hw.roboteq.settings import RoboteqProtections
 
     where = "real"
     _check_keys(cfg, _REAL_KEYS, where)
@@ -261,6 +266,9 @@ def make_real_backend(cfg: dict[str, Any]) -> Backend:
         watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
         encoder_ppr=int(spec.encoder_ppr),
         max_rpm=int(spec.max_motor_rpm),
+        gear_ratio=float(spec.gear_ratio),
+        encoder_on=spec.encoder_on,
+        protections=RoboteqProtections.from_spec(spec),
         pid=design_pid_configs(spec),
         clock=clock,
         release_on_open=bool(cfg.get("release_stop", False)),

@@ -658,16 +658,23 @@ def run_to_dir(backend: Backend, source: CommandSource | None, duration_s: float
                safety: SafetyLayer | None = None, start_pose: Pose2D | None = None,
                safety_enabled: bool = True, perception: Perception | None = None,
                observers: Sequence[Observer] = (), bag_storage: str = "mcap") -> RunResult:  # fmt: skip
-    """Open the backend, run, close it, and (with ``out_dir``) write ``bag/``, ``metrics.json`` and
-    ``odometry.csv``. The output folder is written all-or-nothing (:mod:`robchair.outdir`)."""
+    """Open the backend, run, close it, and (with ``out_dir``) write ``bag/``, ``metrics.json``,
+    ``timeseries.csv`` and ``odometry.csv``. The output folder is written all-or-nothing
+    (:mod:`robchair.outdir`). Motor-controller diagnostics are polled at 1 Hz where the controller has
+    them."""
     from robchair.outdir import staged_output_dir
 
     def go(stage: Path | None) -> RunResult:
-        obs = list(observers)
-        if stage is not None:
-            from robchair.observers.recorder import RunRecorder
+        from robchair.observers.diagnostics import DiagnosticsObserver
 
-            obs.insert(0, RunRecorder(stage / "bag", storage=bag_storage))
+        obs = list(observers)
+        if stage is not None:  # a recorded run: bag, time series and the controller's diagnostics
+            from robchair.observers.recorder import RunRecorder
+            from robchair.observers.timeseries import TimeseriesWriter
+
+            recorder = RunRecorder(stage / "bag", storage=bag_storage)
+            obs[:0] = [recorder, TimeseriesWriter(stage / "timeseries.csv")]
+            obs.append(DiagnosticsObserver(recorder=recorder))
         rt = Runtime(backend, source, spec=spec, config=config, safety=safety, perception=perception,
                      observers=obs, start_pose=start_pose, safety_enabled=safety_enabled)  # fmt: skip
         return rt.run(duration_s)

@@ -235,12 +235,17 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
                             tolerance=MAP_TOLERANCE)  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
+    recorder = None
     if stage is not None and o["write_bag"]:
-        observers.append(RunRecorder(stage / "bag", storage=o["bag_storage"]))
+        recorder = RunRecorder(stage / "bag", storage=o["bag_storage"])
+        observers.append(recorder)
     if stage is not None:
         from robchair.observers.timeseries import TimeseriesWriter
 
         observers.append(TimeseriesWriter(stage / "timeseries.csv"))
+    from robchair.observers.diagnostics import DiagnosticsObserver
+
+    observers.append(DiagnosticsObserver(recorder=recorder))
     if o["progress"]:
         observers.append(ProgressBar(scenario.name, duration))
     follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))

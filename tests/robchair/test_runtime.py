@@ -158,6 +158,13 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
         ]
     assert counts["/odom"] == res.cycles
     assert counts["/tf"] == 3 * res.cycles  # odom -> base_link, and the two arrays' servo frames
+    # the controller's diagnostics at 1 Hz of run time, in the bag and (the last sample) in the metrics
+    assert abs(counts["/diagnostics"] - metrics["sim_time_s"]) <= 1.5
+    diag = metrics["controller"]["diagnostics"]
+    assert diag["state"] == "active" and diag["samples"] == counts["/diagnostics"]
+    assert diag["battery_v"] > 0 and len(diag["temperatures_c"]) == 3
+    rows = (out / "timeseries.csv").read_text().splitlines()
+    assert len(rows) == res.cycles + 1 and rows[0].startswith("t_s,v_req,w_req,v_cmd")
     assert counts["/sonar/sonar_array_left/1"] == res.cycles
     # nothing in front of the emulated sonars: REP-117 "no return" is +inf
     assert all(m.range == math.inf and m.radiation_type == 0 for m in ranges)
@@ -444,7 +451,9 @@ def test_robchair_run_emulated_writes_bag_metrics_and_odometry(tmp_path: Path, c
     assert rc == 0
     printed = json.loads(capsys.readouterr().out)
     assert printed["route"]["goal_reached"] is True
-    assert {p.name for p in out.iterdir()} == {"bag", "metrics.json", "odometry.csv", ".robchair-output"}
+    assert {p.name for p in out.iterdir()} == {
+        "bag", "metrics.json", "odometry.csv", "timeseries.csv", ".robchair-output"
+    }
     odo = np.loadtxt(out / "odometry.csv", delimiter=",", skiprows=1)
     assert odo[-1, 1] == pytest.approx(1.0, abs=0.1)
 
