@@ -61,9 +61,10 @@ BACKENDS: dict[str, str] = {
 WATCHDOG_PERIODS = 2.5
 SONAR_ARRAY_NAMES = ("sonar_array_left", "sonar_array_right")
 DEFAULT_SONAR_ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
-# Sonars are read one after the other (their beams overlap); with 6 sonars at the default 11 m range
-# setting (65 ms each) a cycle would take 390 ms. Safety looks at obstacles within a few metres, so
-# the range register is set for 2 m: (46 x 43 mm), 11.9 ms per ranging, 71 ms for all six.
+# The two arrays fire in step, one sonar of each per 65 ms slot (the SRF08 datasheet's interval at the
+# power-up gain; hw.sonar_array.SonarFiringGroup): all six readings every 195 ms. Safety looks at
+# obstacles within a few metres, so the range register is set for 2 m (46 x 43 mm): each result is
+# ready 11.9 ms after its ping, but the next ping of an array still waits for the 65 ms echo window.
 DEFAULT_SONAR_MAX_RANGE_M = 2.0
 
 _EMULATED_KEYS = {
@@ -166,7 +167,7 @@ def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
 
 
 def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
-    from hw.sonar_array import RangerSonarArray
+    from hw.sonar_array import RangerSonarArray, SonarFiringGroup
     from hw.srf08 import SRF08
 
     if len(addresses) != 6:
@@ -180,6 +181,7 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
             for i, a in enumerate(addresses[3 * k : 3 * k + 3])
         ]
         arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+    SonarFiringGroup(arrays, clock=clock)
     return tuple(arrays)
 
 

@@ -5,16 +5,16 @@ safety, routes) is checked where it enters through this module, so a user always
 three kinds of message, each naming the file (and the line of the key when the text is known), the
 field as a TOML path, the value and what was expected::
 
-    assets/robchair.toml:33: drive.wheel_radius = -0.172: expected a number > 0
+    assets/robchair.toml:31: drive.wheel_radius = -0.172: expected a finite number > 0
     run.toml:7: route.turbo: unknown key (value True); expected one of lookahead, speed, waypoints
-    run.toml: route.waypoints: missing; expected a list of [x, y] points
+    run.toml:5: route.waypoints: missing; expected a list of at least 1 [x, y] points of finite numbers
 
 Two ways in:
 
 * :class:`ConfigTable` reads one TOML table field by field (``number``, ``integer``, ``boolean``,
-  ``string``, ``vector``, ``points``, sub-tables), for loaders with cross-field rules.
+  ``string``, ``vector``, ``points``, ``rows``, sub-tables), for loaders with cross-field rules.
 * :func:`load_dataclass` fills a frozen dataclass from a table by its annotations (``float``, ``int``,
-  ``bool``, ``str``, fixed-length float tuples, ``tuple[tuple[float, float], ...]``, ``X | None``),
+  ``bool``, ``str``, fixed-length float tuples and tuples of them, ``X | None``),
   its defaults and the bounds given with :func:`bounds` in each field's metadata; and
   :func:`check_dataclass` applies the same checks to an instance built in code (call it from
   ``__post_init__``).
@@ -403,6 +403,29 @@ class ConfigTable:
             raise self.invalid(key, expected, v)
         return tuple((float(p[0]), float(p[1])) for p in v)
 
+    def rows(
+        self, key: str, cols: int, default: Any = MISSING, *, count: int | None = None, min_count: int = 1
+    ) -> tuple[tuple[float, ...], ...]:
+        """A list of ``count`` (or at least ``min_count``) rows of ``cols`` finite numbers each."""
+        how_many = str(count) if count is not None else f"at least {min_count}"
+        expected = f"a list of {how_many} lists of {cols} finite numbers"
+        if key not in self.data and default is not MISSING:
+            return typing.cast(tuple[tuple[float, ...], ...], default)
+        v = self.raw(key, expected=expected)
+        ok = (
+            isinstance(v, list | tuple)
+            and (len(v) == count if count is not None else len(v) >= min_count)
+            and all(
+                isinstance(r, list | tuple)
+                and len(r) == cols
+                and all(_is_real(a) and math.isfinite(a) for a in r)
+                for r in v
+            )
+        )
+        if not ok:
+            raise self.invalid(key, expected, v)
+        return tuple(tuple(float(a) for a in r) for r in v)
+
     def table(self, key: str, default: Any = MISSING) -> ConfigTable:
         """The sub-table ``key`` (``default``, e.g. ``{}``, if absent)."""
         v = self.raw(key, default, expected="a table")
@@ -454,6 +477,14 @@ def _optional_inner(tp: Any) -> Any:
     return None
 
 
+def _float_row(tp: Any) -> int:
+    """Length of a fixed-length ``tuple[float, ...]`` type (``tuple[float, float]`` -> 2), else 0."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) is tuple and args and Ellipsis not in args and all(a is float for a in args):
+        return len(args)
+    return 0
+
+
 def _read_typed(table: ConfigTable, key: str, tp: Any, default: Any, meta: Mapping[str, Any]) -> Any:
     rng = {k: meta.get(k) for k in ("gt", "ge", "lt", "le")}
     inner = _optional_inner(tp)
@@ -471,8 +502,12 @@ def _read_typed(table: ConfigTable, key: str, tp: Any, default: Any, meta: Mappi
         return table.string(key, default, choices=meta.get("choices"))
     if typing.get_origin(tp) is tuple:
         args = typing.get_args(tp)
-        if len(args) == 2 and args[1] is Ellipsis and typing.get_origin(args[0]) is tuple:
+        if len(args) == 2 and args[1] is Ellipsis and _float_row(args[0]) == 2:
             return table.points(key, default)
+        if len(args) == 2 and args[1] is Ellipsis and _float_row(args[0]):
+            return table.rows(key, _float_row(args[0]), default)
+        if args and len({_float_row(a) for a in args}) == 1 and _float_row(args[0]):
+            return table.rows(key, _float_row(args[0]), default, count=len(args))
         if len(args) == 2 and args[1] is Ellipsis and args[0] is float:
             v = table.raw(key, default)
             if v is default and key not in table.data:
@@ -496,8 +531,9 @@ def load_dataclass(
 
     Args:
         cls: A dataclass whose fields are annotated with ``float``, ``int``, ``bool``, ``str``,
-            ``tuple[float, float, float]`` (any fixed length), ``tuple[float, ...]``,
-            ``tuple[tuple[float, float], ...]`` or ``X | None`` of these. Bounds and choices come
+            ``tuple[float, float, float]`` (any fixed length), ``tuple[float, ...]``, tuples of
+            fixed-length float tuples (``tuple[tuple[float, float], ...]``, or a fixed number of
+            them), or ``X | None`` of these. Bounds and choices come
             from :func:`bounds` in the field metadata; defaults from the dataclass.
         data: The table (or a :class:`ConfigTable`, whose source and path are then used).
         source: File and text of the table, for messages.

@@ -12,6 +12,7 @@ Frames: REP-103/REP-105. ``base_link`` lies on the floor midway between the driv
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ import numpy as np
 
 from robchair.config import ConfigSource, ConfigTable, bounds, load_dataclass, load_toml
 from robchair.errors import ConfigError
+from robchair.frames import rotation_axis_angle, rotation_rpy, se3
 from robchair.paths import ASSETS
 
 DEFAULT_SPEC_PATH = ASSETS / "robchair.toml"
@@ -108,20 +110,41 @@ class Mount:
 
     def rotation(self, joint_angle: float = 0.0) -> np.ndarray:
         """Rotation matrix (3, 3) of the frame in its parent, with the servo at ``joint_angle`` rad."""
-        roll, pitch, yaw = self.rpy
-        r = _rot_z(yaw) @ _rot_y(pitch) @ _rot_x(roll)
+        r = rotation_rpy(*self.rpy)
         if joint_angle != 0.0:
             if self.joint is None:
                 raise ConfigError(f"mount has no joint; cannot turn it by joint_angle={joint_angle!r}")
-            r = r @ _axis_angle(np.asarray(self.joint.axis, dtype=float), joint_angle)
+            r = r @ rotation_axis_angle(self.joint.axis, joint_angle)
         return r
 
     def transform(self, joint_angle: float = 0.0) -> np.ndarray:
         """Homogeneous transform (4, 4) parent <- frame, with the servo at ``joint_angle`` rad."""
-        t = np.eye(4)
-        t[:3, :3] = self.rotation(joint_angle)
-        t[:3, 3] = self.xyz
-        return t
+        return se3(self.rotation(joint_angle), self.xyz)
+
+
+@dataclass(frozen=True)
+class SonarArrays:
+    """Geometry of the two sonar arrays and the servo convention (thesis 5.2, SPEC section 3).
+
+    Attributes:
+        outer_sonar_deg: Sonar 1 (left) points ``+outer_sonar_deg`` and sonar 3 (right)
+            ``-outer_sonar_deg`` from the middle sonar 2, deg.
+        servo_centre_deg: Servo command at which the array faces along its mount's x axis (joint
+            angle 0), deg on the servo's 0..180 scale.
+        sonar_offsets_m: Position (3, 3) of sonars 1, 2, 3 in the array frame, m.
+    """
+
+    outer_sonar_deg: float = field(metadata=bounds(gt=0, lt=90))
+    servo_centre_deg: float = field(metadata=bounds(ge=0, le=180))
+    sonar_offsets_m: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+
+    def joint_angle(self, servo_deg: float) -> float:
+        """Joint angle in rad of the array's mount for a servo command of ``servo_deg`` deg."""
+        return math.radians(servo_deg - self.servo_centre_deg)
+
+    def servo_deg(self, joint_angle: float) -> float:
+        """Servo command in deg that turns the array's mount to ``joint_angle`` rad."""
+        return math.degrees(joint_angle) + self.servo_centre_deg
 
 
 @dataclass(frozen=True)
@@ -154,6 +177,7 @@ class RobChairSpec:
     casters: tuple[Caster, ...]
     mounts: Mapping[str, Mount]
     motor_steps: tuple[StepResponse, ...]
+    sonar_arrays: SonarArrays
     source: str = field(default="", compare=False)
 
     @property
@@ -235,7 +259,7 @@ def spec_from_dict(data: Mapping[str, Any], source: ConfigSource | str = "<dict>
     """Build a validated :class:`RobChairSpec` from the parsed TOML tables (see ``load_spec``)."""
     src = source if isinstance(source, ConfigSource) else ConfigSource(source)
     top = ConfigTable(data, src)
-    sections = {"body", "drive", "casters", "mounts", "motor_steps"}
+    sections = {"body", "drive", "casters", "mounts", "motor_steps", "sonar_arrays"}
     top.keys(sections, required=sections)
     body = load_dataclass(Body, top.table("body"))
     drive = load_dataclass(Drive, top.table("drive"))
@@ -263,6 +287,7 @@ def spec_from_dict(data: Mapping[str, Any], source: ConfigSource | str = "<dict>
         casters=casters,
         mounts=MappingProxyType(mounts),
         motor_steps=steps,
+        sonar_arrays=load_dataclass(SonarArrays, top.table("sonar_arrays")),
         source=src.name,
     )
 
@@ -291,29 +316,18 @@ def _parse_mount(t: ConfigTable) -> Mount:
     )
 
 
+@functools.cache
+def default_spec() -> RobChairSpec:
+    """The platform spec of ``assets/robchair.toml``, loaded once (the spec is immutable).
+
+    Raises:
+        ConfigError: As :func:`load_spec`.
+    """
+    return load_spec()
+
+
 def _parse_step(t: ConfigTable) -> StepResponse:
     step = load_dataclass(StepResponse, t)
     if "name" not in t:  # the label follows the channel
         step = dataclasses.replace(step, name=f"motor {step.channel}")
     return step
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rot_y(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _axis_angle(axis: np.ndarray, a: float) -> np.ndarray:
-    """Rodrigues' rotation about the unit vector ``axis`` by ``a`` rad."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + math.sin(a) * k + (1.0 - math.cos(a)) * (k @ k)

@@ -61,9 +61,10 @@ import numpy as np
 import numpy.typing as npt
 
 from robchair.config import ConfigTable, load_toml
+from robchair.frames import quat_from_rpy, rotation_rpy
 from robchair.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
-from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, rot_rpy, sphere
+from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, sphere
 
 MESHES_DIR = ASSETS / "meshes"
 SHAPES = ("box", "cylinder", "sphere", "capsule", "mesh")
@@ -161,7 +162,7 @@ class SceneObject:
     def world_mesh(self, xyz: tuple[float, float, float] | None = None, yaw: float | None = None) -> Mesh:
         """The mesh placed at its pose (or at ``xyz``/``yaw`` for a moving object)."""
         rpy = self.rpy if yaw is None else (self.rpy[0], self.rpy[1], yaw)
-        return self.local_mesh().transformed(rot_rpy(*rpy), self.xyz if xyz is None else xyz)
+        return self.local_mesh().transformed(rotation_rpy(*rpy), self.xyz if xyz is None else xyz)
 
 
 @dataclass(frozen=True)
@@ -441,7 +442,7 @@ class SceneBodies:
         for body, obj in self.moving:
             assert obj.motion is not None
             x, y, yaw = obj.motion.pose_at(t)
-            q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2]))
+            q = quat_from_rpy(obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2])
             p.resetBasePositionAndOrientation(body, (x, y, obj.xyz[2]), q, physicsClientId=client)
 
 
@@ -482,7 +483,7 @@ def build_scene(scene: Scene, client: int) -> SceneBodies:
         if obj.motion is not None:
             x, y, walk_yaw = obj.motion.pose_at(0.0)
             pos, yaw = (x, y, obj.xyz[2]), walk_yaw + obj.rpy[2]
-        q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw))
+        q = quat_from_rpy(obj.rpy[0], obj.rpy[1], yaw)
         body = p.createMultiBody(0.0, col, vis, basePosition=pos, baseOrientation=q, physicsClientId=client)
         out.ids[obj.name] = body
         if obj.motion is not None:

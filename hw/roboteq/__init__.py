@@ -1,8 +1,17 @@
 """Roboteq MDC2230 dual-channel motor controller: line codec, pyserial driver and pty emulator."""
 
 from hw.roboteq.codec import FirmwareId, MotorFlags, StatusFlags
+from hw.roboteq.settings import RoboteqDiagnostics, RoboteqProtections
 
-__all__ = ["FirmwareId", "MotorFlags", "RoboteqEmulator", "RoboteqMDC2230", "StatusFlags"]
+__all__ = [
+    "FirmwareId",
+    "MotorFlags",
+    "RoboteqDiagnostics",
+    "RoboteqEmulator",
+    "RoboteqMDC2230",
+    "RoboteqProtections",
+    "StatusFlags",
+]
 
 
 def __getattr__(name: str) -> object:

@@ -58,14 +58,14 @@ def _empty_overhead(ray: Any, n: int) -> tuple[float, float]:
 def _sweep_wall(n_runs: int, duration: float, workers: int, tmp: Path) -> tuple[float, int]:
     from robchair.sweep import parse_sweep, run_sweep
     from robchair.sweep.executor import ray_session
-    from robchair.sweep.harness import PARAMETERS
+    from robchair.sweep.harness import allowed_parameters
 
     spec = parse_sweep(
         {
             "sweep": {"duration": duration, "pictures": False, "bag": False},
             "grid": {"seed": list(range(n_runs))},
         },
-        tuple(PARAMETERS),
+        allowed_parameters(),
         source=f"bench-{workers}",
     )
     with ray_session(num_cpus=workers) as ray:

@@ -74,7 +74,7 @@ def _object_world(mesh_path: Path) -> tuple[int, int, Any]:
     import numpy as np
     import pybullet as p
 
-    from sim.raycast import read_obj_triangles
+    from sim.meshgen import read_obj
 
     client = p.connect(p.DIRECT)
     floor_c = p.createCollisionShape(p.GEOM_BOX, halfExtents=[10, 10, 0.01], physicsClientId=client)
@@ -84,7 +84,7 @@ def _object_world(mesh_path: Path) -> tuple[int, int, Any]:
     )
     vis = p.createVisualShape(p.GEOM_MESH, fileName=str(mesh_path), physicsClientId=client)
     body = p.createMultiBody(0, col, vis, basePosition=[0, 0, 0], physicsClientId=client)
-    v, _ = read_obj_triangles(mesh_path)
+    v = read_obj(mesh_path).vertices
     return client, body, (np.min(v, axis=0), np.max(v, axis=0))
 
 

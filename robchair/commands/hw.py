@@ -3,13 +3,18 @@
     robchair hw check --port PORT [--i2c BUS]     self-test of the Roboteq (and the SRF08 bus)
     robchair hw check --laser PORT                self-test of the Hokuyo laser (with or without --port)
     robchair hw emulate roboteq [--no-echo] [--firmware TEXT] [--duration S]
+                                [--inject KIND[,KIND...] [--inject-after S] [--inject-every S]]
                                                   a Roboteq on a pty; prints the device path
     robchair hw emulate hokuyo [--duration S]     a Hokuyo URG-04LX on a pty; prints the device path
 
-``hw check`` only reads: it probes ``?FID`` and queries; it writes no configuration, and the only
-runtime commands it sends are the zero speeds of the driver's close(). Point it at the emulator's
-path to see what a real controller would report. ``--laser`` asks the Hokuyo for ``VV``/``PP``/``II``,
-switches its laser on for one ``GD`` scan and off again (``QT``); it changes no setting.
+``hw check`` only reads: it probes ``?FID`` and queries; it writes no configuration, never latches a
+stop, and the only runtime commands it sends are zero speeds. It reports the flags it read (exit
+code 1 when a fault flag is set). Point it at the emulator's path to see what a real controller
+would report. ``--inject`` rehearses faults on the emulator (see
+:data:`hw.roboteq.emulator.INJECT_KINDS`): the first one ``--inject-after`` seconds after the motors
+first move, then one every ``--inject-every`` seconds, each announced on stderr. ``--laser`` asks the
+Hokuyo for ``VV``/``PP``/``II``, switches its laser on for one ``GD`` scan and off again (``QT``); it
+changes no setting.
 """
 
 from __future__ import annotations
@@ -38,6 +43,15 @@ def register(subparsers: Any) -> None:
     e.add_argument("--no-echo", action="store_true", help="do not echo commands (as after ^ECHOF 1)")
     e.add_argument("--firmware", default=None, help="?FID answer (its vMAJOR. sets the gain units)")
     e.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (default: until Ctrl-C)")
+    e.add_argument(
+        "--inject",
+        default="",
+        metavar="KIND[,KIND...]",
+        help="roboteq faults to rehearse: late-ack, rejected, unsolicited, reboot, unknown-flag, garble, "
+        "unplug, stall",
+    )
+    e.add_argument("--inject-after", type=float, default=3.0, help="seconds after the motors first move")
+    e.add_argument("--inject-every", type=float, default=3.0, help="seconds between injected faults")
     e.set_defaults(func=_emulate)
     p.set_defaults(func=lambda _a: (p.print_help(), 2)[1])
 
@@ -51,32 +65,7 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO | None = None, clock: Any
     from hw.errors import HardwareError
 
     out = out if out is not None else sys.stdout
-    ok = True
-    print(f"roboteq: firmware {motors.firmware.text!r} (major {motors.firmware.major})", file=out)
-    for name in ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "RWD"):
-        try:
-            print(f"roboteq: {name} = {':'.join(str(v) for v in motors.read_config(name))}", file=out)
-        except HardwareError as exc:
-            print(f"roboteq: {name} unreadable: {exc}", file=out)
-            ok = False
-    try:
-        state = motors.read_state()
-        print(f"roboteq: encoder counts {state.encoder_counts[0]} {state.encoder_counts[1]}", file=out)
-        print(f"roboteq: speeds {state.speed_rpm[0]:.0f} {state.speed_rpm[1]:.0f} RPM", file=out)
-        internal, battery, five = motors.read_voltages()
-        print(
-            f"roboteq: voltages internal {internal:.1f} V, battery {battery:.1f} V, 5V out {five:.2f} V",
-            file=out,
-        )
-        a1, a2 = motors.read_amps()
-        print(f"roboteq: motor amps {a1:.1f} {a2:.1f} A", file=out)
-        print(f"roboteq: status flags {motors.read_status().names()}", file=out)
-        fm = motors.read_motor_flags()
-        print(f"roboteq: motor flags {fm[0].names()} {fm[1].names()}", file=out)
-        print("roboteq: fault flags none", file=out)
-    except HardwareError as exc:
-        print(f"roboteq: FAILED: {exc}", file=out)
-        ok = False
+    ok = _roboteq_report(motors, out)
     if bus is not None:
         from hw.srf08 import SRF08, scan
 
@@ -88,12 +77,67 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO | None = None, clock: Any
             try:
                 with SRF08(bus, addr, clock=clock) as s:
                     r = s.read()
-                rng = "no echo" if r.range_m != r.range_m else f"{r.range_m:.2f} m"
+                rng = (
+                    "no echo"
+                    if r.range_m == float("inf")
+                    else ("invalid (under 3 cm)" if r.range_m != r.range_m else f"{r.range_m:.2f} m")
+                )
                 print(f"sonar 0x{addr:02X}: revision {rev}, range {rng}", file=out)
             except HardwareError as exc:
                 print(f"sonar 0x{addr:02X}: FAILED: {exc}", file=out)
                 ok = False
     return 0 if ok else 1
+
+
+def _roboteq_report(motors: Any, out: TextIO) -> bool:
+    """Print the Roboteq's identity, configuration, readings and flags without acting on them."""
+    from hw.errors import HardwareError
+    from hw.roboteq import codec
+
+    ok = True
+    print(f"roboteq: firmware {motors.firmware.text!r} (major {motors.firmware.major})", file=out)
+    warning = getattr(motors, "firmware_warning", None)
+    if warning:
+        print(f"roboteq: warning: {warning}", file=out)
+    for name in ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "RWD", "MAC", "MDEC", "ALIM", "CLERD"):
+        try:
+            print(f"roboteq: {name} = {':'.join(str(v) for v in motors.read_config(name))}", file=out)
+        except HardwareError as exc:
+            print(f"roboteq: {name} unreadable: {exc}", file=out)
+            ok = False
+    try:
+        counts = motors.read_encoder_counts()
+        print(f"roboteq: encoder counts {counts[0]} {counts[1]}", file=out)
+        speeds = motors.read_speeds_rpm()
+        print(f"roboteq: speeds {speeds[0]:.0f} {speeds[1]:.0f} RPM", file=out)
+        internal, battery, five = motors.read_voltages()
+        print(
+            f"roboteq: voltages internal {internal:.1f} V, battery {battery:.1f} V, 5V out {five:.2f} V",
+            file=out,
+        )
+        a1, a2 = motors.read_amps()
+        print(f"roboteq: motor amps {a1:.1f} {a2:.1f} A", file=out)
+        t = motors.read_temperatures()
+        print(
+            f"roboteq: temperatures MCU {t[0]:.0f} C, channel 1 {t[1]:.0f} C, channel 2 {t[2]:.0f} C",
+            file=out,
+        )
+        status = motors.read_status()
+        print(f"roboteq: status flags {status.names()}", file=out)
+        fm = motors.read_motor_flags()
+        print(f"roboteq: motor flags {fm[0].names()} {fm[1].names()}", file=out)
+        word = motors.read_faults_word()
+        faults = codec.decode_fault_flags(word)
+        print(f"roboteq: fault flags {faults.names() or 'none'} (?FF={word})", file=out)
+        if faults.emergency_stop:
+            print(
+                "roboteq: an emergency stop is latched: `robchair run --release-stop` releases it", file=out
+            )
+        ok = ok and not faults.any and not any(f.any_fault for f in fm) and not status.unknown_bits
+    except HardwareError as exc:
+        print(f"roboteq: FAILED: {exc}", file=out)
+        ok = False
+    return ok
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -116,16 +160,43 @@ def _check(args: argparse.Namespace) -> int:
 def _emulate(args: argparse.Namespace) -> int:
     if args.device == "hokuyo":
         return _emulate_hokuyo(args)
-    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator
+    from hw.errors import HardwareError
+    from hw.roboteq.emulator import DEFAULT_FIRMWARE, INJECT_KINDS, RoboteqEmulator
 
+    kinds = [k.strip() for k in args.inject.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in INJECT_KINDS]
+    if unknown:
+        raise HardwareError(
+            f"--inject {','.join(unknown)}: unknown fault kind; expected {', '.join(INJECT_KINDS)}"
+        )
+    for flag in ("inject_after", "inject_every"):
+        value = getattr(args, flag)
+        if not value >= 0:
+            raise HardwareError(f"--{flag.replace('_', '-')} {value}: expected seconds >= 0")
     emu = RoboteqEmulator(firmware=args.firmware or DEFAULT_FIRMWARE, echo=not args.no_echo)
     path = emu.start()
     print(path, flush=True)
     print(f"Roboteq emulator ({emu.firmware.text}) on {path}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    if kinds:
+        print(
+            f"fault rehearsal: {', '.join(kinds)}, the first {args.inject_after:g} s after the motors move",
+            file=sys.stderr,
+            flush=True,
+        )
     try:
         t_end = time.monotonic() + args.duration if args.duration > 0 else None
+        t_next: float | None = None
         while t_end is None or time.monotonic() < t_end:
-            time.sleep(0.1)
+            time.sleep(0.05)
+            if kinds and t_next is None and any(v != 0.0 for v in emu.setpoints_rpm):
+                t_next = time.monotonic() + args.inject_after
+            if kinds and t_next is not None and time.monotonic() >= t_next:
+                kind = kinds.pop(0)
+                emu.inject_kind(kind)
+                print(f"fault rehearsal: injected {kind}", file=sys.stderr, flush=True)
+                t_next = time.monotonic() + args.inject_every
+                if kind == "unplug":
+                    break
     finally:
         emu.stop()
     return 0

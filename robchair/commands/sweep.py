@@ -33,13 +33,13 @@ def register(subparsers: Any) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from robchair.sweep import SweepError, load_sweep, run_sweep
-    from robchair.sweep.harness import PARAMETERS
+    from robchair.sweep.harness import allowed_parameters
 
     if args.num_cpus is not None and args.num_cpus < 1:
         raise SweepError(f"--num-cpus must be at least 1, got {args.num_cpus}")
     if args.num_cpus is not None and args.address is not None:
         raise SweepError("--num-cpus sizes a local Ray instance; a cluster (--address) brings its own CPUs")
-    spec = load_sweep(args.sweep, tuple(PARAMETERS))
+    spec = load_sweep(args.sweep, allowed_parameters())
     out = args.out if args.out is not None else Path("runs") / f"sweep-{spec.name}"
     res = run_sweep(
         spec,

@@ -24,7 +24,27 @@ PARAMETERS: dict[str, str] = {
     "sonar_hz": "sonar_hz",
     "pictures": "pictures",
     "bag": "write_bag",
+    "bag_storage": "bag_storage",
+    "safety": "safety",
 }
+
+#: Limits of the safety layer a sweep may set as ``"safety.<field>"`` (:class:`robchair.safety.SafetyLimits`).
+SAFETY_FIELDS: tuple[str, ...] = (
+    "max_speed",
+    "max_yaw_rate",
+    "max_accel",
+    "max_yaw_accel",
+    "brake_decel",
+    "reaction_time_s",
+    "margin_m",
+    "stale_after_s",
+)
+
+
+def allowed_parameters() -> tuple[str, ...]:
+    """Every key a sweep file may set: the harness keywords and the ``safety.<field>`` limits."""
+    return (*PARAMETERS, *(f"safety.{f}" for f in SAFETY_FIELDS))
+
 
 #: Environment of every worker: numeric libraries on one thread each, so N runs fit N cores.
 THREAD_ENV: dict[str, str] = {
@@ -54,7 +74,13 @@ def run_harness(params: Mapping[str, Any], run_dir: Path) -> dict[str, Any]:
     """
     from robchair.scenario import run_scenario
 
-    kwargs = {PARAMETERS[k]: v for k, v in params.items()}
+    kwargs = {PARAMETERS[k]: v for k, v in params.items() if k in PARAMETERS}
+    limits = {k.split(".", 1)[1]: float(v) for k, v in params.items() if k.startswith("safety.")}
+    if limits:
+        from robchair.safety import SafetyLimits
+        from robchair.spec import load_spec
+
+        kwargs["safety_limits"] = SafetyLimits.from_spec(load_spec(), **limits)
     scenario = kwargs.pop("scenario", "office_corridor")
     res = run_scenario(scenario, out_dir=run_dir, progress=False, raycast_threads=1, **kwargs)
     return res.metrics()

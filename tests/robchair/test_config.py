@@ -198,3 +198,12 @@ def test_dataclass_built_in_code_is_checked_in_the_same_dialect():
 def test_overrides_are_checked_like_the_table():
     with pytest.raises(ConfigError, match=r"^run\.toml: limits\.retries = 1\.5: expected an integer >= 0$"):
         load_dataclass(Limits, {}, ConfigSource("run.toml"), "limits", retries=1.5)
+
+
+def test_rows_of_fixed_length_are_checked_row_by_row():
+    t = ConfigTable({"m": [[0, 0, 1], [0, 0]], "ok": [[0, 0, 1]]}, where="arr")
+    with pytest.raises(
+        ConfigError, match=r"^arr\.m = \[\[0, 0, 1\], \[0, 0\]\]: expected a list of 2 lists of 3 finite"
+    ):
+        t.rows("m", 3, count=2)
+    assert t.rows("ok", 3) == ((0.0, 0.0, 1.0),)

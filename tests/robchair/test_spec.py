@@ -217,3 +217,35 @@ def test_error_in_a_spec_file_names_the_file_and_the_line_of_the_field(tmp_path)
     line = next(n for n, s in enumerate(p.read_text().splitlines(), 1) if s.startswith("wheel_radius"))
     with pytest.raises(ConfigError, match=rf"chair\.toml:{line}: drive\.wheel_radius = -0\.172: expected"):
         load_spec(p)
+
+
+def test_sonar_arrays_give_the_outer_angle_and_the_servo_convention():
+    arrays = load_spec().sonar_arrays
+    assert (arrays.outer_sonar_deg, arrays.servo_centre_deg) == (30.0, 90.0)
+    assert arrays.sonar_offsets_m[0] == (0.0, 0.0, 0.02)
+    # servo command 135 deg = the array turned 45 deg to the left of straight ahead
+    assert arrays.joint_angle(135.0) == pytest.approx(math.pi / 4)
+    assert arrays.servo_deg(-math.pi / 2) == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        (
+            "outer_sonar_deg",
+            95.0,
+            r"sonar_arrays\.outer_sonar_deg = 95\.0: expected a finite number > 0 and < 90$",
+        ),
+        (
+            "sonar_offsets_m",
+            [[0.0, 0.0, 0.02], [0.0, 0.0]],
+            r"sonar_arrays\.sonar_offsets_m = \[\[0\.0, 0\.0, 0\.02\], \[0\.0, 0\.0\]\]: "
+            r"expected a list of 3 lists of 3 finite numbers$",
+        ),
+    ],
+)
+def test_bad_sonar_array_geometry_is_refused(raw, key, value, message):
+    d = copy.deepcopy(raw)
+    d["sonar_arrays"][key] = value
+    with pytest.raises(ConfigError, match=message):
+        spec_from_dict(d)

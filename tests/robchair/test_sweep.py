@@ -10,10 +10,10 @@ import pytest
 
 from robchair.sweep import SweepError, load_sweep, parse_sweep, run_sweep
 from robchair.sweep.executor import prepare_out
-from robchair.sweep.harness import PARAMETERS
+from robchair.sweep.harness import allowed_parameters
 from robchair.sweep.results import flatten
 
-ALLOWED = tuple(PARAMETERS)
+ALLOWED = allowed_parameters()
 
 
 def test_grid_expands_to_the_cartesian_product_plus_explicit_runs() -> None:
@@ -153,3 +153,38 @@ def test_sweep_of_four_tiny_runs_records_the_failure_and_resumes(ray_2cpu, tmp_p
     assert [r["status"] for r in again.records] == ["ok", "ok", "ok", "failed"]
     for rid, ns in stamps.items():  # complete runs were not run again
         assert (out / "runs" / rid / "metrics.json").stat().st_mtime_ns == ns
+
+
+def test_safety_limits_in_a_sweep_reach_the_harness_as_safety_limits(monkeypatch, tmp_path: Path) -> None:
+    import robchair.scenario
+    from robchair.sweep.harness import run_harness
+
+    seen: dict = {}
+
+    class _Result:
+        def metrics(self) -> dict:
+            return {"ok": True}
+
+    def fake_run_scenario(scenario, **kwargs):
+        seen.update(kwargs, scenario=scenario)
+        return _Result()
+
+    monkeypatch.setattr(robchair.scenario, "run_scenario", fake_run_scenario)
+    spec = parse_sweep({"runs": [{"seed": 3, "safety.margin_m": 0.3, "safety": True, "bag": False}]}, ALLOWED)
+    assert run_harness(spec.points[0].params, tmp_path / "r") == {"ok": True}
+    assert seen["scenario"] == "office_corridor" and seen["seed"] == 3 and seen["write_bag"] is False
+    assert seen["safety"] is True
+    assert seen["safety_limits"].margin_m == pytest.approx(0.3)
+    from robchair.safety import SafetyLimits
+    from robchair.spec import load_spec
+
+    assert seen["safety_limits"].max_speed == SafetyLimits.from_spec(load_spec()).max_speed  # the rest: spec
+    with pytest.raises(SweepError, match=r"unknown parameter 'safety\.margin'"):
+        parse_sweep({"runs": [{"safety.margin": 0.3}]}, ALLOWED)
+
+
+def test_the_example_sweep_files_parse() -> None:
+    examples = sorted((Path(__file__).parents[2] / "examples" / "sweeps").glob("*.toml"))
+    assert examples
+    for f in examples:
+        assert load_sweep(f, ALLOWED).points

@@ -314,3 +314,22 @@ def test_duplicate_object_names_are_refused_at_the_second_one(tmp_path):
     p = _write(tmp_path, SCENE_HEAD + obj + obj)
     with pytest.raises(ScenarioError, match=r"scene\.toml:11: object\[1\]\.name: duplicate object name 'w'$"):
         load_scene(p)
+
+
+def test_capsule_is_one_closed_outward_surface_of_the_right_size():
+    from collections import Counter
+
+    from sim.meshgen import capsule
+
+    m = capsule(0.3, 1.0, rings=8, segments=32)
+    lo, hi = m.bounds()
+    np.testing.assert_allclose(lo, [-0.3, -0.3, -0.8], atol=1e-12)
+    np.testing.assert_allclose(hi, [0.3, 0.3, 0.8], atol=1e-12)
+    # every directed edge appears once and its reverse once: closed and consistently wound
+    edges = Counter((int(u), int(v)) for a, b, c in m.faces for u, v in ((a, b), (b, c), (c, a)))
+    assert set(edges.values()) == {1} and all((v, u) in edges for u, v in edges)
+    # outward winding gives a positive signed volume, a little below the true capsule's
+    a, b, c = (m.vertices[m.faces[:, k]] for k in range(3))
+    volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+    true = math.pi * 0.3**2 * 1.0 + 4 / 3 * math.pi * 0.3**3
+    assert 0.97 * true < volume < true
