@@ -79,7 +79,7 @@ _REAL_KEYS = {
 
 @dataclass
 class ManagedBackend(Backend):
-    """A Backend that also owns helpers to stop after the devices close (emulators, buses)."""
+    """A Backend that also owns what must stop after the devices close (emulators, buses)."""
 
     on_close: list[Callable[[], None]] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)

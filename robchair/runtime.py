@@ -585,6 +585,7 @@ class Runtime:
     def _write(self, decision: SafetyDecision, cycle_start_ns: int, dt: float) -> SafetyDecision:
         """Check the watchdog gap, the deadline and freshness *now*, then write the wheel speeds."""
         now = self.backend.clock.now_ns()
+        wants_motion = decision.v != 0.0 or decision.w != 0.0
         if self._fault is None:
             wd = self.watchdog_ms
             if wd is not None and self._last_motion_ns is not None and now - self._last_motion_ns > wd * 1e6:
@@ -595,7 +596,7 @@ class Runtime:
                     f"no speed command for {gap_ms:.0f} ms > controller watchdog {wd} ms: the controller "
                     "stopped the motors",
                 )  # fmt: skip
-            if self.safety_enabled and (decision.v != 0.0 or decision.w != 0.0):
+            if self.safety_enabled and wants_motion:
                 late = now - (
                     cycle_start_ns + self.period_ns + round(self.period_ns * self.config.deadline_slack)
                 )
