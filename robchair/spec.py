@@ -153,6 +153,11 @@ class RobChairSpec:
     motor_steps: tuple[StepResponse, ...]
     source: str = field(default="", compare=False)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle / deep-copy support: ``mounts`` is a read-only ``mappingproxy``, which cannot be pickled."""
+        fields = (self.body, self.drive, self.casters, dict(self.mounts), self.motor_steps, self.source)
+        return (_spec_from_fields, fields)
+
     @property
     def wheel_radius(self) -> float:
         return self.drive.wheel_radius
@@ -197,6 +202,12 @@ class RobChairSpec:
 
 
 # --------------------------------------------------------------------------------------------- loading
+
+
+def _spec_from_fields(
+    body: Body, drive: Drive, casters: Any, mounts: Any, steps: Any, source: str
+) -> RobChairSpec:
+    return RobChairSpec(body, drive, casters, MappingProxyType(mounts), steps, source)
 
 
 def load_spec(path: Path | str | None = None) -> RobChairSpec:

@@ -36,10 +36,13 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+from gymnasium.utils import EzPickle
+from gymnasium.vector import AutoresetMode
 
 from mapping.grid import GridSpec
 from robchair.kinematics import DiffDrive, Odometry, Pose2D, wrap_angle
 from robchair.spec import RobChairSpec, load_spec
+from sim.envs.randomization import DomainRandomization, EpisodeDynamics
 from sim.errors import SimError
 from sim.scene import Scene, ground_truth_points, load_scene
 
@@ -173,7 +176,9 @@ def egocentric_patch(
     return out
 
 
-def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> npt.NDArray[np.float64]:
+def decimated_depth_noise(
+    points: Any, model: Any, rng: np.random.Generator, scale: float = 1.0
+) -> npt.NDArray[np.float64]:
     """Axial depth noise and quantisation for a clean organized cloud from a reduced-resolution Kinect.
 
     Each valid pixel's depth ``z`` (its x coordinate, REP-103 camera frame) moves along its own ray by
@@ -188,6 +193,7 @@ def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> 
         points: ``(H, W, 3)`` clean cloud in the camera frame.
         model: The :class:`sim.kinect.KinectModel` (noise model and quantisation).
         rng: Generator; draws one standard normal per pixel.
+        scale: Factor on the axial standard deviation (domain randomisation).
     """
     from sim.kinect import (
         fankhauser2015_axial_sigma_m,
@@ -205,7 +211,7 @@ def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> 
     axial = (
         fankhauser2015_axial_sigma_m if model.noise_model == "fankhauser2015" else nguyen2012_axial_sigma_m
     )
-    noise = rng.standard_normal(z.shape)
+    noise = scale * rng.standard_normal(z.shape)
     with np.errstate(invalid="ignore"):
         zn = quantize_depth(z + axial(np.where(np.isfinite(z), z, 1.0), theta) * noise, model.quantization)
         return p * (zn / z)[..., None]
@@ -229,12 +235,18 @@ class FreeSpace:
         occupied: ``(nx, ny)`` cells holding scene surface in the chair's height band.
         clearance: ``(nx, ny)`` lower bound of the distance (m) from each cell centre to scene surface.
         region: ``(nx, ny)`` one connected region inside the scene's bounds where the chair fits through.
+        labels: ``(nx, ny)`` int, the connected regions where the chair fits through (0 = none).
+        owner: ``(nx, ny)`` int, index into ``names`` of the object whose surface is in the cell (-1 none).
+        names: The scene objects' names.
     """
 
     grid: GridSpec
     occupied: npt.NDArray[np.bool_]
     clearance: npt.NDArray[np.float64]
     region: npt.NDArray[np.bool_]
+    labels: npt.NDArray[np.int32]
+    owner: npt.NDArray[np.int32]
+    names: tuple[str, ...]
 
     @classmethod
     def from_scene(
@@ -261,12 +273,17 @@ class FreeSpace:
 
         cs = grid.cell_size
         # a fixed generator: the raster is part of the scene, not of an episode
-        pts = ground_truth_points(scene, spacing=cs / 2, rng=np.random.default_rng(0))
-        sel = (pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])
-        i, j = grid.world_to_index(pts[sel, 0], pts[sel, 1])
-        ok = grid.contains_index(i, j)
+        rng = np.random.default_rng(0)
         occupied = np.zeros(grid.shape, dtype=bool)
-        occupied[i[ok], j[ok]] = True
+        owner = np.full(grid.shape, -1, dtype=np.int32)
+        for k, obj in enumerate(scene.objects):
+            one = Scene(scene.name, scene.path, (obj,))
+            pts = ground_truth_points(one, spacing=cs / 2, rng=rng)
+            sel = (pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])
+            i, j = grid.world_to_index(pts[sel, 0], pts[sel, 1])
+            ok = grid.contains_index(i, j)
+            occupied[i[ok], j[ok]] = True
+            owner[i[ok], j[ok]] = k
         # distance between cell centres, less half a diagonal: the surface may lie anywhere in its cell
         clearance = ndimage.distance_transform_edt(~occupied) * cs - cs * math.sqrt(0.5)
         x0, y0, x1, y1 = scene.bounds_xy()
@@ -284,7 +301,41 @@ class FreeSpace:
             chosen = int(labels[ai, aj])
         else:
             chosen = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
-        return cls(grid, occupied, clearance, labels == chosen)
+        names = tuple(o.name for o in scene.objects)
+        return cls(grid, occupied, clearance, labels == chosen, labels.astype(np.int32), owner, names)
+
+    def nearest_obstacle(self, xy: tuple[float, float]) -> tuple[str, float]:
+        """Name of the scene object nearest to ``xy`` in the height band, and its distance (m, cells)."""
+        if not self.occupied.any():
+            return "nothing", math.inf
+        i, j = self.grid.world_to_index(xy[0], xy[1])
+        oi, oj = np.nonzero(self.occupied)
+        k = int(np.argmin((oi - int(i)) ** 2 + (oj - int(j)) ** 2))
+        u, v = self.grid.index_to_world(oi[k], oj[k])
+        return self.names[int(self.owner[oi[k], oj[k]])], float(math.hypot(u - xy[0], v - xy[1]))
+
+    def label_near(self, xy: tuple[float, float], reach: float) -> int:
+        """Label of the passable region nearest to ``xy`` within ``reach`` metres (0: none)."""
+        i, j = self.grid.world_to_index(xy[0], xy[1])
+        r = math.ceil(reach / self.grid.cell_size)
+        nx, ny = self.grid.shape
+        i0, i1, j0, j1 = (
+            max(int(i) - r, 0),
+            min(int(i) + r + 1, nx),
+            max(int(j) - r, 0),
+            min(int(j) + r + 1, ny),
+        )
+        if i0 >= i1 or j0 >= j1:
+            return 0
+        win = self.labels[i0:i1, j0:j1]
+        ii, jj = np.nonzero(win)
+        if len(ii) == 0:
+            return 0
+        d = (ii + i0 - int(i)) ** 2 + (jj + j0 - int(j)) ** 2
+        k = int(np.argmin(d))
+        if d[k] * self.grid.cell_size**2 > reach**2:
+            return 0
+        return int(win[ii[k], jj[k]])
 
     def candidates(self, min_clearance: float) -> npt.NDArray[np.float64]:
         """(K, 2) world (x, y) of the region's cell centres with at least ``min_clearance`` metres."""
@@ -321,7 +372,7 @@ def _pose_arg(value: Any, n: int, name: str) -> tuple[float, ...]:
     return t
 
 
-class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
+class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], EzPickle):
     """Drive the simulated RobChair to a goal without touching anything, seeing only its own sensors.
 
     ## Description
@@ -376,7 +427,19 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     the start is a free-space cell where the chair can turn on the spot, with a uniform heading; the
     goal is a free cell at a straight-line distance in ``goal_distance`` from the start, in the same
     connected region. Both come from ``self.np_random``, as does the seed of every sensor's noise.
-    ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes them for one episode.
+    ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes them for one episode; a start
+    where the chair's collision footprint overlaps a scene object, a goal closer to an obstacle than
+    half the chair's width, or a goal no passage wide enough for the chair joins to the start makes
+    ``reset`` raise :class:`NavigationEnvError` naming the point and the obstacle.
+
+    ## Domain randomisation
+
+    Each episode draws its own chair from ``self.np_random`` (after start and goal), uniformly within
+    the ranges of ``randomization`` (:class:`sim.envs.randomization.DomainRandomization`; defaults):
+    tyre radii relative to the spec (0.995-1.005 per wheel; the odometry keeps the spec's radius),
+    floor friction (0.6-1.0), payload (the person, 50-120 kg), each motor plant's ``omega_n`` and
+    ``xi`` (x 0.95-1.05), the sensors' noise (x 0.8-1.2) and the command latency (0-50 ms).
+    ``randomization=False`` gives the nominal chair. ``info["dynamics"]`` holds the episode's draw.
 
     ## Episode End
 
@@ -385,6 +448,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
        an overlap with a walking person (who passes through the chair in the physics, see
        :meth:`_touching_people`) (``info["collision"]``, names in ``info["contacts"]``).
     3. Truncation: ``max_episode_steps`` (300 for the registered ids).
+
+    Contacts are collected over every physics sub-step of the agent step, so a contact that is over
+    by the end of the step still ends the episode and is named. A ``step`` after termination raises
+    :class:`NavigationEnvError` (and pays nothing): call ``reset``. ``metadata["autoreset_mode"]`` is
+    ``NEXT_STEP``. The environment pickles and deep-copies (``gymnasium.utils.EzPickle``: the copy is
+    a new environment built from the same arguments, before its first ``reset``).
 
     ## Arguments
 
@@ -396,11 +465,17 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     ``goal`` ((x, y) or None), ``goal_distance`` ((min, max) m), ``goal_tolerance`` (m),
     ``pose_source``, ``map_memory``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
     ``max_yaw_rate``, ``reward_weights`` (:class:`RewardWeights`), ``spec`` (platform spec or TOML
-    path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``). ``render()`` returns a top-down
+    path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``), ``randomization`` (True, False or a
+    :class:`sim.envs.randomization.DomainRandomization`). ``render()`` returns a top-down
     picture of the episode's map, the scene, the path, the chair and the goal.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": AGENT_HZ}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array"],
+        "render_fps": AGENT_HZ,
+        # vector envs reset a finished sub-env on the step after it ended (a step after the end raises)
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
@@ -426,8 +501,35 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         reward_weights: RewardWeights | None = None,
         spec: RobChairSpec | str | Path | None = None,
         camera_backend: str = "raycast",
+        randomization: DomainRandomization | bool = True,
     ) -> None:
         from sim.world import PHYSICS_HZ
+
+        EzPickle.__init__(
+            self,
+            render_mode,
+            scene=scene,
+            sensor=sensor,
+            kinect_decimation=kinect_decimation,
+            sonars=sonars,
+            noise=noise,
+            agent_hz=agent_hz,
+            start=start,
+            goal=goal,
+            goal_distance=goal_distance,
+            goal_tolerance=goal_tolerance,
+            pose_source=pose_source,
+            map_memory=map_memory,
+            patch_shape=patch_shape,
+            patch_cell=patch_cell,
+            patch_behind=patch_behind,
+            max_speed=max_speed,
+            max_yaw_rate=max_yaw_rate,
+            reward_weights=reward_weights,
+            spec=spec,
+            camera_backend=camera_backend,
+            randomization=randomization,
+        )
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise NavigationEnvError(
@@ -471,6 +573,25 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             raise NavigationEnvError(f"patch_shape={patch_shape!r}: expected two positive integers")
         if camera_backend not in ("raycast", "pybullet"):
             raise NavigationEnvError(f"camera_backend={camera_backend!r}: expected 'raycast' or 'pybullet'")
+        if lo <= goal_tolerance:
+            raise NavigationEnvError(
+                f"goal_distance={goal_distance!r}: the minimum must exceed goal_tolerance={goal_tolerance!r} "
+                "(an episode would succeed before its first step)"
+            )
+        if randomization is True:
+            randomization = DomainRandomization()
+        elif randomization is False:
+            randomization = DomainRandomization.off()
+        elif not isinstance(randomization, DomainRandomization):
+            raise NavigationEnvError(
+                f"randomization={randomization!r}: expected True, False or a DomainRandomization"
+            )
+        if randomization.command_latency_s[1] >= 1.0 / agent_hz:
+            raise NavigationEnvError(
+                f"randomization.command_latency_s={randomization.command_latency_s!r}: the latency must "
+                f"stay below one agent period ({1.0 / agent_hz} s)"
+            )
+        self.randomization = randomization
 
         self.metadata = {**self.metadata, "render_fps": agent_hz}
         self.spec_robot = spec if isinstance(spec, RobChairSpec) else load_spec(spec)
@@ -530,6 +651,10 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self._prev_distance = 0.0
         self._odom = Odometry(self.spec_robot)
         self._sonar_ranges = np.zeros(6, dtype=np.float32)
+        self.dynamics = EpisodeDynamics()
+        self._ended = False
+        self._counts0 = (0, 0)
+        self._latency_steps = 0
 
     # ---- construction ------------------------------------------------------------------------
 
@@ -559,6 +684,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             seed=0,
             camera_backend=camera_backend,
             noise=self.noise,
+            tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
         )
         self.client = self._chair.world.client
         self.robot = self._chair.robot
@@ -578,6 +704,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if self._chair.kinect is not None:
             self._t_base_cam = self._t_base_cam @ self._chair.kinect.output_pose(np.eye(4))
         self._scene_bodies = frozenset(self._chair.bodies.ids.values())
+        self._body_names = {v: k for k, v in self._chair.bodies.ids.items()}
+        self._nominal_plants = (self.robot.left.plant.plant, self.robot.right.plant.plant)
+        self._base_mass = float(dyn[0])
+        self._base_inertia = tuple(float(v) for v in dyn[2])
+        self._sonar_noise = {m: float(a.noise_std_m) for m, a in self._chair.sonars.items()}
         self._people = tuple(body for body, _ in self._chair.bodies.moving)
         self._closed = False
 
@@ -634,7 +765,45 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             i, j = self.grid.world_to_index(xy[0], xy[1])
             if not bool(self.grid.contains_index(i, j)):
                 raise NavigationEnvError(f"{name} {xy} lies outside the scene's map {self.grid.extent}")
+        self._check_goal(start, goal)  # type: ignore[arg-type]
         return start, goal  # type: ignore[return-value]
+
+    def _check_goal(self, start: Pose2D, goal: tuple[float, float]) -> None:
+        """The goal must leave room for the chair and be reachable from the start.
+
+        Raises:
+            NavigationEnvError: naming the goal and the nearest obstacle, or the start it is cut off from.
+        """
+        fs = self.free_space
+        half = self.spec_robot.body.width / 2
+        i, j = self.grid.world_to_index(goal[0], goal[1])
+        if fs.clearance[i, j] < half:
+            name, dist = fs.nearest_obstacle(goal)
+            raise NavigationEnvError(
+                f"goal {tuple(goal)}: {max(dist, 0.0):.2f} m from {name!r}, the chair "
+                f"({self.spec_robot.body.width} m wide) cannot stand there"
+            )
+        reach = self.robot_radius
+        a = fs.label_near((start.x, start.y), reach)
+        b = fs.label_near(goal, reach)
+        if a == 0 or a != b:
+            name, _ = fs.nearest_obstacle(goal)
+            raise NavigationEnvError(
+                f"goal {tuple(goal)} is not reachable from the start {(start.x, start.y)}: no passage "
+                f"{2 * (half + PASS_MARGIN):.2f} m wide joins them (near the goal: {name!r})"
+            )
+
+    def _footprint_overlaps(self) -> list[str]:
+        """Scene objects the chair's collision shapes penetrate where it stands now (no stepping)."""
+        import pybullet as p
+
+        p.performCollisionDetection(physicsClientId=self.client)
+        hit = {
+            self._body_names[c[2]]
+            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
+            if c[2] in self._body_names and c[8] < 0.0
+        }
+        return sorted(hit)
 
     def _sample_start(self, rng: np.random.Generator, goal: npt.NDArray[np.float64] | None) -> Pose2D:
         cells = self._start_cells
@@ -667,14 +836,61 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         pos, orn = p.multiplyTransforms((start.x, start.y, 0.0), q, *self._inertial)
         p.resetBasePositionAndOrientation(self.robot.body, pos, orn, physicsClientId=self.client)
         p.resetBaseVelocity(self.robot.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=self.client)
-        for motor in (self.robot.left, self.robot.right):
-            motor.reset()
-        self.robot.set_motor_rpm(0.0, 0.0)
         world = self._chair.world
         world.steps = 0  # scripted people restart their walks; stamps restart at 0
         if self._chair.bodies.moving:
             self._chair.bodies.update(self.client, 0.0)
+        static = [n for n in self._footprint_overlaps() if self._chair.bodies.ids[n] not in self._people]
+        if static:
+            raise NavigationEnvError(
+                f"start {(start.x, start.y, start.theta)}: the chair's footprint there overlaps "
+                + ", ".join(repr(n) for n in static)
+            )
+        self._apply_dynamics(self.dynamics)
+        for motor in (self.robot.left, self.robot.right):
+            motor.reset()
+        self.robot.set_motor_rpm(0.0, 0.0)
         self._chair.step(SETTLE_STEPS)
+
+    def _apply_dynamics(self, d: EpisodeDynamics) -> None:
+        """Give the simulated chair this episode's tyres, floor, payload, motors and sensor noise."""
+        import pybullet as p
+
+        from robchair.control import DiscretePlant
+
+        c = self.client
+        p.changeDynamics(self._chair.world.plane, -1, lateralFriction=d.floor_friction, physicsClientId=c)
+        mass = self._base_mass + d.payload_kg
+        inertia = [v * mass / self._base_mass for v in self._base_inertia]
+        p.changeDynamics(self.robot.body, -1, mass=mass, localInertiaDiagonal=inertia, physicsClientId=c)
+        for motor, nominal, kw, kx in zip(
+            (self.robot.left, self.robot.right),
+            self._nominal_plants,
+            d.motor_omega_n_scale,
+            d.motor_xi_scale,
+            strict=True,
+        ):
+            plant = replace(nominal, omega_n=nominal.omega_n * kw, xi=nominal.xi * kx)
+            motor.plant = DiscretePlant(plant, self.robot.motor_dt)
+        for mount, arr in self._chair.sonars.items():
+            arr.noise_std_m = self._sonar_noise[mount] * d.sensor_noise_scale
+        self._latency_steps = min(
+            round(d.command_latency_s * self._chair.world.physics_hz), self.substeps - 1
+        )
+
+    def _command_rpm(self, v: float, w: float) -> tuple[float, float]:
+        """Motor set points for the twist (v, w): the controller regulates the motor speed, so a
+        tyre ``k`` times the spec's radius drives the chair ``k`` times faster than commanded; the
+        physics keeps the spec's radius and gets set points ``k`` times higher instead."""
+        left, right = self.drive.motor_rpm(v, w)
+        kl, kr = self.dynamics.tyre_radius_scale
+        return left * kl, right * kr
+
+    def _encoder_counts(self) -> tuple[int, int]:
+        """The encoders as the chair's odometry sees them (the wheel turns ``1 / k`` as far)."""
+        (cl, cr), (l0, r0) = self.robot.encoder_counts(), self._counts0
+        kl, kr = self.dynamics.tyre_radius_scale
+        return l0 + round((cl - l0) / kl), r0 + round((cr - r0) / kr)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -686,6 +902,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             options: ``{"start": (x, y, yaw), "goal": (x, y)}`` (either optional) for this episode.
         """
         super().reset(seed=seed)
+        self._map = None  # until the episode has started, step() refuses to run
+        self._ended = False
         opts = dict(options or {})
         unknown = set(opts) - {"start", "goal"}
         if unknown:
@@ -694,12 +912,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self.start_pose, self.goal = start, goal
         # one child stream for all sensor noise, drawn after start and goal so they stay put
         self._sensor_rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
+        self.dynamics = self.randomization.sample(self.np_random)
         self._place_chair(start)
         from mapping.vhv import VHVMap
 
         self._map = VHVMap(self.grid, tolerance=self.patch_cell)
         self._odom = Odometry(self.spec_robot, start)
-        self._odom.update(*self.robot.encoder_counts())
+        self._counts0 = self.robot.encoder_counts()
+        self._odom.update(*self._encoder_counts())
         self._path = []
         self._steps = 0
         pose = self._pose()
@@ -715,21 +935,24 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         """
         if self._map is None:
             raise NavigationEnvError("step() called before reset()")
+        if self._ended:
+            raise NavigationEnvError(
+                "step() called after the episode terminated (goal reached or collision); call reset()"
+            )
         self._check_not_closed()
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (2,) or not np.isfinite(a).all():
-            raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
-        a = np.clip(a, -1.0, 1.0)
-        v, w = self.drive.limit(float(a[0]) * self.max_speed, float(a[1]) * self.max_yaw_rate)
-        self.robot.set_motor_rpm(*self.drive.motor_rpm(v, w))
+        v, w = self._twist(action)
+        rpm = self._command_rpm(v, w)
         world = self._chair.world
         odom_every = world.physics_hz // ODOM_HZ
-        collided = False
-        for _ in range(self.substeps):
+        contacts: set[str] = set()
+        for k in range(self.substeps):
+            if k == self._latency_steps:  # the command reaches the controller after the latency
+                self.robot.set_motor_rpm(*rpm)
             self._chair.step(1)
             if world.steps % odom_every == 0:
-                self._odom.update(*self.robot.encoder_counts())
-            collided = collided or self._in_collision()
+                self._odom.update(*self._encoder_counts())
+            contacts |= self._touching()
+        collided = bool(contacts)
         self._steps += 1
         pose = self._pose()
         self._sense(pose)
@@ -739,7 +962,18 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self._prev_distance = distance
         obs = self._observation(pose)
         info = self._info(pose, collided, reached, terms)
-        return obs, float(sum(terms.values())), bool(collided or reached), False, info
+        if collided:
+            info["contacts"] = sorted(contacts)
+        self._ended = bool(collided or reached)
+        return obs, float(sum(terms.values())), self._ended, False, info
+
+    def _twist(self, action: Any) -> tuple[float, float]:
+        """The body twist (v m/s, w rad/s) an action asks for, within the drive's limits."""
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,) or not np.isfinite(a).all():
+            raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
+        a = np.clip(a, -1.0, 1.0)
+        return self.drive.limit(float(a[0]) * self.max_speed, float(a[1]) * self.max_yaw_rate)
 
     # ---- state -------------------------------------------------------------------------------
 
@@ -768,13 +1002,19 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             if p.getClosestPoints(self.robot.body, b, 0.0, physicsClientId=self.client)
         }
 
-    def _in_collision(self) -> bool:
+    def _touching(self) -> set[str]:
+        """Names of the scene bodies (walking people included) the chair touches after this sub-step."""
         import pybullet as p
 
-        for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client):
-            if c[2] in self._scene_bodies:
-                return True
-        return bool(self._people) and bool(self._touching_people())
+        names = self._body_names
+        hit = {
+            names[c[2]]
+            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
+            if c[2] in names
+        }
+        if self._people:
+            hit |= {names[b] for b in self._touching_people()}
+        return hit
 
     def contacts(self) -> list[str]:
         """Names of the scene objects the chair touches now (walking people included)."""
@@ -803,7 +1043,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             frame = chair.kinect.capture(t_gt, stamp_ns=stamp, rng=self._sensor_rng)
             pts = frame.points
             if self._own_noise:
-                pts = decimated_depth_noise(pts, chair.kinect.model, self._sensor_rng)
+                pts = decimated_depth_noise(
+                    pts, chair.kinect.model, self._sensor_rng, self.dynamics.sensor_noise_scale
+                )
             t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
             pts = pts.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
             self._map.insert(pts, sensor_origin=t[:3, 3])
@@ -832,7 +1074,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
         assert self._occ is not None
         dist, bearing = goal_in_robot_frame(pose, self.goal)
-        v, w = self.drive.twist_from_rpm(*self.robot.wheel_speed_rpm())
+        kl, kr = self.dynamics.tyre_radius_scale
+        ml, mr = self.robot.wheel_speed_rpm()
+        v, w = self.drive.twist_from_rpm(ml / kl, mr / kr)  # what the encoders say
         obs: dict[str, np.ndarray] = {
             "occupancy": egocentric_patch(
                 self._occ, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
@@ -859,8 +1103,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if terms is not None:
             info["reward_terms"] = terms
-        if collided:
-            info["contacts"] = self.contacts()
+        info["dynamics"] = self.dynamics.as_dict()
         return info
 
     # ---- rendering / closing -----------------------------------------------------------------
