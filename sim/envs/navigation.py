@@ -60,6 +60,12 @@ SENSORS = ("kinect2", "kinect1")
 POSE_SOURCES = ("ground_truth", "odometry")
 MAP_MEMORIES = ("episode", "frame")
 SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the command limits
+ACTION_TYPES = ("continuous", "discrete")
+#: Discrete actions as normalised (v, w) (times ``max_speed`` m/s and ``max_yaw_rate`` rad/s):
+#: 0 stop, 1 forward slow, 2 forward fast, 3 turn left on the spot, 4 turn right on the spot.
+DISCRETE_ACTIONS = ((0.0, 0.0), (0.3, 0.0), (0.7, 0.0), (0.0, 0.5), (0.0, -0.5))
+ROOM_SPLITS = ("train", "eval")
+ELEVATION_MAX = 2.5  # m, top of the elevation observation's box
 
 
 class NavigationEnvError(SimError, ValueError):
@@ -143,6 +149,25 @@ def patch_cell_centres(
     ly = (np.arange(w) + 0.5 - w / 2) * cell
     x, y = np.meshgrid(fx, ly, indexing="ij")
     return x, y
+
+
+def egocentric_values(
+    values: npt.NDArray[Any],
+    grid: GridSpec,
+    pose: Pose2D,
+    shape: tuple[int, int],
+    cell: float,
+    behind: float,
+    fill: float = 0.0,
+) -> npt.NDArray[Any]:
+    """Like :func:`egocentric_patch` for any per-cell values (``fill`` outside the grid)."""
+    x, y = patch_cell_centres(shape, cell, behind)
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    i, j = grid.world_to_index(pose.x + c * x - s * y, pose.y + s * x + c * y)
+    inside = grid.contains_index(i, j)
+    out = np.full(shape, fill, dtype=values.dtype)
+    out[inside] = values[i[inside], j[inside]]
+    return out
 
 
 def egocentric_patch(
@@ -502,6 +527,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         spec: RobChairSpec | str | Path | None = None,
         camera_backend: str = "raycast",
         randomization: DomainRandomization | bool = True,
+        action_type: str = "continuous",
+        rooms: Any = None,
+        room_seeds: str = "train",
+        walkers: int = 0,
+        depth_image: bool = False,
+        elevation_map: bool = False,
     ) -> None:
         from sim.world import PHYSICS_HZ
 
@@ -529,6 +560,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             spec=spec,
             camera_backend=camera_backend,
             randomization=randomization,
+            action_type=action_type,
+            rooms=rooms,
+            room_seeds=room_seeds,
+            walkers=walkers,
+            depth_image=depth_image,
+            elevation_map=elevation_map,
         )
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -592,6 +629,28 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
                 f"stay below one agent period ({1.0 / agent_hz} s)"
             )
         self.randomization = randomization
+        if action_type not in ACTION_TYPES:
+            raise NavigationEnvError(f"action_type={action_type!r}: expected one of {ACTION_TYPES}")
+        if room_seeds not in ROOM_SPLITS:
+            raise NavigationEnvError(f"room_seeds={room_seeds!r}: expected one of {ROOM_SPLITS}")
+        if depth_image and sensor is None:
+            raise NavigationEnvError("depth_image=True needs a Kinect (sensor='kinect2' or 'kinect1')")
+        self.action_type = action_type
+        self.depth_image, self.elevation_map = bool(depth_image), bool(elevation_map)
+        from sim import rooms as _rooms
+
+        self.rooms_config: Any = None
+        self.room_seed: int | None = None
+        if rooms is not None or scene == "rooms":
+            if isinstance(walkers, bool) or not isinstance(walkers, int) or walkers < 0:
+                raise NavigationEnvError(f"walkers={walkers!r}: expected a non-negative integer")
+            cfg = rooms if rooms is not None else _rooms.FloorConfig(walkers=walkers)
+            if not isinstance(cfg, _rooms.FloorConfig):
+                raise NavigationEnvError(f"rooms={rooms!r}: expected a sim.rooms.FloorConfig or None")
+            self.rooms_config = cfg
+            self._room_range = _rooms.TRAIN_SEEDS if room_seeds == "train" else _rooms.EVAL_SEEDS
+            self.room_seed = self._room_range[0]
+            scene = _rooms.generate_floor(self.room_seed, cfg).scene
 
         self.metadata = {**self.metadata, "render_fps": agent_hz}
         self.spec_robot = spec if isinstance(spec, RobChairSpec) else load_spec(spec)
@@ -616,31 +675,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self.fixed_goal = _pose_arg(goal, 2, "goal") if goal is not None else None
         self.band = (OCC_Z_MIN, float(self.spec_robot.body.height))
 
-        x0, y0, x1, y1 = self.scene.bounds_xy()
-        cs = self.patch_cell
-        nx = math.ceil((x1 - x0 + 2 * MAP_MARGIN) / cs)
-        ny = math.ceil((y1 - y0 + 2 * MAP_MARGIN) / cs)
-        self.grid = GridSpec(
-            cell_size=cs, size_x=nx * cs, size_y=ny * cs, centre=((x0 + x1) / 2, (y0 + y1) / 2)
-        )
         from sim.backend import robot_radius
 
         self.robot_radius = robot_radius(self.spec_robot)
-        anchor = self.fixed_start[:2] if self.fixed_start is not None else None
-        self.free_space = FreeSpace.from_scene(
-            self.scene,
-            self.grid,
-            self.band,
-            self.spec_robot.body.width / 2 + PASS_MARGIN,
-            anchor=anchor,  # type: ignore[arg-type]
-        )
-        self._start_cells = self.free_space.candidates(self.robot_radius + START_MARGIN)
-        if len(self._start_cells) == 0:
-            raise NavigationEnvError(
-                f"scene {self.scene.name!r}: no free cell where the chair can turn on the spot"
-            )
-
-        self._build_chair(kinect_decimation, camera_backend)
+        self._decimation, self._camera_backend = kinect_decimation, camera_backend
+        self._setup_scene()
         self._define_spaces()
         self._map: Any = None
         self._occ: npt.NDArray[np.bool_] | None = None
@@ -657,6 +696,31 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._latency_steps = 0
 
     # ---- construction ------------------------------------------------------------------------
+
+    def _setup_scene(self) -> None:
+        """Grid, free space and the simulated chair for ``self.scene``."""
+        x0, y0, x1, y1 = self.scene.bounds_xy()
+        cs = self.patch_cell
+        nx = math.ceil((x1 - x0 + 2 * MAP_MARGIN) / cs)
+        ny = math.ceil((y1 - y0 + 2 * MAP_MARGIN) / cs)
+        self.grid = GridSpec(
+            cell_size=cs, size_x=nx * cs, size_y=ny * cs, centre=((x0 + x1) / 2, (y0 + y1) / 2)
+        )
+        anchor = self.fixed_start[:2] if self.fixed_start is not None else None
+        self.free_space = FreeSpace.from_scene(
+            self.scene,
+            self.grid,
+            self.band,
+            self.spec_robot.body.width / 2 + PASS_MARGIN,
+            anchor=anchor,  # type: ignore[arg-type]
+        )
+        self._start_cells = self.free_space.candidates(self.robot_radius + START_MARGIN)
+        if len(self._start_cells) == 0:
+            raise NavigationEnvError(
+                f"scene {self.scene.name!r}: no free cell where the chair can turn on the spot"
+            )
+
+        self._build_chair(self._decimation, self._camera_backend)
 
     def _build_chair(self, decimation: int, camera_backend: str) -> None:
         import pybullet as p
@@ -713,9 +777,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._closed = False
 
     def _define_spaces(self) -> None:
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        if self.action_type == "discrete":
+            self.action_space = spaces.Discrete(len(DISCRETE_ACTIONS))  # type: ignore[assignment]
+        else:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         x0, y0, x1, y1 = self.grid.extent
         self.max_goal_obs = float(math.hypot(x1 - x0, y1 - y0))
+        if self.rooms_config is not None:  # one box for every floor the generator can draw
+            self.max_goal_obs = float(self.rooms_config.max_extent)
         vmax = SPEED_OBS_FACTOR * self.drive.max_speed
         wmax = SPEED_OBS_FACTOR * self.drive.max_yaw_rate
         self._vel_high = np.array([vmax, wmax], np.float32)
@@ -731,6 +800,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if self.sonars_on:
             self.sonar_max_range = float(max(a.model.max_range_m for a in self._chair.sonars.values()))
             obs["sonar"] = spaces.Box(0.0, self.sonar_max_range, shape=(6,), dtype=np.float32)
+        if self.depth_image:
+            m = self._chair.kinect.model
+            self._depth_shape = (int(m.height), int(m.width))
+            self._depth_max = float(m.max_range_m)
+            self._depth = np.zeros(self._depth_shape, dtype=np.float32)
+            obs["depth"] = spaces.Box(0.0, self._depth_max, shape=self._depth_shape, dtype=np.float32)
+        if self.elevation_map:
+            obs["elevation"] = spaces.Box(0.0, ELEVATION_MAX, shape=self.patch_shape, dtype=np.float32)
         self.observation_space = spaces.Dict(obs)  # type: ignore[assignment]
 
     # ---- episode -----------------------------------------------------------------------------
@@ -905,9 +982,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._map = None  # until the episode has started, step() refuses to run
         self._ended = False
         opts = dict(options or {})
-        unknown = set(opts) - {"start", "goal"}
+        allowed = {"start", "goal"} | ({"room_seed"} if self.rooms_config is not None else set())
+        unknown = set(opts) - allowed
         if unknown:
-            raise NavigationEnvError(f"reset options {sorted(unknown)}: unknown (allowed: 'start', 'goal')")
+            raise NavigationEnvError(f"reset options {sorted(unknown)}: unknown (allowed: {sorted(allowed)})")
+        if self.rooms_config is not None:
+            self._next_floor(opts.get("room_seed"))
         start, goal = self._sample_start_goal(opts)
         self.start_pose, self.goal = start, goal
         # one child stream for all sensor noise, drawn after start and goal so they stay put
@@ -967,8 +1047,29 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._ended = bool(collided or reached)
         return obs, float(sum(terms.values())), self._ended, False, info
 
+    def _next_floor(self, seed: Any) -> None:
+        """Put the chair on the floor of ``seed`` (None: drawn from ``np_random`` in the split's range)."""
+        from sim.rooms import generate_floor
+
+        if seed is None:
+            seed = self._room_range[int(self.np_random.integers(len(self._room_range)))]
+        elif isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise NavigationEnvError(f"room_seed={seed!r}: expected a non-negative integer")
+        if int(seed) == self.room_seed:
+            return
+        self.scene = generate_floor(int(seed), self.rooms_config).scene
+        self._chair.close()
+        self._setup_scene()
+        self.room_seed = int(seed)
+
     def _twist(self, action: Any) -> tuple[float, float]:
         """The body twist (v m/s, w rad/s) an action asks for, within the drive's limits."""
+        if self.action_type == "discrete":
+            if not self.action_space.contains(action):
+                raise NavigationEnvError(
+                    f"action={action!r}: expected an integer in [0, {len(DISCRETE_ACTIONS)})"
+                )
+            action = DISCRETE_ACTIONS[int(action)]
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (2,) or not np.isfinite(a).all():
             raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
@@ -1001,6 +1102,16 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             for b in self._people
             if p.getClosestPoints(self.robot.body, b, 0.0, physicsClientId=self.client)
         }
+
+    def own_occupancy(self) -> tuple[GridSpec, npt.NDArray[np.bool_]]:
+        """The chair's own 2D map of this episode: cells holding structure in its height band.
+
+        Built from the chair's sensors only (never the scene's ground truth), placed with
+        ``pose_source``. Returns the grid and a copy of the ``(nx, ny)`` bool occupancy.
+        """
+        if self._occ is None:
+            raise NavigationEnvError("own_occupancy() called before reset()")
+        return self.grid, self._occ.copy()
 
     def _touching(self) -> set[str]:
         """Names of the scene bodies (walking people included) the chair touches after this sub-step."""
@@ -1046,6 +1157,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
                 pts = decimated_depth_noise(
                     pts, chair.kinect.model, self._sensor_rng, self.dynamics.sensor_noise_scale
                 )
+            if self.depth_image:  # the camera's depth (its x, REP-103); 0 where it saw nothing
+                z = np.asarray(pts[..., 0], dtype=np.float64)
+                self._depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self._depth_max).astype(np.float32)
             t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
             pts = pts.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
             self._map.insert(pts, sensor_origin=t[:3, 3])
@@ -1086,6 +1200,16 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         }
         if self.sonars_on:
             obs["sonar"] = self._sonar_ranges.copy()
+        if self.depth_image:
+            obs["depth"] = self._depth.copy()
+        if self.elevation_map:
+            from mapping.derived import elevation
+
+            top, _ = elevation(self._map)
+            top = np.clip(np.nan_to_num(top - 0.0, nan=0.0), 0.0, ELEVATION_MAX).astype(np.float32)
+            obs["elevation"] = egocentric_values(
+                top, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
+            )
         return obs
 
     def _info(

@@ -33,7 +33,7 @@ ENV_ID = "RobChair/Navigation-v0"
 def env():
     from sim.envs.navigation import RobChairNavigationEnv
 
-    e = RobChairNavigationEnv(render_mode="rgb_array")
+    e = RobChairNavigationEnv(render_mode="rgb_array", randomization=False)  # as RobChair/Navigation-v0
     yield e
     e.close()
 
