@@ -23,6 +23,7 @@ COMMANDS = (
     "robchair.commands.sim",
     "robchair.commands.run",
     "robchair.commands.hw",
+    "robchair.commands.nav_eval",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",

@@ -168,6 +168,33 @@ def _corners(pts: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return pts[keep]
 
 
+def shortcut(
+    route: list[tuple[float, float]], cost: npt.NDArray[np.float64], grid: GridSpec
+) -> list[tuple[float, float]]:
+    """String pulling: drop every point the route can skip on a straight line of finite-cost cells."""
+    if len(route) <= 2:
+        return route
+
+    def clear(a: tuple[float, float], b: tuple[float, float]) -> bool:
+        n = max(2, int(math.hypot(b[0] - a[0], b[1] - a[1]) / (grid.cell_size / 3)))
+        t = np.linspace(0.0, 1.0, n)
+        i, j = grid.world_to_index(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
+        ok = grid.contains_index(i, j)
+        return bool(ok.all() and np.isfinite(cost[i, j]).all())
+
+    out = [route[0]]
+    k = 0
+    while k < len(route) - 1:
+        far = k + 1
+        for m in range(len(route) - 1, k + 1, -1):
+            if clear(route[k], route[m]):
+                far = m
+                break
+        out.append(route[far])
+        k = far
+    return out
+
+
 def path_length(points: Any) -> float:
     """Length of a polyline, m."""
     p = np.asarray(points, dtype=float)

@@ -781,7 +781,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             self.action_space = spaces.Discrete(len(DISCRETE_ACTIONS))  # type: ignore[assignment]
         else:
             self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        x0, y0, x1, y1 = self.grid.extent
+        x0, x1, y0, y1 = self.grid.extent
         self.max_goal_obs = float(math.hypot(x1 - x0, y1 - y0))
         if self.rooms_config is not None:  # one box for every floor the generator can draw
             self.max_goal_obs = float(self.rooms_config.max_extent)
