@@ -5,7 +5,8 @@ Policies are named by a spec string:
 
 * ``baseline`` - :class:`robchair.navigation.planner.BaselinePolicy` (planner on the chair's own map);
 * ``random`` - uniformly random actions (seeded by the episode's seed);
-* ``MODULE:CALLABLE`` - ``CALLABLE(env)`` (imported from ``MODULE``) returns the policy: a callable
+* ``MODULE:CALLABLE`` - ``CALLABLE(env)`` (imported from ``MODULE``, the current folder first on the
+  import path) returns the policy: a callable
   ``policy(obs, info) -> action``, optionally with ``reset()`` called at the start of the episode.
 """
 
@@ -13,6 +14,8 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
+import sys
 from typing import Any
 
 import numpy as np
@@ -47,6 +50,8 @@ def policy_factory(spec: str) -> Any:
     if ":" not in spec:
         raise EvaluationError(f"policy {spec!r}: expected 'baseline', 'random' or MODULE:CALLABLE")
     mod_name, _, attr = spec.partition(":")
+    if os.getcwd() not in sys.path:  # MODULE may live in the current folder (e.g. examples.sb3_light)
+        sys.path.insert(0, os.getcwd())
     try:
         factory = getattr(importlib.import_module(mod_name), attr)
     except ModuleNotFoundError as exc:
