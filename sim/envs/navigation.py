@@ -419,7 +419,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     ``w * max_yaw_rate`` rad/s yaw rate (counter-clockwise), both by default the kinematic limits of
     :class:`robchair.kinematics.DiffDrive` (0.62 m/s, 2.14 rad/s); the pair is then scaled down
     uniformly so no motor exceeds its maximum RPM. Actions outside the box are clipped; non-finite
-    actions raise :class:`NavigationEnvError`.
+    actions raise :class:`NavigationEnvError`. With ``action_type="discrete"``: ``Discrete(5)``, the
+    normalised pairs of :data:`DISCRETE_ACTIONS` (0 stop, 1 forward at 0.3, 2 forward at 0.7, 3 turn
+    left on the spot at 0.5, 4 turn right at 0.5; times ``max_speed`` and ``max_yaw_rate``).
 
     ## Observation Space
 
@@ -431,6 +433,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     | goal      | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m), bearing (rad), robot frame    |
     | velocity  | Box(-1.5 x limits, 1.5 x limits)      | measured (v m/s, w rad/s) from the wheel speeds  |
     | sonar     | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max      |
+    | depth     | Box(0, max range, (H, W)) (option)    | the Kinect's depth (m) along its axis, 0 = none  |
+    | elevation | Box(0, 2.5, patch_shape) (option)     | egocentric highest structure per cell (m)        |
 
     The occupancy patch (default 64x64 cells of 10 cm) has row ``i`` forward (row 0 is 1.6 m behind
     ``base_link``) and column ``j`` to the left (centred), see :func:`egocentric_patch`. A cell is
@@ -491,7 +495,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     ``pose_source``, ``map_memory``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
     ``max_yaw_rate``, ``reward_weights`` (:class:`RewardWeights`), ``spec`` (platform spec or TOML
     path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``), ``randomization`` (True, False or a
-    :class:`sim.envs.randomization.DomainRandomization`). ``render()`` returns a top-down
+    :class:`sim.envs.randomization.DomainRandomization`), ``action_type`` (``"continuous"`` or
+    ``"discrete"``), ``depth_image`` / ``elevation_map`` (add those observations), ``scene="rooms"``
+    or ``rooms`` (a :class:`sim.rooms.FloorConfig`: a new random floor every episode, drawn from
+    ``np_random`` among the ``room_seeds`` split, ``"train"`` or ``"eval"``; ``reset`` option
+    ``room_seed`` picks one; ``walkers`` people walk on it). ``render()`` returns a top-down
     picture of the episode's map, the scene, the path, the chair and the goal.
     """
 
