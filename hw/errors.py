@@ -31,3 +31,7 @@ class CommandError(HardwareError, ValueError):
 
 class DeviceIOError(HardwareError, OSError):
     """A bus transfer to a device failed (I2C NACK, serial read error) and retries did not help."""
+
+
+class DeviceStateError(HardwareError, RuntimeError):
+    """A call the device's lifecycle state does not allow (motion while not active, a read-only session)."""

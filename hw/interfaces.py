@@ -31,7 +31,12 @@ class Channel(enum.IntEnum):
 
 @dataclass(frozen=True)
 class MotorFaults:
-    """Decoded fault flags of a motor controller (Roboteq ``?FF``)."""
+    """Decoded fault flags of a motor controller (Roboteq ``?FF``, bits f1..f8 in field order).
+
+    ``startup_config`` is the manual's "default configuration loaded at startup" (the controller
+    restarted with factory settings). ``unknown_bits`` keeps set bits the manual does not name
+    (``?FF`` is a 16-bit word on firmware 2.x); any of them counts as a fault.
+    """
 
     overheat: bool = False
     overvoltage: bool = False
@@ -41,13 +46,15 @@ class MotorFaults:
     sepex_excitation: bool = False
     mosfet_failure: bool = False
     startup_config: bool = False
+    unknown_bits: int = 0
 
     @property
     def any(self) -> bool:
-        return any(getattr(self, f) for f in self.__dataclass_fields__)
+        return bool(self.names())
 
     def names(self) -> list[str]:
-        return [f for f in self.__dataclass_fields__ if getattr(self, f)]
+        named = [f for f in self.__dataclass_fields__ if f != "unknown_bits" and getattr(self, f)]
+        return named + [f"f{i + 1}" for i in range(16) if self.unknown_bits >> i & 1]
 
 
 @dataclass(frozen=True)
@@ -153,31 +160,113 @@ class Clock(Protocol):
     def sleep_until_ns(self, t_ns: int) -> None: ...
 
 
+class LifecycleState(enum.Enum):
+    """Lifecycle states of a motor controller, as ros2_control's ``hardware_interface::SystemInterface``.
+
+    * ``UNCONFIGURED``: created, no communication.
+    * ``INACTIVE``: communication up, the configuration written and checked; states can be read,
+      nothing moves.
+    * ``ACTIVE``: speed commands are accepted.
+    * ``ERROR``: a fault stopped the motors; only an explicit operator release leaves it
+      (``release()``, ``robchair run --release-stop``).
+    * ``FINALIZED``: closed; the object is not used again.
+    """
+
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    ERROR = "error"
+    FINALIZED = "finalized"
+
+
 @runtime_checkable
 class MotorController(Protocol):
-    """A dual-channel wheel motor controller in closed-loop speed mode."""
+    """A dual-channel wheel motor controller in closed-loop speed mode.
+
+    Units: speeds are motor-shaft RPM (before the gearbox); encoder counts are signed 32-bit,
+    quadrature x4, (left, right); stamps are integer nanoseconds of the backend's clock.
+    Errors are :class:`hw.errors.HardwareError` subclasses; every fault path stops the motors before
+    it raises. Motion is only possible in the active state (see :class:`MotorControllerLifecycle`).
+    """
 
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Start a session and, when the controller may move the chair, activate it.
 
-    def close(self) -> None: ...
-
-    def set_speeds_rpm(self, left_rpm: float, right_rpm: float) -> None:
-        """Command motor-shaft speeds; also refreshes the controller's watchdog."""
+        Raises:
+            DeviceDisconnectedError: the port cannot be opened.
+            DeviceTimeoutError, ProtocolError: the device does not answer, or not as the protocol says.
+            DeviceFaultError: a fault flag is set, or a stop latched earlier needs an operator release.
+        """
         ...
 
-    def read_state(self) -> MotorState: ...
+    def close(self) -> None:
+        """Command zero speeds (best effort) and end the session; idempotent, never raises."""
+        ...
 
-    def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None: ...
+    def set_speeds_rpm(self, left_rpm: float, right_rpm: float) -> None:
+        """Command motor-shaft speeds, RPM; also refreshes the controller's watchdog.
+
+        Raises:
+            CommandError: a speed is not finite or beyond the maximum (after stopping).
+            DeviceStateError: a non-zero speed while not active.
+            DeviceFaultError: a non-zero speed after a fault, before the operator released it.
+            DeviceTimeoutError, ProtocolError, DeviceDisconnectedError: the link failed (after stopping).
+        """
+        ...
+
+    def read_state(self) -> MotorState:
+        """Encoder counts, speeds (RPM) and fault flags.
+
+        Raises:
+            DeviceFaultError: a fault flag or an implausible encoder change (after stopping).
+            DeviceTimeoutError, ProtocolError, DeviceDisconnectedError: the link failed (after stopping).
+        """
+        ...
+
+    def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None:
+        """Write the speed-loop gains (continuous units). Raises CommandError if a gain does not fit."""
+        ...
 
     def emergency_stop(self) -> None:
-        """Stop both motors now (Roboteq ``!EX``). Must not raise if the device is reachable."""
+        """Stop both motors now and latch the stop (Roboteq ``!EX``); confirmed by reading it back.
+
+        Raises:
+            DeviceFaultError: the controller did not latch the stop (the motors were commanded to zero).
+            DeviceTimeoutError, ProtocolError, DeviceDisconnectedError: the link failed.
+        """
         ...
 
     def release_stop(self) -> None:
-        """Leave the emergency-stop state (Roboteq ``!MG``)."""
+        """Operator release of a latched stop (Roboteq ``!MG``); the controller may move again.
+
+        Raises:
+            DeviceFaultError: a fault flag is still set after the release.
+        """
         ...
+
+
+@runtime_checkable
+class MotorControllerLifecycle(MotorController, Protocol):
+    """The explicit lifecycle of a motor controller (ros2_control ``SystemInterface``).
+
+    ``configure()`` unconfigured -> inactive; ``activate()`` inactive -> active (commands zero first);
+    ``deactivate()`` active -> inactive (zero, then a latched stop); a fault moves to error, which only
+    ``release()`` leaves (-> inactive); ``close()`` -> finalized. ``open()`` is ``configure()`` then
+    ``activate()``. Motion is refused outside active with :class:`hw.errors.DeviceStateError`.
+    """
+
+    @property
+    def state(self) -> LifecycleState: ...
+
+    def configure(self) -> None: ...
+
+    def activate(self) -> None: ...
+
+    def deactivate(self) -> None: ...
+
+    def release(self) -> None: ...
 
 
 @runtime_checkable
@@ -288,3 +377,89 @@ class Backend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@dataclass(frozen=True)
+class LaserScan:
+    """One planar laser scan in the ``sensor_msgs/LaserScan`` layout (REP-103, REP-117).
+
+    Beam ``i`` points at ``angle_min + i * angle_increment`` rad in the sensor frame (``laser_link``:
+    x forward, y left, z up; angle 0 is x, counter-clockwise positive) and was measured
+    ``i * time_increment`` s after the first beam.
+
+    Range values (REP-117): a finite value in ``[range_min, range_max]`` is a measurement, in m;
+    ``+inf`` means no return (nothing within ``range_max``, or the echo was too weak to measure);
+    ``-inf`` means an object closer than ``range_min``; ``NaN`` means an invalid measurement (the
+    sensor reported an error for that beam). Consumers keep only finite values in range.
+
+    Attributes:
+        stamp_ns: Acquisition time of the first beam, integer ns of the backend's clock.
+        frame_id: Sensor frame, ``laser_link``.
+        angle_min: Angle of the first beam, rad.
+        angle_max: Angle of the last beam, rad (``angle_min + (N - 1) * angle_increment``).
+        angle_increment: Angle between beams, rad (> 0: counter-clockwise).
+        time_increment: Time between beams, s.
+        scan_time: Time between scans, s.
+        range_min: Smallest valid range, m.
+        range_max: Largest valid range, m.
+        ranges: (N,) float32 ranges, m, with the special values above.
+        intensities: (N,) float32 intensities (device units) or None when not measured.
+    """
+
+    stamp_ns: int
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    time_increment: float
+    scan_time: float
+    range_min: float
+    range_max: float
+    ranges: npt.NDArray[np.float32]
+    intensities: npt.NDArray[np.float32] | None = None
+    frame_id: str = "laser_link"
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.ranges.shape[0])
+
+    def angles(self) -> npt.NDArray[np.float64]:
+        """(N,) beam angles, rad."""
+        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
+
+
+@runtime_checkable
+class LaserScanner(Protocol):
+    """A planar scanning laser range finder (Hokuyo URG-04LX on the chair; simulated in sim/).
+
+    Lifecycle as every device: ``open()`` (connect, identify, switch the laser on), ``read()`` any
+    number of times, ``close()`` (laser off; idempotent).
+    """
+
+    name: str
+
+    def open(self) -> None:
+        """Connect and start measuring.
+
+        Raises:
+            DeviceDisconnectedError: the port cannot be opened.
+            DeviceTimeoutError: the device does not answer.
+            ProtocolError: it answers, but not as the expected device / protocol.
+            DeviceFaultError: it reports a hardware fault (laser or motor malfunction).
+        """
+        ...
+
+    def close(self) -> None:
+        """Stop measuring (laser off) and release the port; never raises on a lost device."""
+        ...
+
+    def read(self) -> LaserScan:
+        """The next complete scan (blocks at most about two scan periods plus the reply deadline).
+
+        Raises:
+            DeviceClosedError: used before ``open()`` or after ``close()``.
+            DeviceTimeoutError: no scan within the deadline after the retries.
+            ProtocolError: replies stayed garbled or failed their checksums after the retries.
+            DeviceDisconnectedError: the link went away (cable pulled).
+            DeviceFaultError: the device reports a hardware fault.
+        """
+        ...

@@ -253,7 +253,17 @@ def cluster_cells(hs, offsets, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-
         b = offsets[c + 1]
         if b == a:
             continue
-        hs[a:b].sort()
+        if b - a <= 32:
+            # insertion sort: a library sort call per cell costs more than the few heights of a fine cell
+            for q in range(a + 1, b):
+                z = hs[q]
+                r = q - 1
+                while r >= a and hs[r] > z:
+                    hs[r + 1] = hs[r]
+                    r -= 1
+                hs[r + 1] = z
+        else:
+            hs[a:b].sort()
         n_out += 1
         for q in range(a + 1, b):
             if np.float64(hs[q]) - np.float64(hs[q - 1]) > tol:

@@ -9,7 +9,14 @@ All functions read a :class:`mapping.vhv.VHVMap` and are vectorised over its str
   structures occupy (for comparison and export);
 * :func:`vhv_boxes` — one world-frame box per structure;
 * :func:`free_space` — free structures between the sensor and each occupied structure (Fig. 5.14);
-* :func:`occupancy_probability` — occupied / (occupied + free) extent per cell (thesis future work 6.2).
+* :func:`occupancy_probability` — occupied / (occupied + free) extent per cell (thesis future work 6.2);
+* :func:`occupancy_codes` — the three-valued 2D map (``nav_msgs/OccupancyGrid`` -1 / 0 / 100) of either
+  map kind: the evidence of a :class:`mapping.probabilistic.ProbabilisticVHV`, or what the
+  accumulate-only map can tell (seen structures, free space from one sensor origin).
+
+The functions take a :class:`mapping.vhv.VHVMap` or a :class:`mapping.probabilistic.ProbabilisticVHV`
+(whose ``structures()`` are its occupied intervals). Elevation is NaN where a cell holds no occupied
+structure: unknown (or, for the probabilistic map, known free with no surface).
 
 "Height" means the kept axis of the grid (z for the default axis); bands and heights are in metres.
 """
@@ -52,6 +59,43 @@ def occupancy_2d(m: VHVMap, z_min: float, z_max: float) -> NDArray[np.bool_]:
     hit = (s.top >= z_min) & (s.bottom <= z_max)
     grid[s.i[hit], s.j[hit]] = True
     return grid
+
+
+def occupancy_codes(
+    m: object,
+    band: tuple[float, float],
+    unknown: int = -1,
+    sensor_origin: ArrayLike | None = None,
+) -> NDArray[np.int8]:
+    """Three-valued 2D map ``(nx, ny)`` int8 of a height band: 100 occupied, 0 free, ``unknown`` else.
+
+    Args:
+        m: a :class:`mapping.probabilistic.ProbabilisticVHV` (its evidence decides) or a
+            :class:`mapping.vhv.VHVMap` (a structure in the band: occupied; a cell holding only
+            structures outside the band, or crossed by :func:`free_space` from ``sensor_origin``: free).
+        band: ``(z_min, z_max)`` metres along the kept axis.
+        unknown: the code for unknown cells: -1 (default), or 100 / 0 to plan as blocked / free.
+        sensor_origin: only for the accumulate-only map, see above.
+
+    Raises:
+        MappingError: a malformed band or ``unknown`` value.
+    """
+    if unknown not in (-1, 0, 100):
+        raise MappingError(f"occupancy_codes unknown={unknown!r}: expected -1, 0 or 100")
+    occupancy_2d_three = getattr(m, "occupancy_2d", None)
+    if occupancy_2d_three is not None:
+        return np.asarray(occupancy_2d_three(band, unknown=unknown), dtype=np.int8)
+    if not isinstance(m, VHVMap):
+        raise MappingError(f"occupancy_codes: expected a VHVMap or ProbabilisticVHV, got {type(m).__name__}")
+    occ = occupancy_2d(m, float(band[0]), float(band[1]))
+    codes = np.full(m.spec.shape, unknown, dtype=np.int8)
+    s = m.structures()
+    codes[s.i, s.j] = 0
+    if sensor_origin is not None and m.n_structures:
+        fs = free_space(m, sensor_origin)
+        codes[np.asarray(fs.i, np.intp), np.asarray(fs.j, np.intp)] = 0
+    codes[occ] = 100
+    return codes
 
 
 def elevation(m: VHVMap) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

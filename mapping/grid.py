@@ -119,6 +119,58 @@ class GridSpec:
                 f"GridSpec.centre={self.centre!r}: too far from the origin for this cell_size"
             )
 
+    @classmethod
+    def covering(
+        cls,
+        lo: tuple[float, float],
+        hi: tuple[float, float],
+        cell_size: float,
+        margin: float | tuple[float, float] = 0.0,
+        axis: Axis = "z",
+    ) -> GridSpec:
+        """The smallest grid of ``cell_size`` cells that covers the box ``lo``..``hi`` plus ``margin``.
+
+        The box is ``[lo_u - m_u, hi_u + m_u] x [lo_v - m_v, hi_v + m_v]`` in grid coordinates ``(u, v)``
+        (world x, y for the default kept axis z); every point of it lies in a cell of the grid, taking
+        the snapping of the centre to the lattice into account (see the module docstring), and no row
+        or column of cells lies wholly outside it.
+
+        Args:
+            lo: ``(u_min, v_min)`` of the box, m.
+            hi: ``(u_max, v_max)`` of the box, m (``>= lo``).
+            cell_size: Cell side, m (> 0).
+            margin: Added on each side, m (>= 0); one value, or one per grid axis ``(m_u, m_v)``.
+            axis: The kept axis.
+
+        Raises:
+            GridSpecError: A bound or the margin is not finite, ``hi < lo``, the margin is negative,
+                or the resulting grid is invalid (see the class).
+
+        Example:
+            >>> GridSpec.covering((0.0, 0.0), (1.0, 0.5), 0.5).extent
+            (0.0, 1.5, 0.0, 1.0)
+        """
+        if isinstance(cell_size, bool) or not isinstance(cell_size, int | float) or not cell_size > 0:
+            raise GridSpecError(f"GridSpec.covering cell_size={cell_size!r}: expected a number of metres > 0")
+        ms = (margin, margin) if isinstance(margin, int | float) else tuple(margin)
+        if len(ms) != 2 or not all(math.isfinite(m) and m >= 0 for m in ms):
+            raise GridSpecError(f"GridSpec.covering margin={margin!r}: expected finite metres >= 0")
+        bounds = [(float(lo[k]), float(hi[k])) for k in range(2)]
+        if not all(math.isfinite(a) and math.isfinite(b) and a <= b for a, b in bounds):
+            raise GridSpecError(
+                f"GridSpec.covering lo={lo!r}, hi={hi!r}: expected finite bounds with lo <= hi"
+            )
+        ics = 1.0 / cell_size
+        cells, centre = [], []
+        for (a, b), m in zip(bounds, ms, strict=True):
+            # lattice cells holding the box's two ends (the same floor as world_to_index)
+            first, last = math.floor((a - m) * ics), math.floor((b + m) * ics)
+            n = last - first + 1
+            cells.append(n)
+            # a centre inside lattice cell first + n // 2 makes cell 0 of the grid lattice cell first
+            centre.append((first + n // 2 + 0.5) * cell_size)
+        return cls(cell_size, cells[0] * cell_size, cells[1] * cell_size, (centre[0], centre[1]), axis)
+
     # ------------------------------------------------------------------ geometry
     @property
     def shape(self) -> tuple[int, int]:

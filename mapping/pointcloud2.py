@@ -60,6 +60,10 @@ class PointCloud2Data:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+_UINT32_MAX = 2**32 - 1  # height, width, steps, offsets and counts are uint32 in sensor_msgs
+_MAX_POINT_STEP = 2**31 - 1  # the largest numpy record (a C int); real points are tens of bytes
+
+
 def as_bytes_array(data: Any) -> np.ndarray:
     """Any bytes-like payload (bytes, memoryview, numpy array, list of ints) as a flat uint8 array."""
     if isinstance(data, np.ndarray):
@@ -88,14 +92,15 @@ def structured_dtype(fields: Sequence[Any], point_step: int, is_bigendian: bool)
         name = str(f.name)
         if int(f.datatype) not in DATATYPES:
             raise PointCloudFormatError(f"field {name!r} has unknown PointField datatype {f.datatype}")
-        count = int(f.count)
+        count, offset = int(f.count), int(f.offset)
+        if not (0 <= count <= _UINT32_MAX and 0 <= offset <= _UINT32_MAX):
+            raise PointCloudFormatError(f"field {name!r}: offset {offset} or count {count} is not a uint32")
         if count < 1:
             # Some drivers write count 0 for scalars; ROS treats that as 1.
             count = 1
         base = DATATYPES[int(f.datatype)].newbyteorder(order)
         size = base.itemsize * count
-        offset = int(f.offset)
-        if offset < 0 or offset + size > point_step:
+        if offset + size > point_step:
             raise PointCloudFormatError(
                 f"field {name!r} (offset {offset}, {size} bytes) does not fit in point_step {point_step}"
             )
@@ -112,15 +117,28 @@ def structured_dtype(fields: Sequence[Any], point_step: int, is_bigendian: bool)
 def structured(msg: Any) -> np.ndarray:
     """All fields of a PointCloud2 as a structured array of shape (height, width).
 
+    Sizes are checked against the data before anything is allocated, so a corrupt header cannot
+    make the reader reserve more memory than the message holds.
+
     Raises:
         PointCloudFormatError: The layout is inconsistent or the data is shorter than declared.
     """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
-    if height < 0 or width < 0:
-        raise PointCloudFormatError(f"{_describe(msg)}: negative height or width")
+    for name, value in (
+        ("height", height),
+        ("width", width),
+        ("point_step", point_step),
+        ("row_step", row_step),
+    ):
+        if not 0 <= value <= _UINT32_MAX:
+            raise PointCloudFormatError(f"{_describe(msg)}: {name} {value} is not a uint32")
     if point_step <= 0 and height * width > 0:
         raise PointCloudFormatError(f"{_describe(msg)}: point_step must be positive")
+    if point_step > _MAX_POINT_STEP:
+        raise PointCloudFormatError(
+            f"{_describe(msg)}: point_step {point_step} is not a plausible point size"
+        )
     dtype = structured_dtype(msg.fields, max(point_step, 1), bool(msg.is_bigendian))
     raw = as_bytes_array(msg.data)
     if height * width == 0:
@@ -136,11 +154,11 @@ def structured(msg: Any) -> np.ndarray:
         )
     if row_step == width * point_step:
         return raw[: height * row_step].view(dtype).reshape(height, width)
-    # Padded rows: view each row, cut its padding, then reinterpret the points.
-    padded = np.zeros(height * row_step, dtype=np.uint8)  # the last row's padding may be absent
-    used = min(raw.size, padded.size)
-    padded[:used] = raw[:used]
-    rows = padded.reshape(height, row_step)[:, : width * point_step]
+    # Padded rows: a strided view of the rows without their padding (the last row's padding may be
+    # absent), copied once into whole points.
+    rows = np.lib.stride_tricks.as_strided(
+        raw, shape=(height, width * point_step), strides=(row_step, 1), writeable=False
+    )
     return np.ascontiguousarray(rows).view(dtype).reshape(height, width)
 
 

@@ -475,7 +475,8 @@ def cone_points(range_m: float, theta_deg: float, alpha_deg: float, ppc: int = 4
     ``gamma_i = alpha + theta/2 - i`` in the horizontal plane. Ring 0 spans exactly the zone
     ``[alpha, alpha + theta]``. As printed, later rings grow while their axis moves clockwise, so
     the cloud also covers bearings down to ``alpha - 2 i_max`` (about ``alpha - theta``) on the
-    clockwise side; we keep the printed algorithm (the brief asks for it verbatim) and report this.
+    clockwise side. The algorithm is kept as printed (SPEC section 3 asks for Fig. 5.7 verbatim;
+    SPEC erratum 7 records the spill).
 
     Args:
         range_m: range ``d`` in metres (points come out in metres).

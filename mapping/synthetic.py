@@ -55,11 +55,16 @@ def _camera_rays(height: int, width: int, pitch_rad: float) -> NDArray[np.float6
     return d
 
 
-def _hit_boxes(o: NDArray[np.float64], d: NDArray[np.float64], t: NDArray[np.float64]) -> None:
+def _hit_boxes(
+    o: NDArray[np.float64],
+    d: NDArray[np.float64],
+    t: NDArray[np.float64],
+    boxes: NDArray[np.float64] = _BOXES,
+) -> None:
     """Lower ``t`` (ray parameter of the nearest hit so far) where a ray hits a box first (slab test)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
-        for box in _BOXES:
+        for box in boxes:
             t0 = (box[:3] - o) * inv
             t1 = (box[3:] - o) * inv
             tn = np.nanmax(np.minimum(t0, t1), axis=-1)
@@ -152,3 +157,68 @@ def small_sample_cloud(rng: np.random.Generator) -> NDArray[np.float32]:
     """A few 10k finite points (N, 3) float32 of the same scene (a 256 x 144 frame without its NaNs)."""
     pts = render_scene(rng, 144, 256, nan_fraction=0.05).reshape(-1, 3)
     return np.ascontiguousarray(pts[np.isfinite(pts).all(axis=1)])
+
+
+def render_boxes(
+    rng: np.random.Generator | None,
+    boxes: NDArray[np.float64],
+    origin: tuple[float, float, float],
+    height: int = 120,
+    width: int = 160,
+    yaw_deg: float = 0.0,
+    pitch_deg: float = 10.0,
+    max_range: float = _MAX_RANGE,
+    floor: bool = True,
+) -> NDArray[np.float32]:
+    """Ray-cast axis-aligned boxes (and the floor ``z = 0``) from a depth camera at ``origin``.
+
+    The camera has the Kinect v2 HD field of view at any pixel count, looks along +x turned by
+    ``yaw_deg`` (counter-clockwise) and pitched down by ``pitch_deg``. Used to build moving-obstacle
+    sequences (e.g. a walker crossing the view at 30 Hz) for the evidence map's tests and benchmark.
+
+    Args:
+        rng: depth noise source (Kinect-v2-like, growing with the square of the range); None: no noise.
+        boxes: ``(K, 6)`` boxes ``(x0, y0, z0, x1, y1, z1)``, metres.
+        origin: camera position, metres.
+        height, width: pixels.
+        yaw_deg, pitch_deg: heading and downward tilt, degrees.
+        max_range: depth beyond which a pixel is NaN (no return), metres.
+        floor: add the infinite floor plane ``z = 0``.
+
+    Returns:
+        ``(height, width, 3)`` float32 world points, NaN where nothing is hit within range.
+
+    Raises:
+        MappingError: a bad size, box array or range.
+    """
+    if int(height) < 1 or int(width) < 1:
+        raise MappingError(f"render_boxes size {height}x{width}: expected positive pixel counts")
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
+    if not np.all(np.isfinite(b)) or np.any(b[:, 3:] < b[:, :3]):
+        raise MappingError(
+            "render_boxes boxes: expected finite (x0, y0, z0, x1, y1, z1) rows with min <= max"
+        )
+    if not (math.isfinite(max_range) and max_range > 0):
+        raise MappingError(f"render_boxes max_range={max_range!r}: expected metres > 0")
+    o = np.asarray(origin, dtype=np.float64).reshape(3)
+    d = _camera_rays(int(height), int(width), math.radians(pitch_deg))
+    c, s_ = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    x, y = d[..., 0].copy(), d[..., 1].copy()
+    d[..., 0] = c * x - s_ * y
+    d[..., 1] = s_ * x + c * y
+    t = np.full(d.shape[:2], np.inf)
+    if floor:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tf = -o[2] / d[..., 2]
+        t = np.where((d[..., 2] < 0) & (tf > 0), tf, np.inf)
+    _hit_boxes(o, d, t, b)
+    dist = t * np.linalg.norm(d, axis=-1)
+    valid = dist <= max_range
+    if rng is not None:
+        sigma = 0.0015 * np.maximum(dist, _MIN_RANGE) ** 2
+        noise = rng.standard_normal(t.shape)
+        t = np.where(valid, t * (1.0 + noise * sigma / np.maximum(dist, 1e-9)), 0.0)
+    t = np.where(valid, t, 0.0)
+    pts = (o + d * t[..., None]).astype(np.float32)
+    pts[~valid] = np.nan
+    return pts

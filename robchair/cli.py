@@ -1,8 +1,9 @@
 """The `robchair` command line: one entry point, one sub-command module per capability.
 
 Each module in COMMANDS / BENCHES exposes ``register(subparsers)`` which adds its parser and sets
-``func`` (a callable taking the parsed ``argparse.Namespace`` and returning an exit code). Modules
-import their heavy dependencies inside ``func`` so ``robchair --help`` stays fast.
+``func`` (a callable taking the parsed ``argparse.Namespace`` and returning an exit code); a listed
+module that cannot be imported is an error of the installation, raised as such. Modules import their
+heavy dependencies inside ``func`` so ``robchair --help`` stays fast.
 
 Any error the project raises on purpose (MappingError, HardwareError, SimError, RobChairError), and
 file-system errors, become one line on stderr and exit code 2.
@@ -23,6 +24,7 @@ COMMANDS = (
     "robchair.commands.sim",
     "robchair.commands.run",
     "robchair.commands.hw",
+    "robchair.commands.sweep",
     "robchair.commands.nav_eval",
 )
 BENCHES = (
@@ -30,16 +32,10 @@ BENCHES = (
     "robchair.commands.bench_sim",
     "robchair.commands.bench_table52",
     "robchair.commands.bench_env",
+    "robchair.commands.bench_sweep",
+    "robchair.commands.bench_zoom",
+    "robchair.commands.bench_laser",
 )
-
-
-def _load(name: str):  # type: ignore[no-untyped-def]
-    try:
-        return importlib.import_module(name)
-    except ModuleNotFoundError as exc:
-        if exc.name == name:  # the command is not built yet; everything else is a real error
-            return None
-        raise
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,15 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        mod = _load(name)
-        if mod is not None:
-            mod.register(sub)
+        importlib.import_module(name).register(sub)
     bench = sub.add_parser("bench", help="benchmarks against named baselines (prints a table, writes JSON)")
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCH")
     for name in BENCHES:
-        mod = _load(name)
-        if mod is not None:
-            mod.register(bench_sub)
+        importlib.import_module(name).register(bench_sub)
 
     def _bench_help(_args: argparse.Namespace) -> int:
         bench.print_help()

@@ -1,33 +1,227 @@
-"""Write an output folder all-or-nothing: build it beside the target, then swap it in."""
+"""Output folders that never destroy data: build the outputs beside the target, then move them in.
+
+The rules (shared by every command that writes a folder: ``sim``, ``run``, ``map``, ``pid`` and
+``bench table52``):
+
+* A missing ``--out`` folder is created, with any missing parents; an existing *empty* folder is used
+  as if it were new.
+* A folder this project wrote holds the marker file ``.robchair-output`` (JSON listing the entries
+  written). Writing there again needs ``overwrite=True`` (``--overwrite``): the entries of the earlier
+  output are then replaced; files added to the folder since are kept.
+* The current directory (or one of its parents) and any other non-empty folder are refused unless
+  ``overwrite=True``; even then only entries with the same names as the new outputs are replaced, and
+  nothing else in the folder is touched.
+* Outputs are built in a hidden staging folder and moved in only when the command succeeds. A failed
+  command leaves no new folder behind: the staging folder and every parent created for it are removed.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import json
+import os
+import secrets
 import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from robchair.errors import RobChairError
+
+MARKER = ".robchair-output"
+
+#: Default of ``overwrite`` where a command cannot pass it down (set by the CLI around the command).
+OVERWRITE: contextvars.ContextVar[bool] = contextvars.ContextVar("robchair_overwrite", default=False)
+
+
+class OutputDirError(RobChairError, FileExistsError):
+    """The output folder cannot be written without destroying data (the message says what to do)."""
+
+
+def _marker_entries(folder: Path) -> list[str] | None:
+    """Entries listed by the folder's marker; None if the folder holds no readable marker."""
+    try:
+        data = json.loads((folder / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    entries = data.get("entries") if isinstance(data, dict) else None
+    if not isinstance(entries, list):
+        return None
+    # Plain names only: a marker must never make us touch anything outside its own folder.
+    return [e for e in entries if isinstance(e, str) and e not in ("", ".", "..") and "/" not in e]
+
+
+class OutputDir:
+    """One command's output folder: checked when created, written by :meth:`stage`.
+
+    Args:
+        target: The folder to write (``--out``).
+        overwrite: Allow writing into an existing non-empty folder (``--overwrite``); None takes the
+            value of :data:`OVERWRITE`.
+
+    Raises:
+        OutputDirError: ``target`` is a file, the current directory or one of its parents, or a
+            non-empty folder, and ``overwrite`` is false.
+    """
+
+    def __init__(self, target: Path | str, *, overwrite: bool | None = None) -> None:
+        self.given = Path(target)
+        self.target = self.given.resolve()
+        self.overwrite = OVERWRITE.get() if overwrite is None else bool(overwrite)
+        self.check()
+
+    def check(self) -> None:
+        """Refuse a target that would lose data (see the class docstring)."""
+        t, name = self.target, str(self.given)
+        if t.exists() and not t.is_dir():
+            raise OutputDirError(f"--out {name}: is a file, not a folder; choose a folder name")
+        if self.overwrite or not t.exists():
+            return
+        if Path.cwd().resolve().is_relative_to(t):
+            raise OutputDirError(
+                f"--out {name}: is the current folder (or holds it); choose a new folder, or pass "
+                "--overwrite to write into it (other files are kept)"
+            )
+        if not any(t.iterdir()):
+            return
+        if _marker_entries(t) is not None:
+            raise OutputDirError(
+                f"--out {name}: holds an earlier robchair output; choose a new folder, or pass "
+                "--overwrite to replace that output (files added to it are kept)"
+            )
+        raise OutputDirError(
+            f"--out {name}: folder is not empty and was not written by robchair; choose a new folder, "
+            "or pass --overwrite to write into it (other files are kept)"
+        )
+
+    @contextlib.contextmanager
+    def stage(self) -> Iterator[Path]:
+        """Yield an empty staging folder whose entries become the output if the block succeeds.
+
+        On any exception the staging folder and the parents created for it are removed, and an
+        existing target is left as it was.
+        """
+        self.check()
+        t = self.target
+        created: list[Path] = []
+        for parent in reversed([p for p in t.parents if not p.exists()]):
+            parent.mkdir()
+            created.append(parent)
+        try:
+            # Into an existing folder entry by entry; a new (or empty, unused) one is swapped in whole.
+            merge = t.exists() and (any(t.iterdir()) or Path.cwd().resolve().is_relative_to(t))
+            staging = _new_hidden_dir(t if merge else t.parent, f".{t.name}.partial-")
+            try:
+                yield staging
+                if merge:
+                    self._merge(staging)
+                else:
+                    _write_marker(staging, sorted(p.name for p in staging.iterdir()))
+                    staging.rename(t)  # rename(2) also replaces an empty folder
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
+        except BaseException:
+            for parent in reversed(created):
+                with contextlib.suppress(OSError):
+                    parent.rmdir()
+            raise
+
+    def _merge(self, staging: Path) -> None:
+        """Move the staged entries into the non-empty target, replacing same-named entries and the
+        entries of an earlier output of ours; everything else in the target is left alone."""
+        t = self.target
+        new = sorted(p.name for p in staging.iterdir())
+        old = _marker_entries(t) or []
+        replace = [n for n in dict.fromkeys([*new, *old, MARKER]) if os.path.lexists(t / n)]
+        trash = _new_hidden_dir(t, f".{t.name}.old-")
+        moved_out: list[str] = []
+        moved_in: list[str] = []
+        try:
+            for n in replace:
+                (t / n).rename(trash / n)
+                moved_out.append(n)
+            for n in new:
+                (staging / n).rename(t / n)
+                moved_in.append(n)
+            _write_marker(t, new)
+        except BaseException:
+            for n in moved_in:  # undo: put the previous entries back
+                with contextlib.suppress(OSError):
+                    (t / n).rename(staging / n)
+            for n in moved_out:
+                with contextlib.suppress(OSError):
+                    (trash / n).rename(t / n)
+            with contextlib.suppress(OSError):
+                trash.rmdir()  # only if everything went back
+            raise
+        shutil.rmtree(trash, ignore_errors=True)
+
+
+def _new_hidden_dir(parent: Path, prefix: str) -> Path:
+    """A new uniquely named folder in ``parent`` with the usual permissions (the umask's, unlike
+    ``tempfile.mkdtemp``'s owner-only ones, which the finished output would keep)."""
+    for _ in range(100):
+        path = parent / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"cannot create a staging folder in {parent}")
+
+
+def _write_marker(folder: Path, entries: list[str]) -> None:
+    tmp = folder / f"{MARKER}.tmp"
+    tmp.write_text(json.dumps({"written_by": "robchair", "entries": entries}) + "\n", encoding="utf-8")
+    tmp.replace(folder / MARKER)
+
+
+def check_output_dir(target: Path | str, *, overwrite: bool | None = None) -> OutputDir:
+    """Check ``target`` now (before any work) and return the folder to :meth:`OutputDir.stage` later.
+
+    Raises:
+        OutputDirError: See :class:`OutputDir`.
+    """
+    return OutputDir(target, overwrite=overwrite)
+
 
 @contextlib.contextmanager
-def staged_output_dir(target: Path | str) -> Iterator[Path]:
-    """Yield a fresh staging folder that replaces ``target`` only if the block finishes.
+def staged_output_dir(target: Path | str, *, overwrite: bool | None = None) -> Iterator[Path]:
+    """Yield a fresh staging folder whose contents become ``target`` only if the block finishes.
 
-    On any exception the staging folder is removed and ``target`` is left as it was, so a failed
-    command never leaves a half-written output directory behind.
+    Args:
+        target: The output folder (see the module docstring for what may be written where).
+        overwrite: ``--overwrite``; None takes :data:`OVERWRITE`.
+
+    Raises:
+        OutputDirError: ``target`` may not be written (checked before the block runs).
     """
-    target = Path(target).resolve()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
-    try:
+    with OutputDir(target, overwrite=overwrite).stage() as staging:
         yield staging
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    backup: Path | None = None
-    if target.exists():
-        backup = target.with_name(f".{target.name}.old-{staging.name.rsplit('-', 1)[-1]}")
-        target.rename(backup)
-    staging.rename(target)
-    if backup is not None:
-        shutil.rmtree(backup, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def overwrite_allowed(allowed: bool) -> Iterator[None]:
+    """Set :data:`OVERWRITE` for the commands run inside the block."""
+    token = OVERWRITE.set(bool(allowed))
+    try:
+        yield
+    finally:
+        OVERWRITE.reset(token)
+
+
+@contextlib.contextmanager
+def deferred_stdout() -> Iterator[None]:
+    """Hold what the block prints on stdout and print it only if the block succeeds.
+
+    A failing command then shows its one-line error alone, not a table header or half a report
+    before it.
+    """
+    import io
+    import sys
+
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        yield
+    sys.stdout.write(buffer.getvalue())
+    sys.stdout.flush()

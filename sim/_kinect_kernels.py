@@ -12,16 +12,18 @@ import math
 import numba
 import numpy as np
 
-from sim.kinect import _THETA_MAX, KINECT1_BASELINE_M, KINECT1_FOCAL_PX, KINECT1_SUBPIXEL
-
-#: Noise model codes (``sim.kinect._NOISE_CODES``) and quantisation codes (``_QUANT_CODES``).
-NGUYEN2012, FANKHAUSER2015 = 0, 1
-QUANT_NONE, QUANT_MM, QUANT_DISPARITY = 0, 1, 2
+from sim.kinect_params import (
+    KINECT1_BASELINE_M,
+    KINECT1_FOCAL_PX,
+    KINECT1_SUBPIXEL,
+    NGUYEN2012,
+    QUANT_DISPARITY,
+    QUANT_MM,
+    THETA_MAX,
+)
 
 HALF_PI = math.pi / 2
-#: The angle the noise models are held at (``sim.kinect._THETA_MAX``).
-THETA_MAX = _THETA_MAX
-COS_THETA_MAX = math.cos(_THETA_MAX)
+COS_THETA_MAX = math.cos(THETA_MAX)
 #: Kinect v1 disparity constant f * b * subpixels (580 px, 7.5 cm, 1/8 px).
 K_DISPARITY = KINECT1_FOCAL_PX * KINECT1_BASELINE_M * KINECT1_SUBPIXEL
 

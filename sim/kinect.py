@@ -42,11 +42,10 @@ Noise (``noise=True``; a seeded ``numpy.random.Generator``; off gives the exact 
   + 0.3 z^2 + 0.1 z^(3/2) theta^2 / (pi/2 - theta)^2`` millimetres (z in metres), lateral
   ``sigma_L = 1.6`` pixels (indoor, no shadow). Depth is quantised to the driver's 1 mm.
 
-Verification of the formulas (search tool, this session): the papers' titles, authors and the
-fact that both fit axial noise over distance z and surface angle theta and lateral noise in pixels
-were confirmed from their abstracts; the full PDFs were not reachable, so the coefficients were
-checked against several independent implementations that cite the papers (they agree with the
-coefficients above, including the mm unit of the v2 model and its constant 1.6 px lateral term).
+Sources of the formulas: the papers' abstracts (titles, authors, and that both fit axial noise over
+distance z and surface angle theta and lateral noise in pixels); the coefficients agree with several
+independent implementations that cite the papers, including the mm unit of the v2 model and its
+constant 1.6 px lateral term.
 ``theta`` is taken here as the angle between the surface normal and the viewing ray, held at 75 deg
 for steeper surfaces (the models' angle terms have a pole at 90 deg and were not fitted that far;
 at 85 deg the v2 model would give ~10 cm, scattering the silhouettes of round objects).
@@ -80,7 +79,16 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import DepthFrame
+from robchair import frames
 from sim.errors import SimError
+from sim.kinect_params import (
+    KINECT1_BASELINE_M,
+    KINECT1_FOCAL_PX,
+    KINECT1_SUBPIXEL,
+    NOISE_CODES,
+    QUANT_CODES,
+    THETA_MAX,
+)
 from sim.raycast import MeshMirror, pose_matrix
 
 FloatArray = npt.NDArray[np.float64]
@@ -202,14 +210,10 @@ def get_model(model: str | KinectModel) -> KinectModel:
 # noise models (pure functions; z in metres, theta in radians, results in metres or pixels)
 # --------------------------------------------------------------------------------------------
 
-# The angle terms of both models have a pole at 90 deg (at 85 deg the v2 model already gives ~10 cm);
-# the papers fitted them on measurements well short of grazing incidence, so the angle is held at
-# 75 deg instead of extrapolating toward the pole (an assumption of this simulation, not paper data).
-_THETA_MAX = math.radians(75.0)
 
-
+# The angle is held at THETA_MAX (75 deg), short of the models' pole at 90 deg (sim.kinect_params).
 def _angle_term(theta: Any) -> FloatArray:
-    th = np.clip(np.asarray(theta, dtype=float), 0.0, _THETA_MAX)
+    th = np.clip(np.asarray(theta, dtype=float), 0.0, THETA_MAX)
     return th**2 / (math.pi / 2 - th) ** 2
 
 
@@ -221,7 +225,7 @@ def nguyen2012_axial_sigma_m(z_m: Any, theta_rad: Any = 0.0) -> FloatArray:
 
 def nguyen2012_lateral_sigma_px(theta_rad: Any = 0.0) -> FloatArray:
     """Kinect v1 lateral noise std (px): 0.8 + 0.035 th/(pi/2 - th)."""
-    th = np.clip(np.asarray(theta_rad, dtype=float), 0.0, _THETA_MAX)
+    th = np.clip(np.asarray(theta_rad, dtype=float), 0.0, THETA_MAX)
     return 0.8 + 0.035 * th / (math.pi / 2 - th)
 
 
@@ -234,10 +238,6 @@ def fankhauser2015_axial_sigma_m(z_m: Any, theta_rad: Any = 0.0) -> FloatArray:
 def fankhauser2015_lateral_sigma_px(theta_rad: Any = 0.0) -> FloatArray:
     """Kinect v2 lateral noise std (px): 1.6, independent of distance and angle."""
     return np.full(np.shape(theta_rad), 1.6)
-
-
-#: Kinect v1 disparity step: f = 580 px, baseline 7.5 cm, disparity in 1/8 px.
-KINECT1_FOCAL_PX, KINECT1_BASELINE_M, KINECT1_SUBPIXEL = 580.0, 0.075, 8.0
 
 
 def quantize_depth(z: FloatArray, mode: str | None) -> FloatArray:
@@ -336,13 +336,13 @@ def render_raycast(
     return DepthImage(depth, nc, body, link)
 
 
+# OpenGL camera axes in the optical frame: x right (the same), y up = -y, z backwards = -z
+_R_OPTICAL_GL = np.diag([1.0, -1.0, -1.0])
+
+
 def _gl_view_matrix(t_world_cam: FloatArray) -> FloatArray:
-    # OpenGL camera axes in the ROS camera frame: x_gl = right = -y, y_gl = up = z, z_gl = back = -x
-    r_ros_gl = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-    t_world_gl = np.eye(4)
-    t_world_gl[:3, :3] = t_world_cam[:3, :3] @ r_ros_gl
-    t_world_gl[:3, 3] = t_world_cam[:3, 3]
-    return np.asarray(np.linalg.inv(t_world_gl), dtype=np.float64)
+    t_world_gl = frames.se3(t_world_cam[:3, :3] @ frames.R_LINK_OPTICAL @ _R_OPTICAL_GL, t_world_cam[:3, 3])
+    return frames.invert(t_world_gl)
 
 
 def _gl_projection(intr: Intrinsics, near: float, far: float) -> FloatArray:
@@ -503,10 +503,6 @@ def _offset_buckets(table: FloatArray) -> npt.NDArray[np.int8]:
     return np.where(lo == hi, lo, 127).astype(np.int8)
 
 
-_NOISE_CODES = {"nguyen2012": 0, "fankhauser2015": 1}  # sim._kinect_kernels.NGUYEN2012, FANKHAUSER2015
-_QUANT_CODES = {None: 0, "mm": 1, "disparity": 2}  # sim._kinect_kernels.QUANT_*
-
-
 # --------------------------------------------------------------------------------------------
 # the sensor
 # --------------------------------------------------------------------------------------------
@@ -595,9 +591,7 @@ class KinectSim:
         reg = self.model.registration
         if reg is None:
             return t
-        off = np.eye(4)
-        off[:3, 3] = reg.offset_m
-        return t @ off
+        return t @ frames.se3(translation=reg.offset_m)
 
     def to_world(self, points: Any, cam_pose: Any) -> FloatArray:
         """Transform an organized (H, W, 3) or (N, 3) cloud of this camera to the world frame (NaN kept)."""
@@ -709,8 +703,8 @@ class KinectSim:
             self._lateral_table,
             self._lateral_buckets,
             self.noise,
-            _NOISE_CODES[m.noise_model],
-            _QUANT_CODES[m.quantization],
+            NOISE_CODES[m.noise_model],
+            QUANT_CODES[m.quantization],
             m.min_range_m,
             m.max_range_m,
             full,

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from robchair.frames import rotation_rpy
 from sim.errors import SimError
 
 FloatArray = npt.NDArray[np.float64]
@@ -53,25 +54,6 @@ def merge(meshes: list[Mesh]) -> Mesh:
         faces.append(m.faces + offset)
         offset += len(m.vertices)
     return Mesh(np.concatenate(verts), np.concatenate(faces))
-
-
-def rot_rpy(roll: float, pitch: float, yaw: float) -> FloatArray:
-    """Rotation of fixed-axis roll, pitch, yaw (URDF/ROS convention: R = Rz(yaw) Ry(pitch) Rx(roll))."""
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(roll),
-        math.sin(roll),
-        math.cos(pitch),
-        math.sin(pitch),
-        math.cos(yaw),
-        math.sin(yaw),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 def box(size: tuple[float, float, float], centre: tuple[float, float, float] = (0, 0, 0)) -> Mesh:
@@ -137,15 +119,37 @@ def sphere(radius: float, rings: int = 8, segments: int = 12) -> Mesh:
     return Mesh(np.array(verts, float), np.array(f, dtype=np.int64))
 
 
-def capsule(radius: float, length: float) -> Mesh:
-    """Capsule along z: a cylinder of ``length`` between two hemispheres (total height length + 2r)."""
-    return merge(
-        [
-            cylinder(radius, length),
-            sphere(radius).transformed(translation=(0, 0, length / 2)),
-            sphere(radius).transformed(translation=(0, 0, -length / 2)),
-        ]
-    )
+def capsule(radius: float, length: float, rings: int = 4, segments: int = 16) -> Mesh:
+    """Closed capsule along z centred at the origin: a cylinder of ``length`` between two hemispheres.
+
+    Args:
+        radius: Radius of the cylinder and the caps, m.
+        length: Length of the cylindrical part, m (total height ``length + 2 radius``).
+        rings: Latitude bands per hemispherical cap.
+        segments: Vertices around each ring.
+    """
+    # profile (radius, z) from the south pole to the north pole; the two equators bound the cylinder
+    th = np.linspace(0.0, math.pi / 2, rings + 1)
+    south = np.column_stack([radius * np.sin(th), -length / 2 - radius * np.cos(th)])
+    north = np.column_stack([radius * np.sin(th[::-1]), length / 2 + radius * np.cos(th[::-1])])
+    prof = np.concatenate([south, north])
+    t = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
+    inner = prof[1:-1]  # rings with a non-zero radius
+    ring_v = [np.column_stack([r * np.cos(t), r * np.sin(t), np.full(segments, z)]) for r, z in inner]
+    v = np.vstack([[[0.0, 0.0, prof[0, 1]]], *ring_v, [[0.0, 0.0, prof[-1, 1]]]])
+    top = len(v) - 1
+    f = []
+    for s in range(segments):
+        f.append((0, 1 + (s + 1) % segments, 1 + s))
+    for k in range(len(inner) - 1):
+        a0, b0 = 1 + k * segments, 1 + (k + 1) * segments
+        for s in range(segments):
+            s2 = (s + 1) % segments
+            f += [(a0 + s, a0 + s2, b0 + s2), (a0 + s, b0 + s2, b0 + s)]
+    last = 1 + (len(inner) - 1) * segments
+    for s in range(segments):
+        f.append((last + s, last + (s + 1) % segments, top))
+    return Mesh(v, np.array(f, dtype=np.int64))
 
 
 def limb(p0: tuple[float, float, float], p1: tuple[float, float, float], radius: float) -> Mesh:
@@ -177,7 +181,7 @@ _HIP_Z, _SHOULDER_Z, _NECK_Z = 0.92, 1.42, 1.52
 
 
 def _torso_head(lean: float = 0.0, base_z: float = _HIP_Z) -> list[Mesh]:
-    rot = rot_rpy(0.0, lean, 0.0)
+    rot = rotation_rpy(0.0, lean, 0.0)
     h = _SHOULDER_Z - _HIP_Z + 0.06
     torso = box((0.24, 0.38, h), (0, 0, h / 2)).transformed(rot, (0, 0, base_z))
     head_c = rot @ np.array([0, 0, _NECK_Z - _HIP_Z + 0.13]) + np.array([0, 0, base_z])

@@ -9,8 +9,8 @@ Embree scene only when a pose, or the set of bodies, changed (BVH construction f
 triangles costs well under a millisecond per geometry, cheaper than any incremental scheme Open3D
 offers, since ``RaycastingScene`` has no way to move a geometry in place).
 
-Shapes: boxes, spheres, cylinders and capsules are tessellated here; meshes are loaded from the
-visual shape's OBJ file (a small OBJ reader, faces fan-triangulated); planes become a 200 m x 200 m
+Shapes: boxes, spheres, cylinders and capsules are tessellated by :mod:`sim.meshgen`; meshes are
+loaded from the visual shape's OBJ file (:func:`sim.meshgen.read_obj`); planes become a 200 m x 200 m
 quad. A link whose visual mesh has no file (created from vertex arrays) falls back to the convex hull
 of PyBullet's collision mesh vertices; a link that cannot be mirrored at all is counted in
 :attr:`MeshMirror.skipped` and logged, never silently dropped.
@@ -30,7 +30,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from robchair import frames
+from sim import meshgen
 from sim.errors import SimError
+from sim.meshgen import Mesh
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +46,8 @@ PLANE_HALF_SIZE_M = 100.0
 NO_HIT = -1
 
 _GEOM_SPHERE, _GEOM_BOX, _GEOM_CYLINDER, _GEOM_MESH, _GEOM_PLANE, _GEOM_CAPSULE = 2, 3, 4, 5, 6, 7
+# Tessellation of round shapes: 48 segments keep a chord within 0.22 % of the radius of the true surface.
+_SEGMENTS, _SPHERE_RINGS, _CAPSULE_RINGS = 48, 24, 12
 
 
 class MeshMirrorError(SimError, ValueError):
@@ -54,54 +59,25 @@ class MeshMirrorError(SimError, ValueError):
 # --------------------------------------------------------------------------------------------
 
 
-def quat_to_matrix(q: Any) -> FloatArray:
-    """Rotation matrix of a quaternion in PyBullet order (x, y, z, w)."""
-    x, y, z, w = (float(v) for v in q)
-    n = x * x + y * y + z * z + w * w
-    if n < 1e-12:
-        raise MeshMirrorError(f"quaternion {tuple(q)} has zero length")
-    s = 2.0 / n
-    return np.array(
-        [
-            [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-            [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-            [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
-        ]
-    )
-
-
-def matrix_to_quat(r: Any) -> tuple[float, float, float, float]:
-    """Quaternion (x, y, z, w) of a rotation matrix (Shepperd's method, numerically safe)."""
-    m = np.asarray(r, dtype=float)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
-    elif m[1, 1] > m[2, 2]:
-        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
-    else:
-        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    return (x, y, z, w)
+#: Quaternion (x, y, z, w) of a rotation matrix: :func:`robchair.frames.quat_from_matrix`, under the
+#: name this module has always exported.
+matrix_to_quat = frames.quat_from_matrix
 
 
 def pose_matrix(pose: Any) -> FloatArray:
     """A 4x4 homogeneous transform from a 4x4 array or a ``(position, quaternion_xyzw)`` pair.
 
     Raises:
-        MeshMirrorError: the pose has another shape or is not finite.
+        MeshMirrorError: the pose has another shape, a zero quaternion or is not finite.
     """
     if isinstance(pose, tuple | list) and len(pose) == 2:
         pos = np.asarray(pose[0], dtype=float).reshape(-1)
         if pos.shape != (3,) or len(pose[1]) != 4:
             raise MeshMirrorError(f"pose {pose!r}: expected (position[3], quaternion_xyzw[4])")
-        t = np.eye(4)
-        t[:3, :3] = quat_to_matrix(pose[1])
-        t[:3, 3] = pos
+        try:
+            t = frames.se3_from_quat(pos, pose[1])
+        except ValueError as exc:
+            raise MeshMirrorError(f"pose {pose!r}: {exc}") from exc
     else:
         t = np.asarray(pose, dtype=float)
         if t.shape != (4, 4):
@@ -111,105 +87,9 @@ def pose_matrix(pose: Any) -> FloatArray:
     return t
 
 
-def _compose(pa: Any, qa: Any, pb: Any, qb: Any) -> FloatArray:
-    ta = np.eye(4)
-    ta[:3, :3], ta[:3, 3] = quat_to_matrix(qa), pa
-    tb = np.eye(4)
-    tb[:3, :3], tb[:3, 3] = quat_to_matrix(qb), pb
-    return ta @ tb
-
-
 # --------------------------------------------------------------------------------------------
 # tessellation (local frames: centred at the origin, long axis along z, as PyBullet's shapes)
 # --------------------------------------------------------------------------------------------
-
-
-def box_mesh(extents: Any) -> tuple[FloatArray, IntArray]:
-    """Box of full ``extents`` (x, y, z) centred at the origin, outward-facing CCW triangles."""
-    hx, hy, hz = (0.5 * float(e) for e in extents)
-    v = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    f = np.array(
-        [
-            [0, 1, 3],
-            [0, 3, 2],
-            [4, 6, 7],
-            [4, 7, 5],
-            [0, 4, 5],
-            [0, 5, 1],
-            [2, 3, 7],
-            [2, 7, 6],
-            [0, 2, 6],
-            [0, 6, 4],
-            [1, 5, 7],
-            [1, 7, 3],
-        ],
-        dtype=np.int64,
-    )
-    return v, f
-
-
-def _revolve(profile_rz: FloatArray, segments: int) -> tuple[FloatArray, IntArray]:
-    """Surface of revolution about z from a (K, 2) profile of (radius, z), poles where radius == 0."""
-    ang = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
-    ring = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    verts = []
-    for r, z in profile_rz:
-        verts.append(np.column_stack([r * ring, np.full(segments, z)]))
-    v = np.concatenate(verts)
-    faces = []
-    k = len(profile_rz)
-    for i in range(k - 1):
-        a = i * segments + np.arange(segments)
-        b = i * segments + (np.arange(segments) + 1) % segments
-        c, d = a + segments, b + segments
-        faces.append(np.column_stack([a, b, d]))
-        faces.append(np.column_stack([a, d, c]))
-    f = np.concatenate(faces).astype(np.int64)
-    # caps: fan from the first/last ring centre when its radius is not zero
-    extra_v: list[list[float]] = []
-    extra_f: list[IntArray] = []
-    n = len(v)
-    for idx, sign in ((0, -1), (k - 1, 1)):
-        r, z = profile_rz[idx]
-        if r > 0:
-            centre = n + len(extra_v)
-            extra_v.append([0.0, 0.0, z])
-            a = idx * segments + np.arange(segments)
-            b = idx * segments + (np.arange(segments) + 1) % segments
-            tri = np.column_stack(
-                [np.full(segments, centre), b, a] if sign < 0 else [np.full(segments, centre), a, b]
-            )
-            extra_f.append(tri)
-    if extra_v:
-        v = np.concatenate([v, np.array(extra_v)])
-        f = np.concatenate([f, *extra_f]).astype(np.int64)
-    return v, f
-
-
-def cylinder_mesh(radius: float, length: float, segments: int = 48) -> tuple[FloatArray, IntArray]:
-    """Closed cylinder along z, centred at the origin."""
-    prof = np.array([[radius, -0.5 * length], [radius, 0.5 * length]])
-    return _revolve(prof, segments)
-
-
-def sphere_mesh(radius: float, rings: int = 24, segments: int = 48) -> tuple[FloatArray, IntArray]:
-    """UV sphere; vertices on the true sphere (chords lie slightly inside it)."""
-    th = np.linspace(math.pi, 0.0, rings + 1)
-    prof = np.column_stack([radius * np.sin(th), radius * np.cos(th)])
-    prof[0, 0] = prof[-1, 0] = 0.0
-    return _revolve(prof, segments)
-
-
-def capsule_mesh(
-    radius: float, length: float, rings: int = 12, segments: int = 48
-) -> tuple[FloatArray, IntArray]:
-    """Capsule along z: a cylinder of ``length`` plus two hemispherical caps."""
-    th = np.linspace(math.pi, math.pi / 2, rings + 1)
-    lower = np.column_stack([radius * np.sin(th), -0.5 * length + radius * np.cos(th)])
-    upper = np.column_stack([radius * np.sin(th[::-1]), 0.5 * length - radius * np.cos(th[::-1])])
-    prof = np.concatenate([lower, upper])
-    prof[0, 0] = prof[-1, 0] = 0.0
-    return _revolve(prof, segments)
 
 
 def plane_mesh(
@@ -225,44 +105,6 @@ def plane_mesh(
     b = np.cross(n, a)
     v = half_size * np.array([-a - b, a - b, a + b, -a + b])
     return v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
-
-
-def read_obj_triangles(path: Path | str) -> tuple[FloatArray, IntArray]:
-    """Vertices and triangles of a Wavefront OBJ (``v`` and ``f`` records; polygons fan-split).
-
-    Raises:
-        MeshMirrorError: the file cannot be read or holds no triangle.
-    """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise MeshMirrorError(f"mesh file {p}: cannot read ({exc})") from exc
-    verts: list[list[float]] = []
-    faces: list[list[int]] = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "v":
-            try:
-                verts.append([float(parts[1]), float(parts[2]), float(parts[3])])
-            except (IndexError, ValueError) as exc:
-                raise MeshMirrorError(f"mesh file {p}:{lineno}: bad vertex record {line!r}") from exc
-        elif parts[0] == "f":
-            try:
-                idx = [int(tok.split("/")[0]) for tok in parts[1:]]
-            except ValueError as exc:
-                raise MeshMirrorError(f"mesh file {p}:{lineno}: bad face record {line!r}") from exc
-            idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-            faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
-    if not faces:
-        raise MeshMirrorError(f"mesh file {p}: no faces")
-    v = np.asarray(verts, dtype=float)
-    f = np.asarray(faces, dtype=np.int64)
-    if f.min() < 0 or f.max() >= len(v):
-        raise MeshMirrorError(f"mesh file {p}: a face refers to a vertex that does not exist")
-    return v, f
 
 
 # --------------------------------------------------------------------------------------------
@@ -377,22 +219,27 @@ class MeshMirror:
         body, link, gtype, dims, fname, lpos, lorn = rec[:7]
         if isinstance(fname, bytes):
             fname = fname.decode("utf-8", errors="replace")
+        mesh: Mesh | None = None
         if gtype == _GEOM_BOX:
-            v, f = box_mesh(dims)
+            mesh = meshgen.box((float(dims[0]), float(dims[1]), float(dims[2])))
         elif gtype == _GEOM_SPHERE:
-            v, f = sphere_mesh(float(dims[0]))
+            mesh = meshgen.sphere(float(dims[0]), _SPHERE_RINGS, _SEGMENTS)
         elif gtype == _GEOM_CYLINDER:
-            v, f = cylinder_mesh(float(dims[1]), float(dims[0]))
+            mesh = meshgen.cylinder(float(dims[1]), float(dims[0]), _SEGMENTS)
         elif gtype == _GEOM_CAPSULE:
-            v, f = capsule_mesh(float(dims[1]), float(dims[0]))
+            mesh = meshgen.capsule(float(dims[1]), float(dims[0]), _CAPSULE_RINGS, _SEGMENTS)
+        if mesh is not None:
+            v, f = mesh.vertices, mesh.faces
         elif gtype == _GEOM_PLANE:
             normal = self._plane_normal(body, link)
             v, f = plane_mesh(normal)
         elif gtype == _GEOM_MESH:
             if fname and Path(fname).is_file():
-                v, f = (
-                    read_obj_triangles(fname) if fname.lower().endswith(".obj") else self._read_other(fname)
-                )
+                if fname.lower().endswith(".obj"):
+                    obj = meshgen.read_obj(fname)
+                    v, f = obj.vertices, obj.faces
+                else:
+                    v, f = self._read_other(fname)
                 v = v * np.asarray(dims, dtype=float)
             else:
                 hull = self._collision_hull(body, link)
@@ -405,7 +252,7 @@ class MeshMirror:
             self.skipped.append((body, link, f"unsupported geometry type {gtype}"))
             log.warning("mirror: body %d link %d: unsupported geometry type %d", body, link, gtype)
             return None
-        local = _compose(lpos, lorn, (0, 0, 0), (0, 0, 0, 1))
+        local = frames.se3_from_quat(lpos, lorn)
         v = v @ local[:3, :3].T + local[:3, 3]
         return _Part(v, f)
 
@@ -442,7 +289,7 @@ class MeshMirror:
         # link frame so they are treated like every visual part
         if link == -1:
             info = p.getDynamicsInfo(body, -1, physicsClientId=self.client)
-            t = _compose(info[3], info[4], (0, 0, 0), (0, 0, 0, 1))
+            t = frames.se3_from_quat(info[3], info[4])
             pts = pts @ t[:3, :3].T + t[:3, 3]
         return pts, hull.simplices.astype(np.int64)
 
@@ -463,15 +310,15 @@ class MeshMirror:
                 out[l] = self._pose_from_raw(
                     (body, l),
                     (pos, orn),
-                    lambda pos=pos, orn=orn: _compose(pos, orn, (0, 0, 0), (0, 0, 0, 1)),
+                    lambda pos=pos, orn=orn: frames.se3_from_quat(pos, orn),
                 )
         return out
 
     def _base_pose(self, body: int, pos: Any, orn: Any) -> FloatArray:
         p = self._pb()
         info = p.getDynamicsInfo(body, -1, physicsClientId=self.client)
-        inv_p, inv_q = p.invertTransform(info[3], info[4])
-        return _compose(pos, orn, inv_p, inv_q)
+        # PyBullet's base pose is the centre-of-mass frame; the link (URDF) frame is offset from it
+        return frames.se3_from_quat(pos, orn) @ frames.invert(frames.se3_from_quat(info[3], info[4]))
 
     def _pose_from_raw(self, key: tuple[int, int], raw: Any, compute: Any) -> FloatArray:
         cached = self._raw_poses.get(key)

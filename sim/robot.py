@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from robchair import frames
 from robchair.kinematics import DiffDrive, Pose2D, wrap_int32
 from robchair.spec import RobChairSpec
 from sim.errors import SimError, SimulationDivergedError
@@ -120,7 +121,7 @@ class SimRobot:
             raise SimError(f"motor_rate_hz={rate} must divide the physics rate {world.physics_hz}")
         self.motor_dt = 1.0 / rate
         self._steps_per_motor = world.physics_hz // rate
-        q = p.getQuaternionFromEuler((0.0, 0.0, start[2]))
+        q = frames.quat_from_yaw(start[2])
         self.wheel_radius_scale = wheel_radius_scale
         self.body = p.loadURDF(
             str(write_urdf(spec, wheel_radius_scale=wheel_radius_scale)),
@@ -220,11 +221,8 @@ class SimRobot:
 
     def pose2d(self) -> Pose2D:
         """Ground-truth planar pose (x, y, yaw) of ``base_link``."""
-        import pybullet as p
-
         pos, orn = self.base_pose()
-        yaw = p.getEulerFromQuaternion(orn)[2]
-        return Pose2D(pos[0], pos[1], yaw)
+        return Pose2D(pos[0], pos[1], frames.yaw_from_quat(orn))
 
     def link_pose(self, name: str) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """World pose of a URDF link frame (``kinect_link``, ``sonar_array_left``, ...)."""
@@ -241,13 +239,8 @@ class SimRobot:
 
     def link_transform(self, name: str) -> np.ndarray:
         """4x4 world <- link transform."""
-        import pybullet as p
-
         pos, orn = self.link_pose(name)
-        t = np.eye(4)
-        t[:3, :3] = np.asarray(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
-        t[:3, 3] = pos
-        return t
+        return frames.se3_from_quat(pos, orn)
 
     # -- servos --------------------------------------------------------------------------------------
     def set_servo_deg(self, mount: str, angle_deg: float) -> None:

@@ -43,15 +43,15 @@ A **scenario** file has a ``[scenario]`` table (scene, duration, sensor, seed, s
     speed = 0.5
     lookahead = 0.6
 
-Every key is checked: an unknown key, a wrong type, a missing mesh or an impossible pose (non-finite,
-under the floor, overlapping the chair at its start) raises :class:`sim.errors.ScenarioError` naming the
-file, the line of the key (found in the raw text, since ``tomllib`` keeps no positions) and the reason.
+Every key is checked (:mod:`robchair.config`): an unknown key, a wrong type, a missing mesh or an
+impossible pose (non-finite, under the floor, overlapping the chair at its start) raises
+:class:`sim.errors.ScenarioError` naming the file, the line of the key, the field, the value and what
+was expected.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,9 +60,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from robchair.config import ConfigTable, load_toml
+from robchair.frames import quat_from_rpy, rotation_rpy
 from robchair.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
-from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, rot_rpy, sphere
+from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, sphere
 
 MESHES_DIR = ASSETS / "meshes"
 SHAPES = ("box", "cylinder", "sphere", "capsule", "mesh")
@@ -160,7 +162,7 @@ class SceneObject:
     def world_mesh(self, xyz: tuple[float, float, float] | None = None, yaw: float | None = None) -> Mesh:
         """The mesh placed at its pose (or at ``xyz``/``yaw`` for a moving object)."""
         rpy = self.rpy if yaw is None else (self.rpy[0], self.rpy[1], yaw)
-        return self.local_mesh().transformed(rot_rpy(*rpy), self.xyz if xyz is None else xyz)
+        return self.local_mesh().transformed(rotation_rpy(*rpy), self.xyz if xyz is None else xyz)
 
 
 @dataclass(frozen=True)
@@ -222,89 +224,6 @@ def _read_mesh_cached(path: Path) -> Mesh:
     return _mesh_cache[path]
 
 
-class _Ctx:
-    """Builds error messages with file, key path and the key's line in the raw text.
-
-    ``tomllib`` keeps no positions, so the line is found by searching the raw text for ``key =`` (or a
-    ``[table]`` header) inside the block of the current ``[[object]]`` (``block`` = its index).
-    """
-
-    def __init__(self, path: Path, text: str) -> None:
-        self.path = path
-        self.lines = text.splitlines()
-        self.block: int | None = None
-        heads = [n for n, line in enumerate(self.lines) if re.match(r"^\s*\[\[\s*object\s*\]\]", line)]
-        self._blocks = [(a, b) for a, b in zip(heads, [*heads[1:], len(self.lines)])]
-
-    def line_of(self, key: str) -> int | None:
-        pat = re.compile(rf"^\s*(\[+\s*)?([\w.\"-]*\.)?{re.escape(key)}\s*(=|\]|\.)")
-        lo, hi = 0, len(self.lines)
-        if self.block is not None and self.block < len(self._blocks):
-            lo, hi = self._blocks[self.block]
-        for n in range(lo, hi):
-            if pat.search(self.lines[n]):
-                return n + 1
-        return None
-
-    def error(self, where: str, key: str, reason: str, occurrence: int = 0) -> ScenarioError:
-        del occurrence
-        line = self.line_of(key.split(".")[-1])
-        loc = f"{self.path}:{line}" if line is not None else str(self.path)
-        return ScenarioError(f"{loc}: {where}{key}: {reason}")
-
-
-def _check_keys(ctx: _Ctx, table: dict[str, Any], allowed: set[str], where: str, occ: int = 0) -> None:
-    for key in table:
-        if key not in allowed:
-            raise ctx.error(where, key, f"unknown key (allowed: {', '.join(sorted(allowed))})", occ)
-
-
-def _number(ctx: _Ctx, value: Any, where: str, key: str, occ: int = 0, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ctx.error(where, key, f"expected a number, got {value!r}", occ)
-    v = float(value)
-    if not math.isfinite(v):
-        raise ctx.error(where, key, f"must be finite, got {value!r}", occ)
-    if positive and v <= 0:
-        raise ctx.error(where, key, f"must be > 0, got {value!r}", occ)
-    return v
-
-
-def _vector(
-    ctx: _Ctx,
-    value: Any,
-    n: int | tuple[int, ...],
-    where: str,
-    key: str,
-    occ: int = 0,
-    positive: bool = False,
-) -> tuple[float, ...]:
-    ns = (n,) if isinstance(n, int) else n
-    if not isinstance(value, list) or len(value) not in ns:
-        raise ctx.error(
-            where, key, f"expected a list of {' or '.join(map(str, ns))} numbers, got {value!r}", occ
-        )
-    return tuple(_number(ctx, v, where, key, occ, positive) for v in value)
-
-
-def _points(ctx: _Ctx, value: Any, where: str, key: str, occ: int = 0) -> tuple[tuple[float, float], ...]:
-    if not isinstance(value, list) or len(value) < 1:
-        raise ctx.error(where, key, f"expected a list of [x, y] points, got {value!r}", occ)
-    return tuple(tuple(_vector(ctx, p, 2, where, key, occ)) for p in value)  # type: ignore[misc]
-
-
-def _load_toml(path: Path) -> tuple[dict[str, Any], _Ctx]:
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML ({exc})") from exc
-    return data, _Ctx(path, text)
-
-
 def _resolve(name: str, base: Path) -> Path:
     """A scene/scenario reference: an existing path, or a name in ``base`` or :data:`SCENES`."""
     p = Path(name)
@@ -317,19 +236,10 @@ def _resolve(name: str, base: Path) -> Path:
 # --- loading --------------------------------------------------------------------------------------
 
 
-def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
-    ctx.block = i
-    if not isinstance(raw, dict):
-        raise ctx.error("", "object", f"entry {i} must be a table")
-    name = raw.get("name", f"object{i}")
-    if not isinstance(name, str) or not name:
-        raise ctx.error(f"object[{i}].", "name", f"expected a non-empty string, got {name!r}")
-    where = f"object {name!r}: "
-    occ = 0
-    _check_keys(ctx, raw, _OBJECT_KEYS, where)
-    shape = raw.get("shape")
-    if shape not in SHAPES:
-        raise ctx.error(where, "shape", f"expected one of {', '.join(SHAPES)}, got {shape!r}")
+def _parse_object(t: ConfigTable) -> SceneObject:
+    t.keys(_OBJECT_KEYS)
+    name = t.string("name", t.where.replace("[", "").replace("]", ""))
+    shape = t.string("shape", choices=SHAPES)
     need = {
         "box": {"size"},
         "cylinder": {"radius", "length"},
@@ -338,92 +248,78 @@ def _parse_object(ctx: _Ctx, i: int, raw: Any) -> SceneObject:
         "mesh": {"mesh"},
     }[shape]
     extra = {"size", "radius", "length", "mesh", "scale"} - need - ({"scale"} if shape == "mesh" else set())
-    for k in need:
-        if k not in raw:
-            raise ctx.error(where, k, f"missing (a {shape} needs {', '.join(sorted(need))})", 0)
-    for k in extra:
-        if k in raw:
-            raise ctx.error(where, k, f"not a parameter of a {shape}", 0)
-    if "xyz" not in raw:
-        raise ctx.error(where, "xyz", "missing (position of the object)")
-    xyz = _vector(ctx, raw["xyz"], 3, where, "xyz", occ)
-    if "yaw" in raw and "rpy" in raw:
-        raise ctx.error(where, "rpy", "give either yaw or rpy, not both")
-    rpy = (
-        (0.0, 0.0, _number(ctx, raw["yaw"], where, "yaw"))
-        if "yaw" in raw
-        else (_vector(ctx, raw["rpy"], 3, where, "rpy") if "rpy" in raw else (0.0, 0.0, 0.0))
-    )
-    color = (0.7, 0.7, 0.7, 1.0)
-    if "color" in raw:
-        c = _vector(ctx, raw["color"], (3, 4), where, "color")
-        if any(v < 0 or v > 1 for v in c):
-            raise ctx.error(where, "color", f"components must be in [0, 1], got {raw['color']!r}")
-        color = (*c, 1.0) if len(c) == 3 else c  # type: ignore[assignment]
+    for k in sorted(extra):
+        if k in t:
+            raise t.problem(k, f"not a parameter of a {shape} (a {shape} takes {', '.join(sorted(need))})")
+    xyz = t.vector("xyz", 3)
+    if "yaw" in t and "rpy" in t:
+        raise t.problem("rpy", "give either yaw or rpy, not both")
+    rpy = (0.0, 0.0, t.number("yaw")) if "yaw" in t else t.vector("rpy", 3, (0.0, 0.0, 0.0))
+    c = t.vector("color", (3, 4), (0.7, 0.7, 0.7, 1.0), ge=0, le=1)
+    color = (c[0], c[1], c[2], c[3] if len(c) == 4 else 1.0)
     kw: dict[str, Any] = {}
     if shape == "box":
-        kw["size"] = _vector(ctx, raw["size"], 3, where, "size", positive=True)
+        kw["size"] = t.vector("size", 3, gt=0)
     if shape in ("cylinder", "capsule", "sphere"):
-        kw["radius"] = _number(ctx, raw["radius"], where, "radius", positive=True)
+        kw["radius"] = t.number("radius", gt=0)
     if shape in ("cylinder", "capsule"):
-        kw["length"] = _number(ctx, raw["length"], where, "length", positive=True)
+        kw["length"] = t.number("length", gt=0)
     if shape == "mesh":
-        m = raw["mesh"]
-        if not isinstance(m, str):
-            raise ctx.error(where, "mesh", f"expected a file name, got {m!r}")
-        cands = [ctx.path.parent / m, MESHES_DIR / m]
+        m = t.string("mesh")
+        cands = [Path(t.source.name).parent / m, MESHES_DIR / m]
         found = next((c for c in cands if c.is_file()), None)
         if found is None:
-            raise ctx.error(
-                where, "mesh", f"mesh file {m!r} not found (looked in {ctx.path.parent} and {MESHES_DIR})"
+            raise t.invalid(
+                "mesh", f"a mesh file in {Path(t.source.name).parent} or {MESHES_DIR} (not found)"
             )
         kw["mesh_path"] = found.resolve()
-        if "scale" in raw:
-            kw["scale"] = _number(ctx, raw["scale"], where, "scale", positive=True)
+        kw["scale"] = t.number("scale", 1.0, gt=0)
     motion = None
-    if "motion" in raw:
-        mraw = raw["motion"]
-        if not isinstance(mraw, dict):
-            raise ctx.error(where, "motion", "must be a table")
-        _check_keys(ctx, mraw, _MOTION_KEYS, where + "motion.")
-        if "waypoints" not in mraw or "speed" not in mraw:
-            raise ctx.error(where, "motion", "needs waypoints and speed")
-        wps = _points(ctx, mraw["waypoints"], where + "motion.", "waypoints")
-        loop = mraw.get("loop", True)
-        if not isinstance(loop, bool):
-            raise ctx.error(where + "motion.", "loop", f"expected true or false, got {loop!r}")
-        motion = Motion(wps, _number(ctx, mraw["speed"], where + "motion.", "speed", positive=True), loop)
-    obj = SceneObject(name=name, shape=shape, xyz=xyz, rpy=rpy, color=color, motion=motion, **kw)  # type: ignore[arg-type]
+    if "motion" in t:
+        mt = t.table("motion")
+        mt.keys(_MOTION_KEYS)
+        motion = Motion(mt.points("waypoints"), mt.number("speed", gt=0), mt.boolean("loop", True))
+    obj = SceneObject(
+        name=name,
+        shape=shape,
+        xyz=(xyz[0], xyz[1], xyz[2]),
+        rpy=(rpy[0], rpy[1], rpy[2]),
+        color=color,
+        motion=motion,
+        **kw,
+    )
     zmin = float(obj.world_mesh().vertices[:, 2].min())
     if zmin < -_FLOOR_TOLERANCE:
-        raise ctx.error(
-            where, "xyz", f"impossible pose: the object reaches {zmin:.3f} m, below the floor (z = 0)", occ
-        )
+        raise t.problem("xyz", f"impossible pose: the object reaches {zmin:.3f} m, below the floor (z = 0)")
     return obj
 
 
 def load_scene(path: Path | str) -> Scene:
-    """Load and validate a scene file (see the module docstring); raise ScenarioError if invalid."""
+    """Load and validate a scene file (see the module docstring).
+
+    Raises:
+        ScenarioError: The file is missing or not TOML, or a key is unknown, missing or invalid (the
+            message names the file, the line, the field, the value and what was expected).
+    """
     path = Path(path)
-    data, ctx = _load_toml(path)
-    _check_keys(ctx, data, {"scene", "object"}, "")
-    head = data.get("scene", {})
-    if not isinstance(head, dict):
-        raise ctx.error("", "scene", "must be a table")
-    _check_keys(ctx, head, _SCENE_KEYS, "scene.")
-    raw_objects = data.get("object", [])
-    if not isinstance(raw_objects, list):
-        raise ctx.error("", "object", "must be an array of tables ([[object]])")
-    objects = tuple(_parse_object(ctx, i, o) for i, o in enumerate(raw_objects))
-    ctx.block = None
+    data, source = load_toml(path, ScenarioError, "scene file")
+    top = ConfigTable(data, source)
+    top.keys({"scene", "object"})
+    head = top.table("scene", {})
+    head.keys(_SCENE_KEYS)
+    objects = tuple(_parse_object(t) for t in top.tables("object", []))
     names = [o.name for o in objects]
-    dup = {n for n in names if names.count(n) > 1}
+    dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise ctx.error("", "name", f"duplicate object names {sorted(dup)}")
-    name = head.get("name", path.stem)
-    if not isinstance(name, str):
-        raise ctx.error("scene.", "name", f"expected a string, got {name!r}")
-    return Scene(name=name, path=path, objects=objects, description=str(head.get("description", "")))
+        raise top.tables("object")[names.index(dup[0], names.index(dup[0]) + 1)].problem(
+            "name", f"duplicate object name {dup[0]!r}"
+        )
+    return Scene(
+        name=head.string("name", path.stem),
+        path=path,
+        objects=objects,
+        description=str(head.raw("description", "")),
+    )
 
 
 def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
@@ -433,66 +329,52 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
         path: the scenario TOML, or a scenario name in :data:`robchair.paths.SCENES`.
         robot_radius: radius (m) of the circle around the start pose the chair occupies; a static
             object lower than the chair whose footprint enters it is an impossible start.
+
+    Raises:
+        ScenarioError: The scenario or its scene is invalid (see :func:`load_scene`).
     """
     path = Path(path)
     if not path.is_file():
         path = _resolve(str(path), SCENES)
-    data, ctx = _load_toml(path)
-    _check_keys(ctx, data, {"scenario", "route"}, "")
-    head = data.get("scenario")
-    if not isinstance(head, dict):
-        raise ctx.error("", "scenario", "missing [scenario] table (is this a scene file?)")
-    _check_keys(ctx, head, _SCENARIO_KEYS, "scenario.")
-    route_raw = data.get("route")
-    if not isinstance(route_raw, dict):
-        raise ctx.error("", "route", "missing [route] table with waypoints")
-    _check_keys(ctx, route_raw, _ROUTE_KEYS, "route.")
-    if "scene" not in head or not isinstance(head["scene"], str):
-        raise ctx.error("scenario.", "scene", "missing or not a string (name of a scene file)")
-    scene_path = _resolve(head["scene"], path.parent)
+    data, source = load_toml(path, ScenarioError, "scenario file")
+    top = ConfigTable(data, source)
+    top.keys({"scenario", "route"})
+    if "scenario" not in top:
+        raise source.missing("scenario", "a [scenario] table (is this a scene file?)")
+    head = top.table("scenario")
+    head.keys(_SCENARIO_KEYS)
+    route_t = top.table("route")
+    route_t.keys(_ROUTE_KEYS)
+    scene_name = head.string("scene")
+    scene_path = _resolve(scene_name, path.parent)
     if not scene_path.is_file():
-        raise ctx.error("scenario.", "scene", f"scene {head['scene']!r} not found ({scene_path})")
+        raise head.invalid("scene", f"the name of a scene file (not found: {scene_path})")
     scene = load_scene(scene_path)
-    kw: dict[str, Any] = {}
-    if "duration" in head:
-        kw["duration"] = _number(ctx, head["duration"], "scenario.", "duration", positive=True)
-    if "sensor" in head:
-        if head["sensor"] not in SENSORS:
-            raise ctx.error(
-                "scenario.", "sensor", f"expected one of {', '.join(SENSORS)}, got {head['sensor']!r}"
-            )
-        kw["sensor"] = head["sensor"]
-    if "sonars" in head:
-        if not isinstance(head["sonars"], bool):
-            raise ctx.error("scenario.", "sonars", f"expected true or false, got {head['sonars']!r}")
-        kw["sonars"] = head["sonars"]
-    if "seed" in head:
-        if isinstance(head["seed"], bool) or not isinstance(head["seed"], int) or head["seed"] < 0:
-            raise ctx.error("scenario.", "seed", f"expected a non-negative integer, got {head['seed']!r}")
-        kw["seed"] = head["seed"]
-    start = (0.0, 0.0, 0.0)
-    if "start" in head:
-        start = _vector(ctx, head["start"], 3, "scenario.", "start")  # type: ignore[assignment]
-    if "waypoints" not in route_raw:
-        raise ctx.error("route.", "waypoints", "missing")
-    route_kw: dict[str, Any] = {"waypoints": _points(ctx, route_raw["waypoints"], "route.", "waypoints")}
-    for k in ("speed", "lookahead"):
-        if k in route_raw:
-            route_kw[k] = _number(ctx, route_raw[k], "route.", k, positive=True)
-    _check_start_clear(ctx, scene, start, robot_radius)
-    name = head.get("name", path.stem)
-    return Scenario(
-        name=str(name),
+    start = head.vector("start", 3, (0.0, 0.0, 0.0))
+    route = Route(
+        waypoints=route_t.points("waypoints"),
+        speed=route_t.number("speed", Route.speed, gt=0),
+        lookahead=route_t.number("lookahead", Route.lookahead, gt=0),
+    )
+    scenario = Scenario(
+        name=str(head.raw("name", path.stem)),
         path=path,
         scene=scene,
-        route=Route(**route_kw),
-        start=start,
-        description=str(head.get("description", "")),
-        **kw,
+        route=route,
+        duration=head.number("duration", Scenario.duration, gt=0),
+        sensor=head.string("sensor", Scenario.sensor, choices=SENSORS),
+        sonars=head.boolean("sonars", Scenario.sonars),
+        seed=head.integer("seed", Scenario.seed, ge=0),
+        start=(start[0], start[1], start[2]),
+        description=str(head.raw("description", "")),
     )
+    _check_start_clear(head, scene, scenario.start, robot_radius)
+    return scenario
 
 
-def _check_start_clear(ctx: _Ctx, scene: Scene, start: tuple[float, float, float], radius: float) -> None:
+def _check_start_clear(
+    head: ConfigTable, scene: Scene, start: tuple[float, float, float], radius: float
+) -> None:
     """Refuse a start pose whose footprint circle overlaps a static object (or a person's start)."""
     c = np.array(start[:2])
     for obj in scene.objects:
@@ -504,8 +386,7 @@ def _check_start_clear(ctx: _Ctx, scene: Scene, start: tuple[float, float, float
         lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
         nearest = np.clip(c, lo, hi)
         if float(np.hypot(*(nearest - c))) < radius:
-            raise ctx.error(
-                "scenario.",
+            raise head.problem(
                 "start",
                 f"impossible pose: the chair at {tuple(start)} (radius {radius:.2f} m) overlaps "
                 f"object {obj.name!r} of scene {scene.path.name}",
@@ -561,7 +442,7 @@ class SceneBodies:
         for body, obj in self.moving:
             assert obj.motion is not None
             x, y, yaw = obj.motion.pose_at(t)
-            q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2]))
+            q = quat_from_rpy(obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2])
             p.resetBasePositionAndOrientation(body, (x, y, obj.xyz[2]), q, physicsClientId=client)
 
 
@@ -602,7 +483,7 @@ def build_scene(scene: Scene, client: int) -> SceneBodies:
         if obj.motion is not None:
             x, y, walk_yaw = obj.motion.pose_at(0.0)
             pos, yaw = (x, y, obj.xyz[2]), walk_yaw + obj.rpy[2]
-        q = p.getQuaternionFromEuler((obj.rpy[0], obj.rpy[1], yaw))
+        q = quat_from_rpy(obj.rpy[0], obj.rpy[1], yaw)
         body = p.createMultiBody(0.0, col, vis, basePosition=pos, baseOrientation=q, physicsClientId=client)
         out.ids[obj.name] = body
         if obj.motion is not None:

@@ -39,6 +39,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import RangeReading, SonarArrayReading
+from robchair import frames
+from robchair.spec import default_spec
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -126,13 +128,6 @@ def beam_rays(spacing_deg: float = 1.0) -> tuple[FloatArray, FloatArray, FloatAr
     br, er = np.radians(bb), np.radians(ee)
     d = np.column_stack([np.cos(er) * np.cos(br), np.cos(er) * np.sin(br), np.sin(er)])
     return d, bb, ee
-
-
-def _rot_z(deg: float) -> FloatArray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    t = np.eye(4)
-    t[:2, :2] = [[c, -s], [s, c]]
-    return t
 
 
 class _Beam:
@@ -268,7 +263,8 @@ class SonarArraySim:
     ``array_pose`` is the world pose of the servo's base frame (z = servo axis, x = straight ahead at
     servo angle 0); the servo turns the three sonars together by ``servo_angle_deg`` about z.
     ``sonar_offsets_m`` places each sonar in the turned frame (the thesis stacks them on top of each
-    other; the default puts sonar 1 on top, 2 cm apart).
+    other). ``outer_deg`` and ``sonar_offsets_m`` default to the platform's (``[sonar_arrays]`` of
+    ``assets/robchair.toml``, :class:`robchair.spec.SonarArrays`).
     """
 
     def __init__(
@@ -278,8 +274,8 @@ class SonarArraySim:
         *,
         mirror: MeshMirror | None = None,
         exclude_bodies: Any = (),
-        outer_deg: float = 30.0,
-        sonar_offsets_m: Any = ((0.0, 0.0, 0.02), (0.0, 0.0, 0.0), (0.0, 0.0, -0.02)),
+        outer_deg: float | None = None,
+        sonar_offsets_m: Any = None,
         noise_std_m: float = 0.0,
         rng: np.random.Generator | int | None = None,
         ray_spacing_deg: float = 1.0,
@@ -288,6 +284,10 @@ class SonarArraySim:
     ) -> None:
         self.model = get_sonar_model(model)
         self.mirror = mirror if mirror is not None else MeshMirror(client, exclude_bodies=exclude_bodies)
+        if outer_deg is None or sonar_offsets_m is None:
+            platform = default_spec().sonar_arrays
+            outer_deg = platform.outer_sonar_deg if outer_deg is None else outer_deg
+            sonar_offsets_m = platform.sonar_offsets_m if sonar_offsets_m is None else sonar_offsets_m
         offs = np.asarray(sonar_offsets_m, dtype=float)
         if offs.shape != (3, 3):
             raise SonarSimError(f"sonar_offsets_m of shape {offs.shape}: expected (3, 3)")
@@ -304,13 +304,11 @@ class SonarArraySim:
 
     def sonar_poses(self, array_pose: Any, servo_angle_deg: float) -> list[FloatArray]:
         """World poses of sonars 1, 2, 3."""
-        base = pose_matrix(array_pose) @ _rot_z(servo_angle_deg)
-        out = []
-        for off, yaw in zip(self.offsets, self.yaws_deg):
-            t = _rot_z(yaw)
-            t[:3, 3] = off
-            out.append(base @ t)
-        return out
+        base = pose_matrix(array_pose) @ frames.se3_planar(0.0, 0.0, math.radians(servo_angle_deg))
+        return [
+            base @ frames.se3_planar(off[0], off[1], math.radians(yaw), off[2])
+            for off, yaw in zip(self.offsets, self.yaws_deg)
+        ]
 
     def measure(
         self, array_pose: Any, servo_angle_deg: float = 0.0, *, rng: np.random.Generator | None = None

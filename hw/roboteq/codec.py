@@ -10,21 +10,33 @@ The controller speaks ASCII lines ended by a carriage return (CR, ``\\r``). Four
 
 With echo on (the factory default) the controller first sends the command text back, ending in CR.
 
-Flag words (bit ``fN`` is ``1 << (N-1)``), from the Roboteq controllers user manual:
+Flag words are unsigned 16-bit on firmware 2.x (8-bit on 1.x); bit ``fN`` is ``1 << (N-1)``. Names
+from the Roboteq Advanced Digital Motor Controller user manual (V1.8, 2017; V2.0, 2019):
 
 * ``?FF`` fault flags: f1 overheat, f2 overvoltage, f3 undervoltage, f4 short circuit,
-  f5 emergency stop, f6 sepex excitation fault, f7 MOSFET failure, f8 startup configuration fault.
+  f5 emergency stop, f6 sepex excitation / brushless sensor fault, f7 MOSFET failure,
+  f8 default configuration loaded at startup.
 * ``?FS`` status flags: f1 serial mode, f2 pulse mode, f3 analog mode, f4 power stage off,
   f5 stall detected, f6 at limit, f7 unused, f8 MicroBasic script running, f9 tuning mode.
-* ``?FM`` runtime status flags per motor: f1 amps limit active, f2 motor stall, f3 loop error
+* ``?FM`` runtime status flags per motor: f1 amps limit active, f2 motor stalled, f3 loop error
   detected, f4 safety stop active, f5 forward limit triggered, f6 reverse limit triggered,
   f7 amps trigger activated.
+
+A bit the manual does not name (``?FF=256``, ``?FM=128``) is kept in ``unknown_bits`` of the decoded
+flags; the driver treats it as a fault, because a newer firmware uses it for something it cannot
+judge. A word outside 0..65535 is a :class:`hw.errors.ProtocolError`.
+
+Other facts used here (same manuals): ``_`` is read by the controller as a carriage return;
+``# C`` stops the telemetry a ``# nn`` or ``/"..."`` request started (no reply); ``^ECHOF 1``
+turns the echo off; ``^MAC``/``^MDEC`` are in 0.1 RPM/s (0..500000), ``^ALIM`` in 0.1 A, ``^CLERD``
+0 (off), 1 (250 ms and error > 100), 2 (500 ms, > 250), 3 (1000 ms, > 500); gains ``^KP/^KI/^KD``
+are 0..255 (gain x10) on 1.x and 0..2,000,000,000 (gain x1,000,000) on 2.x.
 """
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 from hw.errors import ProtocolError
@@ -35,8 +47,28 @@ KINDS = ("!", "?", "^", "~")
 
 # Names the codec knows; the emulator answers exactly these (anything else is answered "-").
 RUNTIME_COMMANDS = ("G", "S", "EX", "MG")
-QUERIES = ("FID", "C", "S", "V", "A", "FF", "FS", "FM")
-CONFIG = ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "RWD", "ECHOF")
+QUERIES = ("FID", "C", "S", "V", "A", "T", "FF", "FS", "FM")
+CONFIG = ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "RWD", "ECHOF", "MAC", "MDEC", "ALIM", "CLERD")
+# Global (not per-channel) configuration items.
+GLOBAL_CONFIG = ("RWD", "ECHOF")
+
+# Ranges of the configuration items, from the manuals (V1.8/V2.0 command reference).
+CONFIG_RANGE: dict[str, tuple[int, int]] = {
+    "MMOD": (0, 5),
+    "EPPR": (1, 5000),
+    "MXRPM": (10, 65000),
+    "RWD": (0, 65000),
+    "ECHOF": (0, 1),
+    "MAC": (0, 500000),
+    "MDEC": (0, 500000),
+    "ALIM": (10, 3000),
+    "CLERD": (0, 3),
+}
+# ^KP/^KI/^KD register range per firmware major version: 0..255 on 1.x, 0..2,000,000,000 on 2.x
+# (not 2**31 - 1: the manual's maximum is 2,000,000,000).
+GAIN_RANGE: dict[int, tuple[int, int]] = {1: (0, 255), 2: (0, 2_000_000_000)}
+FLAG_WORD_MAX = 0xFFFF
+LINE_ENDS = (b"\r", b"_")
 
 _NAME_RE = re.compile(r"^[A-Z][A-Z0-9]*$")
 _VALUE_LINE_RE = re.compile(r"^([A-Z][A-Z0-9]*)=(.*)$")
@@ -206,6 +238,11 @@ def split_lines(buffer: bytes) -> tuple[list[str], bytes]:
     return [c.decode("ascii", errors="replace") for c in complete], rest
 
 
+def split_command_lines(buffer: bytes) -> tuple[list[str], bytes]:
+    """Split what a host sent into command lines as the controller does: CR or ``_`` ends a line."""
+    return split_lines(buffer.replace(b"_", CR))
+
+
 def is_echo(line: str, command: Command) -> bool:
     """True if ``line`` is the controller echoing ``command`` back (spacing and case ignored)."""
     return " ".join(line.split()).upper() == command.text.upper()
@@ -213,34 +250,70 @@ def is_echo(line: str, command: Command) -> bool:
 
 # --- flag words -------------------------------------------------------------------------------
 
+FAULT_BITS = (
+    "overheat",
+    "overvoltage",
+    "undervoltage",
+    "short_circuit",
+    "emergency_stop",
+    "sepex_excitation",
+    "mosfet_failure",
+    "startup_config",
+)
+STATUS_BITS = (
+    "serial_mode",
+    "pulse_mode",
+    "analog_mode",
+    "power_stage_off",
+    "stall_detected",
+    "at_limit",
+    "unused",
+    "script_running",
+    "tuning_mode",
+)
+MOTOR_BITS = (
+    "amps_limit",
+    "motor_stall",
+    "loop_error",
+    "safety_stop",
+    "forward_limit",
+    "reverse_limit",
+    "amps_trigger",
+)
 
-def _decode_bits(cls: type, word: int, what: str) -> object:
-    names = [f.name for f in fields(cls)]
-    if word < 0 or word >= 1 << len(names):
-        raise ProtocolError(f"{what} word {word} outside 0..{(1 << len(names)) - 1}")
-    return cls(**{n: bool(word >> i & 1) for i, n in enumerate(names)})
+
+def _decode_bits(cls: type, names: tuple[str, ...], word: int, what: str) -> Any:
+    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= FLAG_WORD_MAX:
+        raise ProtocolError(f"{what} word {word!r} outside 0..{FLAG_WORD_MAX}")
+    known = {n: bool(word >> i & 1) for i, n in enumerate(names)}
+    return cls(**known, unknown_bits=word & ~((1 << len(names)) - 1))
 
 
-def _encode_bits(flags: Any) -> int:
-    word = 0
-    for i, f in enumerate(fields(flags)):
-        if getattr(flags, f.name):
+def _encode_bits(flags: Any, names: tuple[str, ...]) -> int:
+    word = int(flags.unknown_bits)
+    for i, n in enumerate(names):
+        if getattr(flags, n):
             word |= 1 << i
     return word
 
 
+def unknown_bit_names(unknown_bits: int) -> list[str]:
+    """``['f9', 'f12']`` for the bits of ``unknown_bits`` (the manual's 1-based numbering)."""
+    return [f"f{i + 1}" for i in range(16) if unknown_bits >> i & 1]
+
+
 def decode_fault_flags(word: int) -> MotorFaults:
-    """``?FF`` word -> MotorFaults (field order in MotorFaults is the bit order f1..f8)."""
-    return _decode_bits(MotorFaults, word, "fault flag (?FF)")  # type: ignore[return-value]
+    """``?FF`` word -> MotorFaults (bit order f1..f8 as in :data:`FAULT_BITS`; higher bits unknown)."""
+    return _decode_bits(MotorFaults, FAULT_BITS, word, "fault flag (?FF)")  # type: ignore[no-any-return]
 
 
 def encode_fault_flags(faults: MotorFaults) -> int:
-    return _encode_bits(faults)
+    return _encode_bits(faults, FAULT_BITS)
 
 
 @dataclass(frozen=True)
 class StatusFlags:
-    """``?FS`` status flags, bit order f1..f9."""
+    """``?FS`` status flags, bit order f1..f9; ``unknown_bits`` holds set bits the manual does not name."""
 
     serial_mode: bool = False
     pulse_mode: bool = False
@@ -251,14 +324,15 @@ class StatusFlags:
     unused: bool = False
     script_running: bool = False
     tuning_mode: bool = False
+    unknown_bits: int = 0
 
     def names(self) -> list[str]:
-        return [f.name for f in fields(self) if getattr(self, f.name)]
+        return [n for n in STATUS_BITS if getattr(self, n)] + unknown_bit_names(self.unknown_bits)
 
 
 @dataclass(frozen=True)
 class MotorFlags:
-    """``?FM`` runtime status flags of one motor, bit order f1..f7."""
+    """``?FM`` runtime status flags of one motor, bit order f1..f7; ``unknown_bits`` as in StatusFlags."""
 
     amps_limit: bool = False
     motor_stall: bool = False
@@ -267,30 +341,32 @@ class MotorFlags:
     forward_limit: bool = False
     reverse_limit: bool = False
     amps_trigger: bool = False
+    unknown_bits: int = 0
 
     @property
     def any_fault(self) -> bool:
-        """Flags that mean the motor is not doing what it was told (limits are informational)."""
-        return self.motor_stall or self.loop_error or self.safety_stop
+        """Flags meaning the motor is not doing what it was told, or a bit the manual does not name
+        (limits and the amps limit are informational)."""
+        return self.motor_stall or self.loop_error or self.safety_stop or bool(self.unknown_bits)
 
     def names(self) -> list[str]:
-        return [f.name for f in fields(self) if getattr(self, f.name)]
+        return [n for n in MOTOR_BITS if getattr(self, n)] + unknown_bit_names(self.unknown_bits)
 
 
 def decode_status_flags(word: int) -> StatusFlags:
-    return _decode_bits(StatusFlags, word, "status flag (?FS)")  # type: ignore[return-value]
+    return _decode_bits(StatusFlags, STATUS_BITS, word, "status flag (?FS)")  # type: ignore[no-any-return]
 
 
 def encode_status_flags(flags: StatusFlags) -> int:
-    return _encode_bits(flags)
+    return _encode_bits(flags, STATUS_BITS)
 
 
 def decode_motor_flags(word: int) -> MotorFlags:
-    return _decode_bits(MotorFlags, word, "motor flag (?FM)")  # type: ignore[return-value]
+    return _decode_bits(MotorFlags, MOTOR_BITS, word, "motor flag (?FM)")  # type: ignore[no-any-return]
 
 
 def encode_motor_flags(flags: MotorFlags) -> int:
-    return _encode_bits(flags)
+    return _encode_bits(flags, MOTOR_BITS)
 
 
 # --- firmware id ------------------------------------------------------------------------------

@@ -1,15 +1,21 @@
 """A Roboteq MDC2230 on a pseudo-terminal: same command set, same framing, motors through the plant.
 
 The emulator opens a pty (``os.openpty``, raw mode), and a background thread answers what arrives on
-the master side exactly as the controller does on its serial port: optional echo of each command line,
-``+``/``-`` acknowledgements, ``NAME=v1:v2`` answers, CR line ends. The real driver
-(:class:`hw.roboteq.driver.RoboteqMDC2230`) is pointed at :attr:`RoboteqEmulator.device_path` unchanged.
+the master side as the controller does on its serial port (Roboteq user manual V1.8/V2.0): echo of
+each character as it arrives (when on; ``^ECHOF 1`` turns it off), CR or ``_`` ending a command,
+``+``/``-`` acknowledgements, ``NAME=v1:v2`` answers with CR line ends, ``# C`` stopping telemetry.
+The real driver (:class:`hw.roboteq.driver.RoboteqMDC2230`) is pointed at
+:attr:`RoboteqEmulator.device_path` unchanged.
 
 Each channel runs the identified second-order plant (:class:`robchair.control.DiscretePlant`, command
 RPM in, shaft RPM out) under the discrete PID (:class:`robchair.control.DiscretePID`) at the
 controller rate, with the gains the driver wrote (``^KP/^KI/^KD`` in firmware units). Encoder ticks are
-counted quadrature x4 into a signed 32-bit counter. The serial watchdog (``^RWD`` ms) sets both speed
-set points to zero when no ``!`` command arrived within the period, like the controller.
+counted quadrature x4 into a signed 32-bit counter. The serial watchdog (``^RWD`` ms) stops both
+motors when no ``!`` command arrived within the period; as the manual says, the motors resume their
+earlier set points on the next valid command (so a host must command zero after a stall).
+The set point reaches the PID through the ``^MAC``/``^MDEC`` ramps (0.1 RPM/s; power-on 1000 RPM/s);
+``^ALIM`` and ``^CLERD`` are stored and read back, not modelled. Gains are 0..255 on 1.x and
+0..2,000,000,000 on 2.x, as in the manual.
 
 Time: by default motor time follows ``time.monotonic_ns`` (the real elapsed time); pass any
 :class:`hw.interfaces.Clock` (e.g. :class:`hw.clock.ManualClock`) to step simulated time instead, so tests run
@@ -17,7 +23,17 @@ simulated seconds in milliseconds. Reply delays are always real time, because th
 
 Fault injection: :meth:`RoboteqEmulator.inject` drops, garbles or delays the next N replies;
 :meth:`raise_fault` sets ``?FF`` flags (which also stops the motors, as the controller does);
-:meth:`disconnect` closes the pty as an unplugged cable would.
+:meth:`disconnect` closes the pty as an unplugged cable would; :meth:`inject_kind` applies one of
+:data:`INJECT_KINDS` (what ``robchair hw emulate roboteq --inject`` rehearses):
+
+* ``late-ack``: the next reply comes 0.25 s late (after the driver's deadline);
+* ``rejected``: the next ``!``/``^`` command is answered ``-`` and not executed (corrupted in transit);
+* ``unsolicited``: telemetry ``C=123456:-99`` every 50 ms until ``# C``, as a ``TELS`` script would;
+* ``reboot``: the controller restarts: counters 0, echo on, configuration from power-on, ``?FF`` f8;
+* ``unknown-flag``: ``?FF`` bit f9, which the V1.8/V2.0 manuals do not name;
+* ``garble``: the next reply is line noise;
+* ``unplug``: the pty closes;
+* ``stall``: motor 1 stalls (``?FM`` f2, ``?FS`` f5) and stops until commanded to zero.
 """
 
 from __future__ import annotations
@@ -45,6 +61,11 @@ __all__ = ["DEFAULT_FIRMWARE", "ManualClock", "RoboteqEmulator", "StopEvent", "S
 
 IDLE_WAKE_S = 0.02
 DEFAULT_FIRMWARE = "Roboteq v1.3 MDC2230 07/24/2013"
+INJECT_KINDS = ("late-ack", "rejected", "unsolicited", "reboot", "unknown-flag", "garble", "unplug", "stall")
+LATE_ACK_S = 0.25
+TELEMETRY_PERIOD_S = 0.05
+# Power-on values of the per-channel configuration items the driver writes (manual defaults).
+POWER_ON_CONFIG = {"MAC": 10000, "MDEC": 10000, "ALIM": 300, "CLERD": 0}
 
 
 class SyncedClock(ManualClock):
@@ -87,6 +108,7 @@ class _Channel:
     setpoint_rpm: float = 0.0
     command: float = 0.0  # PID output (command RPM into the plant)
     speed_rpm: float = 0.0
+    ramp_rpm: float = 0.0  # the set point after the ^MAC/^MDEC ramp
     ticks: float = 0.0  # unwrapped encoder position, ticks (float keeps the fraction)
     config: dict[str, int] = field(default_factory=dict)
 
@@ -154,20 +176,26 @@ class RoboteqEmulator:
         self.estop = False
         self.faults = MotorFaults()
         self.motor_flags = [0, 0]
+        self.status_unknown_bits = 0  # ?FS bits above f9, as a newer firmware might set
         # fault injection counters
         self._drop = 0
         self._garble = 0
         self._delay_n = 0
         self._delay_s = 0.0
+        self._reject = 0
+        self._wd_tripped = False  # the watchdog stopped the motors; set points kept for the resume
+        self._telemetry: list[str] = []
+        self._telemetry_due = 0.0
+        self._telemetry_period = TELEMETRY_PERIOD_S
         # observation
         # (motor time, command line) of everything received; bounded for long interactive sessions
         self.received: collections.deque[tuple[int, str]] = collections.deque(maxlen=100_000)
         self.stops: list[StopEvent] = []
         self.watchdog_trips = 0
         self.disconnected = False
-        self._t_ns = self.clock.now_ns()
+        self._channels = [self._make_channel(i) for i in range(2)]  # slow the first time (PID design)
+        self._t_ns = self.clock.now_ns()  # motor time starts once the channels exist
         self._last_bang_ns = self._t_ns
-        self._channels = [self._make_channel(i) for i in range(2)]
         if isinstance(self.clock, SyncedClock):
             self.clock.followers.append(self)
 
@@ -178,7 +206,12 @@ class RoboteqEmulator:
         step = self.spec.step_for_channel(index + 1)
         plant, gains = _plant_and_default_gains(step.t_r, step.t_p, step.M_p, self.firmware.major)
         ch = _Channel(pid=None, plant=c.DiscretePlant(plant, self.dt), gains_fw=list(gains))
-        ch.config = {"MMOD": 1, "EPPR": int(self.spec.encoder_ppr), "MXRPM": int(self.spec.max_motor_rpm)}
+        ch.config = {
+            "MMOD": 1,
+            "EPPR": int(self.spec.encoder_ppr),
+            "MXRPM": int(self.spec.max_motor_rpm),
+            **POWER_ON_CONFIG,
+        }
         self._rebuild_pid(ch)
         return ch
 
@@ -206,19 +239,38 @@ class RoboteqEmulator:
             self._t_ns += self._dt_ns
             if (
                 self.rwd_ms > 0
+                and not self._wd_tripped
                 and self._t_ns - self._last_bang_ns > self.rwd_ms * 1_000_000
                 and any(ch.setpoint_rpm != 0.0 for ch in self._channels)
             ):
                 self.watchdog_trips += 1
-                self._stop_all("watchdog")
+                self._wd_tripped = True
+                self.stops.append(StopEvent(self._t_ns, "watchdog"))
             for ch in self._channels:
+                target = 0.0 if self._wd_tripped else ch.setpoint_rpm
+                if self.estop or self.faults.any:
+                    ch.ramp_rpm = 0.0  # the power stage is off: no ramp
+                else:
+                    ch.ramp_rpm = self._ramp(ch, target)
+                target = ch.ramp_rpm
                 if ch.config["MMOD"] == 1:
-                    u = ch.pid.update(ch.setpoint_rpm, ch.speed_rpm)
+                    u = ch.pid.update(target, ch.speed_rpm)
                 else:  # open loop: the set point is the plant command
-                    u = ch.setpoint_rpm
+                    u = target
                 ch.command = float(u)
                 ch.speed_rpm = float(ch.plant.step(ch.command))
                 ch.ticks += ch.speed_rpm / 60.0 * self.dt * self._ticks_per_motor_rev(ch)
+
+    def _ramp(self, ch: _Channel, target: float) -> float:
+        """Move the ramped set point towards ``target`` at ``^MAC`` (speeding up) or ``^MDEC``
+        (slowing down), in 0.1 RPM/s; 0 bypasses the ramp (manual)."""
+        now = ch.ramp_rpm
+        speeding_up = abs(target) > abs(now) and (now == 0.0 or (target > 0) == (now > 0))
+        rate = ch.config["MAC" if speeding_up else "MDEC"] / 10.0
+        if rate <= 0:
+            return target
+        step = rate * self.dt
+        return now + max(-step, min(step, target - now))
 
     def _stop_all(self, reason: str) -> None:
         for ch in self._channels:
@@ -234,8 +286,11 @@ class RoboteqEmulator:
 
     @property
     def setpoints_rpm(self) -> tuple[float, float]:
+        """The set points the motors follow now (zero while the watchdog holds them)."""
         with self._lock:
             self._sync()
+            if self._wd_tripped:
+                return (0.0, 0.0)
             return (self._channels[0].setpoint_rpm, self._channels[1].setpoint_rpm)
 
     @property
@@ -265,11 +320,15 @@ class RoboteqEmulator:
 
     # --- fault injection --------------------------------------------------------------------
 
-    def inject(self, *, drop: int = 0, garble: int = 0, delay_s: float = 0.0, delay_n: int = 0) -> None:
-        """Drop, garble, or delay (by ``delay_s`` real seconds) the next replies."""
+    def inject(
+        self, *, drop: int = 0, garble: int = 0, delay_s: float = 0.0, delay_n: int = 0, reject: int = 0
+    ) -> None:
+        """Drop, garble, or delay (by ``delay_s`` real seconds) the next replies; answer the next
+        ``reject`` ``!``/``^`` commands ``-`` without executing them (a command corrupted in transit)."""
         with self._lock:
             self._drop += drop
             self._garble += garble
+            self._reject += reject
             if delay_n:
                 self._delay_n += delay_n
                 self._delay_s = float(delay_s)
@@ -286,6 +345,55 @@ class RoboteqEmulator:
         """Send a line the host did not ask for (telemetry, a script's print), CR-terminated."""
         with self._lock:
             self._write(line.encode("ascii") + codec.CR)
+
+    def set_fault_word(self, word: int) -> None:
+        """Set the raw ``?FF`` word (0..65535, unknown bits included); a set flag stops the motors."""
+        self.raise_fault(codec.decode_fault_flags(word))
+
+    def start_telemetry(self, line: str, period_s: float = TELEMETRY_PERIOD_S) -> None:
+        """Send ``line`` every ``period_s`` until the host sends ``# C`` (as ``# nn`` telemetry does)."""
+        with self._lock:
+            self._telemetry = [line]
+            self._telemetry_period = float(period_s)
+            self._telemetry_due = time.monotonic()
+
+    def reboot(self) -> None:
+        """Restart as after a power glitch: counters 0, motors stopped, no stop latched, echo on,
+        configuration as at power-on (RAM settings lost), ``?FF`` f8 (default configuration loaded)."""
+        with self._lock:
+            self._sync()
+            self._channels = [self._make_channel(i) for i in range(2)]
+            self.rwd_ms, self.echo, self.estop, self._wd_tripped = 1000, True, False, False
+            self.motor_flags = [0, 0]
+            self.faults = MotorFaults(startup_config=True)
+            self._pending.clear()
+            self._telemetry = []
+            self.stops.append(StopEvent(self._t_ns, "reboot"))
+
+    def inject_kind(self, kind: str) -> None:
+        """Apply one fault of :data:`INJECT_KINDS` (see the module docstring)."""
+        if kind not in INJECT_KINDS:
+            raise HardwareError(f"fault kind {kind!r}: expected one of {', '.join(INJECT_KINDS)}")
+        if kind == "late-ack":
+            self.inject(delay_n=1, delay_s=LATE_ACK_S)
+        elif kind == "rejected":
+            self.inject(reject=1)
+        elif kind == "unsolicited":
+            self.start_telemetry("C=123456:-99")
+        elif kind == "reboot":
+            self.reboot()
+        elif kind == "unknown-flag":
+            self.set_fault_word(codec.encode_fault_flags(self.faults) | 1 << 8)
+        elif kind == "garble":
+            self.inject(garble=1)
+        elif kind == "unplug":
+            self.disconnect()
+        else:  # stall
+            with self._lock:
+                self._sync()
+                self.motor_flags[0] |= 1 << codec.MOTOR_BITS.index("motor_stall")
+                self._channels[0].setpoint_rpm = 0.0
+                self.stops.append(StopEvent(self._t_ns, "stall"))
 
     def clear_faults(self) -> None:
         with self._lock:
@@ -349,7 +457,7 @@ class RoboteqEmulator:
             # Motor state is stepped lazily (on each command, query and clock move), so the thread
             # only needs to wake for input, for a delayed reply falling due, and every 20 ms to keep
             # the real-time catch-up (done inside a reply) short.
-            wait = IDLE_WAKE_S
+            wait = IDLE_WAKE_S if not self._telemetry else min(IDLE_WAKE_S, self._telemetry_period / 2)
             if self._pending:
                 wait = max(0.0, min(wait, min(p[0] for p in self._pending) - time.monotonic()))
             try:
@@ -361,6 +469,7 @@ class RoboteqEmulator:
                     break
                 self._sync()
                 self._flush_pending()
+                self._send_telemetry()
                 if ready:
                     try:
                         data = os.read(master, 4096)
@@ -368,10 +477,19 @@ class RoboteqEmulator:
                         data = b""
                     if not data:
                         continue
+                    if self.echo:  # the controller echoes each character as it arrives
+                        self._write(data.replace(b"\n", b""))
                     self._rx += data
-                    lines, self._rx = codec.split_lines(self._rx)
+                    lines, self._rx = codec.split_command_lines(self._rx)
                     for line in lines:
                         self._handle_line(line)
+
+    def _send_telemetry(self) -> None:
+        now = time.monotonic()
+        if self._telemetry and now >= self._telemetry_due:
+            self._telemetry_due = now + self._telemetry_period
+            for line in self._telemetry:
+                self._write(line.encode("ascii") + codec.CR)
 
     def _flush_pending(self) -> None:
         now = time.monotonic()
@@ -406,11 +524,17 @@ class RoboteqEmulator:
         if not line.strip():
             return
         self.received.append((self._t_ns, line.strip()))
-        if self.echo:
-            self._write(line.encode("ascii", errors="replace") + codec.CR)
+        if line.strip().startswith("#"):
+            if line.strip()[1:].strip().upper() == "C":
+                self._telemetry = []  # "# C": stop the automatic sending; no reply
+            return
         try:
             cmd = codec.parse_command(line)
         except ProtocolError:
+            self._reply("-")
+            return
+        if self._reject > 0 and cmd.kind in ("!", "^"):
+            self._reject -= 1
             self._reply("-")
             return
         if cmd.refreshes_watchdog:
@@ -426,6 +550,9 @@ class RoboteqEmulator:
         handler = getattr(self, f"_cmd_{prefix}_{cmd.name}", None)
         if handler is None:
             return "-"
+        if cmd.kind == "!":
+            # a valid runtime command after a watchdog trip: the motors resume their earlier set points
+            self._wd_tripped = False
         return str(handler(*cmd.args))
 
     # runtime commands -----------------------------------------------------------------------
@@ -443,6 +570,8 @@ class RoboteqEmulator:
         mx = ch.config["MXRPM"]
         moving = any(c.setpoint_rpm != 0.0 for c in self._channels)
         ch.setpoint_rpm = max(-mx, min(mx, float(rpm)))
+        if rpm == 0:  # manual: f2, f3 and f4 of ?FM clear when the motor command returns to 0
+            self.motor_flags[cc - 1] &= ~0b1110
         if moving and all(c.setpoint_rpm == 0.0 for c in self._channels):
             self.stops.append(StopEvent(self._t_ns, "command"))
         return "+"
@@ -503,8 +632,24 @@ class RoboteqEmulator:
             faults = MotorFaults(**{**faults.__dict__, "emergency_stop": True})
         return codec.format_value("FF", codec.encode_fault_flags(faults))
 
+    def _cmd_query_T(self, *args: int) -> str:
+        # MCU, channel 1 and channel 2 heatsink temperatures, degrees C (warming with the motor current)
+        heat = [abs(ch.command - ch.speed_rpm) * 0.01 for ch in self._channels]
+        values = [31, 28 + round(heat[0]), 28 + round(heat[1])]
+        if args:
+            if args[0] not in (1, 2, 3):
+                raise ValueError(args[0])
+            return codec.format_value("T", values[args[0] - 1])
+        return codec.format_value("T", *values)
+
     def _cmd_query_FS(self) -> str:
-        flags = codec.StatusFlags(serial_mode=True, power_stage_off=self.estop or self.faults.any)
+        stall = any(w & 2 for w in self.motor_flags)
+        flags = codec.StatusFlags(
+            serial_mode=True,
+            power_stage_off=self.estop or self.faults.any,
+            stall_detected=stall,
+            unknown_bits=self.status_unknown_bits,
+        )
         return codec.format_value("FS", codec.encode_status_flags(flags))
 
     def _cmd_query_FM(self, *args: int) -> str:
@@ -517,7 +662,7 @@ class RoboteqEmulator:
 
     # configuration --------------------------------------------------------------------------
 
-    _PER_CHANNEL_CONFIG = ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD")
+    _PER_CHANNEL_CONFIG = ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "MAC", "MDEC", "ALIM", "CLERD")
 
     def _cmd_set_config(self, name: str, *args: int) -> str:
         if name == "RWD":
@@ -534,9 +679,10 @@ class RoboteqEmulator:
             return "+"
         cc, value = args
         ch = self._ch(cc)
-        gain_range = self._control.FIRMWARE_RANGE[self.firmware.major]
-        limits = {"MMOD": (0, 1), "EPPR": (1, 5000), "MXRPM": (10, 65000)}
-        lo, hi = limits.get(name, gain_range)
+        gain_range = codec.GAIN_RANGE[self.firmware.major]
+        lo, hi = codec.CONFIG_RANGE.get(name, gain_range)
+        if name == "MMOD":
+            lo, hi = 0, 1  # open loop and closed-loop speed are what this emulator models
         if not lo <= value <= hi:
             return "-"
         if name in ("KP", "KI", "KD"):

@@ -35,20 +35,16 @@ OUTPUT_FILES = {
 
 
 def map_codes(m: Any, band: tuple[float, float], sensor_origin: Any = None) -> np.ndarray:
-    """Ternary 2D map (nx, ny) int8: 100 where a structure overlaps ``band``, 0 where the cell was seen
-    and nothing in the band blocks it (it holds only structures outside the band, or free space from
-    ``sensor_origin``), -1 elsewhere."""
-    from mapping.derived import free_space, occupancy_2d
+    """Ternary 2D map (nx, ny) int8 (-1 unknown, 0 free, 100 occupied) of the height ``band``.
 
-    occ = np.asarray(occupancy_2d(m, band[0], band[1]), dtype=bool)
-    codes = np.full(m.spec.shape, UNKNOWN, dtype=np.int8)
-    s = m.structures()
-    codes[s.i, s.j] = FREE
-    if sensor_origin is not None and m.n_structures:
-        fs = free_space(m, sensor_origin)
-        codes[np.asarray(fs.i, np.intp), np.asarray(fs.j, np.intp)] = FREE
-    codes[occ] = OCCUPIED
-    return codes
+    For a :class:`mapping.probabilistic.ProbabilisticVHV` this is its evidence
+    (:meth:`~mapping.probabilistic.ProbabilisticVHV.occupancy_2d`: occupied intervals, remembered free
+    space, unknown where no evidence came). For the accumulate-only :class:`mapping.vhv.VHVMap`: 100
+    where a structure overlaps ``band``, 0 where the cell was seen and nothing in the band blocks it (it
+    holds only structures outside the band, or free space from ``sensor_origin``), -1 elsewhere."""
+    from mapping.derived import occupancy_codes
+
+    return occupancy_codes(m, band, UNKNOWN, sensor_origin)
 
 
 def voxel_boxes(m: Any) -> np.ndarray:
@@ -70,6 +66,7 @@ def write_map_outputs(
     band: tuple[float, float] = DEFAULT_BAND,
     sensor_origin: Any = None,
     frame_id: str = "map",
+    points_dropped_min_range: int = 0,
     stamp_ns: int = 0,
     build_ms: float | None = None,
     parameters: dict[str, Any] | None = None,
@@ -84,6 +81,8 @@ def write_map_outputs(
         band: Kept-axis interval (metres) that makes a cell occupied in the 2D map.
         sensor_origin: World xyz of the sensor; adds ray-traced free space to the 2D map.
         frame_id: Frame of the ROS messages.
+        points_dropped_min_range: Points dropped before insertion for being closer to the sensor
+            than the minimum range (counted in ``points_in`` like the map's own drops).
         stamp_ns: Stamp of the ROS messages.
         build_ms: Total insert time to report (the map does not time itself across frames).
         parameters: Extra entries for the summary's ``parameters``.
@@ -135,9 +134,12 @@ def write_map_outputs(
         stamp_ns=stamp_ns,
         storage=bag_storage,
     )
-    points_in = int(m.points_inserted + m.points_dropped_nonfinite + m.points_outside_grid)
+    points_in = int(
+        m.points_inserted + m.points_dropped_nonfinite + m.points_outside_grid + points_dropped_min_range
+    )
     summary: dict[str, Any] = {
         "points_in": points_in,
+        "points_dropped_min_range": int(points_dropped_min_range),
         "points_dropped_nonfinite": int(m.points_dropped_nonfinite),
         "points_outside_grid": int(m.points_outside_grid),
         "points_inserted": int(m.points_inserted),
@@ -148,6 +150,8 @@ def write_map_outputs(
         "voxels_exported": int(vboxes.shape[0]),
         "cells_occupied_2d": int(np.count_nonzero(codes == OCCUPIED)),
         "cells_free_2d": int(np.count_nonzero(codes == FREE)),
+        "cells_unknown_2d": int(np.count_nonzero(codes == UNKNOWN)),
+        "map_kind": "probabilistic" if hasattr(m, "occupancy_2d") else "thesis",
         "build_ms": None if build_ms is None else float(build_ms),
         "boxes_drawn_3d": drawn,
         "parameters": {

@@ -93,7 +93,7 @@ def elevation_png(
         ax.set_facecolor("0.85")
         ax.set_xlabel(f"{u} (m)")
         ax.set_ylabel(f"{v} (m)")
-        ax.set_title(f"2.5D elevation: {label} (grey = empty)", fontsize=10)
+        ax.set_title(f"2.5D elevation: {label} (grey = no surface: unknown or free)", fontsize=10)
         fig.colorbar(img, ax=ax, label=f"{h} (m)")
         _mark_origin_and_sensor(ax, sensor_uv)
     fig.tight_layout()

@@ -1,4 +1,16 @@
-"""Raw array formats: KITTI Velodyne ``.bin`` (float32 x y z intensity) and numpy ``.npy``."""
+"""Raw array formats: float32 ``.bin`` scans (KITTI, nuScenes, x y z, x y z r g b) and numpy ``.npy``.
+
+A ``.bin`` scan is a headerless run of little-endian float32 records, so its layout cannot be read
+from the file; :func:`detect_bin_layout` takes it from the name or the data, and refuses to guess
+when neither settles it:
+
+* ``*.pcd.bin`` (nuScenes' file-name convention) is ``nuscenes``: x y z intensity ring;
+* any other ``.bin`` is ``kitti`` (x y z intensity) when its size is a multiple of 16 bytes and
+  every fourth value is an intensity (finite, 0 to 255), and the nuScenes reading is not equally
+  plausible (a size that is a multiple of 80 bytes fits both);
+* otherwise the file is refused with the layouts its size fits: give the layout explicitly
+  (``robchair map --bin-layout kitti|nuscenes|xyz|xyzrgb``).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +21,95 @@ import numpy as np
 from mapping.errors import PointCloudFormatError
 
 _KITTI_RECORD = 16  # four little-endian float32 per point
+
+#: Layout name -> (floats per point, what they are).
+BIN_LAYOUTS: dict[str, tuple[int, str]] = {
+    "kitti": (4, "x y z intensity"),
+    "nuscenes": (5, "x y z intensity ring"),
+    "xyz": (3, "x y z"),
+    "xyzrgb": (6, "x y z r g b"),
+}
+_MAX_INTENSITY = 255.0  # KITTI stores 0-1, other drivers 0-255
+_MAX_RING = 1023.0  # laser index: 32 on nuScenes' HDL-32E, at most 128 on today's lidars
+
+
+def _plausible(values: np.ndarray, layout: str) -> bool:
+    """Whether the records of ``values`` ((N, k) float32) look like ``layout``'s extra columns."""
+    if values.shape[0] == 0:
+        return True
+    inten = values[:, 3]
+    ok = bool(np.all(np.isfinite(inten)) and inten.min() >= 0.0 and inten.max() <= _MAX_INTENSITY)
+    if ok and layout == "nuscenes":
+        ring = values[:, 4]
+        ok = bool(
+            np.all(np.isfinite(ring))
+            and ring.min() >= 0
+            and ring.max() <= _MAX_RING
+            and np.all(ring == np.round(ring))
+        )
+    return ok
+
+
+def detect_bin_layout(path: Path | str, raw: bytes | None = None) -> str:
+    """The layout of a ``.bin`` scan, from its name or its data (see the module docstring).
+
+    Raises:
+        PointCloudFormatError: The layout cannot be told safely; the message lists the layouts the
+            size fits and how to choose one.
+    """
+    path = Path(path)
+    raw = path.read_bytes() if raw is None else raw
+    size = len(raw)
+    fits = [name for name, (k, _) in BIN_LAYOUTS.items() if size % (4 * k) == 0]
+    hint = (
+        f"its size ({size} bytes) fits: {', '.join(fits)}; give the layout with --bin-layout"
+        if fits
+        else f"its size ({size} bytes) fits no layout ({', '.join(BIN_LAYOUTS)}): the file is truncated"
+    )
+    if path.name.lower().endswith(".pcd.bin"):
+        if "nuscenes" not in fits:
+            raise PointCloudFormatError(
+                f"{path}: a nuScenes .pcd.bin holds 5 float32 per point (20 bytes), but {hint}"
+            )
+        return "nuscenes"
+    if "kitti" not in fits:
+        raise PointCloudFormatError(f"{path}: not a KITTI scan (4 float32 per point); {hint}")
+    kitti = _plausible(np.frombuffer(raw, "<f4").reshape(-1, 4), "kitti")
+    if not kitti:
+        raise PointCloudFormatError(
+            f"{path}: not a KITTI scan: every 4th float32 should be an intensity in [0, 255]; {hint}"
+        )
+    if "nuscenes" in fits and _plausible(np.frombuffer(raw, "<f4").reshape(-1, 5), "nuscenes"):
+        raise PointCloudFormatError(f"{path}: layout is ambiguous (KITTI or nuScenes); {hint}")
+    return "kitti"
+
+
+def read_bin(path: Path | str, layout: str | None = None) -> np.ndarray:
+    """Read the x, y, z of a float32 ``.bin`` scan as (N, 3) float32.
+
+    Args:
+        path: The scan.
+        layout: One of :data:`BIN_LAYOUTS`; None detects it (:func:`detect_bin_layout`).
+
+    Raises:
+        PointCloudFormatError: Unknown layout, a size that is not a whole number of records, or a
+            layout that cannot be detected safely.
+    """
+    raw = Path(path).read_bytes()
+    if layout is None:
+        layout = detect_bin_layout(path, raw)
+    if layout not in BIN_LAYOUTS:
+        raise PointCloudFormatError(
+            f"{path}: unknown .bin layout {layout!r}; expected one of {', '.join(BIN_LAYOUTS)}"
+        )
+    k, what = BIN_LAYOUTS[layout]
+    if len(raw) % (4 * k):
+        raise PointCloudFormatError(
+            f"{path}: {layout} .bin size {len(raw)} bytes is not a multiple of {4 * k} "
+            f"({k} float32 per point: {what}); the file is truncated or of another layout"
+        )
+    arr = np.frombuffer(raw, dtype="<f4").reshape(-1, k)
+    return np.ascontiguousarray(arr[:, :3], dtype=np.float32)
 
 
 def read_kitti(path: Path | str, *, with_intensity: bool = False) -> np.ndarray:

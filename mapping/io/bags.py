@@ -4,11 +4,17 @@
 ROS 1 ``.bag`` files (any chunk compression rosbags reads: none, bz2, lz4) use the ROS 1 Noetic type
 store; ROS 2 bags (a folder with ``metadata.yaml``, or a bare ``.db3`` / ``.mcap`` file) use ROS 2
 Humble's. Topic selection: the named topic, or the only point-cloud topic when none is named.
+
+A bare ``.db3`` recorded with rosbag2's per-message compression (zstd) is decoded when the file's own
+``metadata`` table (rosbag2 Iron and later) says so; without that table, messages that start with the
+zstd frame magic are refused with what to do (open the bag folder with its ``metadata.yaml``).
 """
 
 from __future__ import annotations
 
+import os
 import struct
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +26,7 @@ from mapping.errors import BagTopicError, PointCloudFormatError
 from mapping.io.frame import CloudFrame
 from mapping.pointcloud2 import decode
 
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # the first bytes of every zstd frame (RFC 8878)
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 POINTCLOUD = "sensor_msgs/msg/PointCloud"  # the older message, one Point32 per point (thesis inputs)
 CLOUD_TYPES = (POINTCLOUD2, POINTCLOUD)
@@ -36,19 +43,105 @@ def _typestore(ros2: bool) -> Any:
     return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
 
 
+class _BoundedReads:
+    """A binary file whose ``read(n)`` never asks for more than the bytes left.
+
+    Bag readers read a record by the length the record declares; on a corrupt file that length can
+    be anything up to 2**64, and a plain ``read(n)`` reserves ``n`` bytes before it finds the end of
+    the file. Capping ``n`` at what is left changes no result and keeps memory bounded by the file.
+    """
+
+    def __init__(self, raw: Any) -> None:
+        self._raw = raw
+        self._size = os.fstat(raw.fileno()).st_size
+
+    def read(self, n: int | None = -1) -> bytes:
+        if n is None or n < 0:
+            return bytes(self._raw.read())
+        return bytes(self._raw.read(min(n, max(self._size - self._raw.tell(), 0))))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._raw, name)
+
+    def __enter__(self) -> _BoundedReads:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._raw.close()
+
+
+class _BoundedPath(type(Path())):  # type: ignore[misc]
+    """A path whose binary opens for reading are :class:`_BoundedReads` (paths derived from it too)."""
+
+    def open(self, mode: str = "r", *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+        f = super().open(mode, *args, **kwargs)
+        return _BoundedReads(f) if mode == "rb" else f
+
+
 def _open_reader(path: Path) -> tuple[Any, bool]:
     from rosbags.rosbag1 import Reader as Reader1
     from rosbags.rosbag2 import Reader as Reader2
 
     ros2 = is_ros2_bag(path)
     try:
-        reader = Reader2(path) if ros2 else Reader1(path)
+        bounded = _BoundedPath(path)
+        reader = Reader2(bounded) if ros2 else Reader1(bounded)
         reader.open()
     except (FileNotFoundError, PermissionError, MemoryError):
         raise
     except Exception as exc:  # rosbags, sqlite3 and mcap report damaged files with unrelated error types
         raise PointCloudFormatError(f"{path}: cannot open bag ({type(exc).__name__}: {exc})") from None
     return reader, ros2
+
+
+def db3_compression(path: Path) -> tuple[str | None, str | None]:
+    """(compression_mode, compression_format) of a bare ROS 2 ``.db3`` from its ``metadata`` table.
+
+    rosbag2 (Iron and later) stores the bag's metadata.yaml text in that table, so a ``.db3`` shared
+    without its folder still says whether its messages are compressed. Returns (None, None) when
+    the table is absent or unreadable (older recorders), or says there is no compression.
+    """
+    import sqlite3
+
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            row = con.execute("SELECT metadata FROM metadata ORDER BY id DESC LIMIT 1").fetchone()
+        finally:
+            con.close()
+        from ruamel.yaml import YAML
+
+        info = YAML(typ="safe").load(row[0])
+        # rosbag2 stores the metadata.yaml text (with its root key); rosbags the mapping below it
+        info = info.get("rosbag2_bagfile_information", info)
+        mode = str(info.get("compression_mode") or "").lower() or None
+        fmt = str(info.get("compression_format") or "").lower() or None
+    except Exception:  # no table, no row, not YAML, or missing keys: nothing is known
+        return None, None
+    return (None, None) if mode in (None, "none") else (mode, fmt)
+
+
+def _decompressor(path: Path) -> Any:
+    """A function undoing the per-message compression of a bare ``.db3`` (None: not compressed).
+
+    Raises:
+        PointCloudFormatError: The compression cannot be decoded here.
+    """
+    if not (path.is_file() and path.suffix == ".db3"):
+        return None  # folders and MCAP files: rosbags reads the compression from metadata / chunks
+    mode, fmt = db3_compression(path)
+    if mode is None:
+        return None
+    if mode != "message" or fmt != "zstd":
+        raise PointCloudFormatError(
+            f"{path}: bag is recorded with {mode} compression ({fmt}), which is not supported; "
+            "decompress it with 'ros2 bag convert'"
+        )
+    if sys.version_info >= (3, 14):
+        from compression import zstd
+    else:  # the backport rosbags itself depends on
+        from backports import zstd
+    return zstd.decompress
 
 
 def bag_topics(path: Path | str) -> dict[str, str]:
@@ -104,12 +197,21 @@ class BagClouds:
     n_frames: int
 
     def __iter__(self) -> Iterator[CloudFrame]:
+        decompress = _decompressor(self.path)
         reader, ros2 = _open_reader(self.path)
         store = _typestore(ros2)
         try:
             conns = [c for c in reader.connections if c.topic == self.topic]
             try:
                 for conn, bag_stamp, raw in reader.messages(connections=conns):
+                    if decompress is not None:
+                        raw = self._decompress(decompress, raw)
+                    elif bytes(raw[:4]) == ZSTD_MAGIC:
+                        raise PointCloudFormatError(
+                            "messages are zstd-compressed (rosbag2 message compression) and this "
+                            ".db3 has no metadata table saying so; open the bag folder with its "
+                            "metadata.yaml instead, or decompress it with 'ros2 bag convert'"
+                        )
                     if conn.msgtype == POINTCLOUD:
                         points, stamp, frame_id = decode_pointcloud1(raw, ros2=ros2)
                     else:
@@ -134,15 +236,24 @@ class BagClouds:
         finally:
             reader.close()
 
+    @staticmethod
+    def _decompress(decompress: Any, raw: bytes) -> bytes:
+        try:
+            return bytes(decompress(raw))
+        except Exception as exc:  # zstd reports a damaged frame with its own error type
+            raise PointCloudFormatError(
+                f"a zstd-compressed message cannot be decompressed ({type(exc).__name__}: {exc})"
+            ) from None
+
     def _deserialize(self, store: Any, ros2: bool, raw: bytes, conn: Any) -> Any:
         try:
             if ros2:
                 return store.deserialize_cdr(raw, conn.msgtype)
             return store.deserialize_ros1(raw, conn.msgtype)
         except Exception as exc:  # rosbags raises assorted errors on a short or corrupt payload
+            # (the caller prefixes the file and topic)
             raise PointCloudFormatError(
-                f"{self.path}: a {conn.msgtype} message on {self.topic} cannot be decoded "
-                f"({type(exc).__name__}: {exc})"
+                f"a {conn.msgtype} message cannot be decoded ({type(exc).__name__}: {exc})"
             ) from None
 
 

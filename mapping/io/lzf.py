@@ -146,6 +146,10 @@ def _compress_into(src: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover
     return op
 
 
+#: Most output bytes per input byte: a 3-byte back-reference copies at most 264 bytes.
+MAX_EXPANSION = 88
+
+
 def _as_u8(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
     if isinstance(data, np.ndarray):
         return np.ascontiguousarray(data).view(np.uint8).ravel()
@@ -169,6 +173,11 @@ def lzf_decompress(data: bytes | bytearray | memoryview | np.ndarray, expected_s
     if expected_size < 0:
         raise PointCloudFormatError(f"LZF: negative expected size {expected_size}")
     src = _as_u8(data)
+    if expected_size > MAX_EXPANSION * src.size:
+        # checked before the output is allocated: a corrupt size must not reserve gigabytes
+        raise PointCloudFormatError(
+            f"LZF: {src.size} compressed bytes cannot expand to the declared {expected_size} bytes"
+        )
     out = np.empty(expected_size, dtype=np.uint8)
     if src.size == 0:
         if expected_size == 0:

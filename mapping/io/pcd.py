@@ -245,22 +245,28 @@ def _decode_ascii_fast(header: PcdHeader, body: bytes) -> np.ndarray | None:
     return out
 
 
+_MAX_ASCII_TOKEN = 64  # longer than any printed number
+
+
 def _decode_ascii(path: Path | str, header: PcdHeader, body: bytes) -> np.ndarray:
     fast = _decode_ascii_fast(header, body)
     if fast is not None:
         return fast
-    tokens = np.array(body.split())
+    words = body.split()
     per_point = sum(header.counts)
     expected = per_point * header.points
-    if tokens.size < expected:
+    if len(words) < expected:
         raise _fail(
             path,
-            f"ascii data truncated: {tokens.size} values for {header.points} points x {per_point} values",
+            f"ascii data truncated: {len(words)} values for {header.points} points x {per_point} values",
         )
-    if tokens.size > expected:
-        raise _fail(
-            path, f"ascii data has {tokens.size} values, expected {expected} ({header.points} points)"
-        )
+    if len(words) > expected:
+        raise _fail(path, f"ascii data has {len(words)} values, expected {expected} ({header.points} points)")
+    # numpy stores every token at the longest one's width: one long token must not multiply memory
+    longest = max(map(len, words), default=0)
+    if longest > _MAX_ASCII_TOKEN:
+        raise _fail(path, f"ascii data holds a {longest}-character value (not a number)")
+    tokens = np.array(words)
     table = tokens.reshape(header.points, per_point) if header.points else tokens.reshape(0, per_point)
     out = np.zeros(header.points, dtype=_packed_dtype(header))
     col = 0

@@ -155,21 +155,37 @@ def _read_binary_lists(
     return rows, pos
 
 
-def _rows_to_faces(path: Path | str, rows: list[np.ndarray]) -> np.ndarray:
+def _rows_to_faces(path: Path | str, rows: list[np.ndarray], n_vertices: int) -> np.ndarray:
+    """(F, k) faces; polygons of mixed sizes (triangles and quads from Blender) become triangle fans."""
     if not rows:
         return np.zeros((0, 3), dtype=np.int64)
     k = len(rows[0])
     if any(len(r) != k for r in rows):
-        raise _fail(path, "PLY faces have mixed vertex counts; only uniform polygons are supported")
-    return np.array(rows, dtype=np.int64).reshape(len(rows), k)
+        if any(len(r) < 3 for r in rows):
+            raise _fail(path, "PLY face with fewer than 3 vertices")
+        rows = [np.stack([np.full(len(r) - 2, r[0]), r[1:-1], r[2:]], axis=1) for r in rows]
+        faces = np.concatenate(rows).astype(np.int64)
+    else:
+        faces = np.array(rows, dtype=np.int64).reshape(len(rows), k)
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        raise _fail(path, f"PLY face indices outside the {n_vertices} vertices")
+    return faces
 
 
-def read_ply_mesh(path: Path | str) -> PlyMesh:
+def read_ply_mesh(path: Path | str, *, faces: bool = True) -> PlyMesh:
     """Read the vertices and faces of a PLY file.
 
+    Args:
+        path: The file.
+        faces: Also read the ``face`` element. Faces of mixed sizes are split into triangle fans.
+            With False only the elements up to the vertices are parsed, so whatever follows them
+            (faces, edges, anything) does not matter.
+
     Raises:
-        PointCloudFormatError: Bad header, no vertex x/y/z, or data shorter than declared.
+        PointCloudFormatError: Bad header, no vertex x/y/z, data shorter than declared, or (with
+            ``faces``) a face with fewer than 3 vertices or an index outside the vertices.
     """
+    want_faces = faces
     raw = Path(path).read_bytes()
     fmt, elements, start = parse_header(raw, path)
     names = [e.name for e in elements]
@@ -183,12 +199,13 @@ def read_ply_mesh(path: Path | str) -> PlyMesh:
         if vertex.properties[pnames.index(c)].count_dtype:
             raise _fail(path, f"PLY vertex property {c!r} is a list")
     vertices = np.zeros((0, 3))
-    faces = np.zeros((0, 3), dtype=np.int64)
+    face_rows: list[np.ndarray] = []
+    last = len(elements) if want_faces else names.index("vertex") + 1
     if fmt == "ascii":
         lines = raw[start:].decode("ascii", errors="replace").splitlines()
         lines = [ln for ln in lines if ln.strip()]
         row = 0
-        for el in elements:
+        for el in elements[:last]:
             chunk = lines[row : row + el.count]
             if len(chunk) < el.count:
                 raise _fail(
@@ -198,17 +215,20 @@ def read_ply_mesh(path: Path | str) -> PlyMesh:
             if el.name == "vertex":
                 vertices = _ascii_vertices(path, el, chunk)
             elif el.name == "face" and el.properties and el.properties[0].count_dtype:
-                face_rows = []
-                for ln in chunk:
-                    words = ln.split()
-                    n = int(words[0])
-                    face_rows.append(np.array(words[1 : 1 + n], dtype=np.int64))
-                faces = _rows_to_faces(path, face_rows)
+                try:
+                    for ln in chunk:
+                        words = ln.split()
+                        n = int(words[0])
+                        if n < 0 or len(words) < 1 + n:
+                            raise ValueError(f"row {ln!r} is shorter than its count")
+                        face_rows.append(np.array(words[1 : 1 + n], dtype=np.int64))
+                except ValueError as exc:
+                    raise _fail(path, f"PLY ascii face data is malformed ({exc})") from None
     else:
         order = "<" if fmt == "binary_little_endian" else ">"
         buf = memoryview(raw)
         pos = start
-        for el in elements:
+        for el in elements[:last]:
             dt = _scalar_dtype(el, order)
             if dt is not None:
                 need = dt.itemsize * el.count
@@ -227,8 +247,9 @@ def read_ply_mesh(path: Path | str) -> PlyMesh:
                     raise _fail(path, "PLY vertex element with list properties is not supported")
                 rows, pos = _read_binary_lists(path, el, buf, pos, order)
                 if el.name == "face":
-                    faces = _rows_to_faces(path, rows)
-    return PlyMesh(vertices, faces)
+                    face_rows = rows
+    tri = _rows_to_faces(path, face_rows, vertices.shape[0]) if want_faces else np.zeros((0, 3), np.int64)
+    return PlyMesh(vertices, tri)
 
 
 def _columns(rec: np.ndarray, el: PlyElement) -> np.ndarray:
@@ -262,8 +283,9 @@ def _ascii_vertices(path: Path | str, el: PlyElement, lines: list[str]) -> np.nd
 
 
 def read_ply(path: Path | str) -> np.ndarray:
-    """Read the vertex x, y, z of a PLY file as (N, 3) (float32 when stored as float)."""
-    return read_ply_mesh(path).vertices
+    """Read the vertex x, y, z of a PLY file as (N, 3) (float32 when stored as float); the faces and
+    any other element after the vertices are not read."""
+    return read_ply_mesh(path, faces=False).vertices
 
 
 def write_ply(

@@ -11,6 +11,10 @@ points. For each cloud, in the same run and process, pinned to one CPU:
 * OctoMap ``OcTree.insertPointCloud`` (``pyoctomap``) from the sensor origin — note that OctoMap
   also ray-casts the free space along every beam, so it does more work than an occupancy build.
 
+Then the probabilistic map (:mod:`robchair.commands.bench_mapping_evidence`): occupied + free +
+evidence update of the HD frame into a map holding previous frames, against OctoMap's insertion and
+DUFOMap's (same work: both clear free space), and the clearing time of a walker seen at 30 Hz.
+
 It prints medians (wall clock, and process CPU time, which a busy shared machine does not inflate),
 the ratios against the baselines, the thesis's figure (~166 ms per 2.07M-point frame: about 6 frames/s
 on a 4-core i7, C++), the peak extra memory of the VHV build (tracemalloc sees numpy's and numba's
@@ -65,6 +69,17 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-octomap", action="store_true", help="skip the OctoMap baseline")
     p.add_argument("--no-open3d", action="store_true", help="skip the Open3D baseline")
     p.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene (default 0)")
+    p.add_argument(
+        "--no-evidence",
+        action="store_true",
+        help="skip the probabilistic map (evidence insertion vs OctoMap/DUFOMap, walker clearing)",
+    )
+    p.add_argument(
+        "--prior-frames",
+        type=int,
+        default=3,
+        help="frames the probabilistic map holds before the timed HD frame (default 3)",
+    )
     p.add_argument("--pin-cpu", type=int, default=None, metavar="N", help="pin the process to CPU N")
     p.set_defaults(func=_run)
 
@@ -325,6 +340,15 @@ def _bench(args: argparse.Namespace, pinned: str) -> int:
                 )
         if f > 2 * fc:
             print("  note: wall time is more than twice the CPU time: the machine is busy, prefer CPU times")
+    evidence: dict[str, Any] = {}
+    if not args.no_evidence:
+        from robchair.commands.bench_mapping_evidence import bench_insert, bench_walker
+
+        print()
+        evidence["insert"] = bench_insert(
+            args.cell, args.tolerance, args.seed, repeat, max(0, args.prior_frames), octomap, args.quick
+        )
+        evidence["walker"] = bench_walker(args.seed, args.quick)
     result = {
         "benchmark": "mapping",
         "one_core": pinned,
@@ -340,6 +364,7 @@ def _bench(args: argparse.Namespace, pinned: str) -> int:
         "thesis_ms_per_hd_frame": THESIS_MS_PER_HD_FRAME,
         "rows": rows,
         "hd_frame": verdict,
+        "evidence": evidence,
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

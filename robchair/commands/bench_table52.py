@@ -49,6 +49,12 @@ def register(subparsers: Any) -> None:
         help="Table 5.2 in simulation: nine objects, Kinect v2 HD, VHV vs standard voxels at 5 cm",
     )
     p.add_argument("--out", type=Path, default=Path("out/bench_table52"), help="output folder (JSON)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the depth noise")
     p.add_argument("--cell-size", type=float, default=0.05, help="grid cell side (m)")
     p.add_argument("--tolerance", type=float, default=0.05, help="VHV gap tolerance (m)")
@@ -68,7 +74,7 @@ def _object_world(mesh_path: Path) -> tuple[int, int, Any]:
     import numpy as np
     import pybullet as p
 
-    from sim.raycast import read_obj_triangles
+    from sim.meshgen import read_obj
 
     client = p.connect(p.DIRECT)
     floor_c = p.createCollisionShape(p.GEOM_BOX, halfExtents=[10, 10, 0.01], physicsClientId=client)
@@ -78,7 +84,7 @@ def _object_world(mesh_path: Path) -> tuple[int, int, Any]:
     )
     vis = p.createVisualShape(p.GEOM_MESH, fileName=str(mesh_path), physicsClientId=client)
     body = p.createMultiBody(0, col, vis, basePosition=[0, 0, 0], physicsClientId=client)
-    v, _ = read_obj_triangles(mesh_path)
+    v = read_obj(mesh_path).vertices
     return client, body, (np.min(v, axis=0), np.max(v, axis=0))
 
 
@@ -226,16 +232,25 @@ def _time_backends(mesh: Path, repeats: int) -> dict[str, float]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from robchair.errors import RobChairError
-    from robchair.outdir import staged_output_dir
-    from robchair.paths import ASSETS
+    from robchair.outdir import check_output_dir, deferred_stdout
 
     if args.cell_size <= 0 or args.tolerance <= 0:
         raise RobChairError(f"--cell-size {args.cell_size} and --tolerance {args.tolerance} must be > 0")
     if args.placements < 1 or args.repeats < 1:
         raise RobChairError(f"--placements {args.placements} and --repeats {args.repeats} must be >= 1")
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    with deferred_stdout():
+        return _measure_all(args, out_dir)
+
+
+def _measure_all(args: argparse.Namespace, out_dir: Any) -> int:
+    import numpy as np
+
+    from robchair.errors import RobChairError
+    from robchair.paths import ASSETS
+
     rng = np.random.default_rng(args.seed)
     known = {mesh.removesuffix(".obj") for _, mesh, *_ in THESIS_ROWS}
     wanted = {w.strip() for w in args.objects.split(",") if w.strip()}
@@ -332,7 +347,7 @@ def _run(args: argparse.Namespace) -> int:
         base = timing["raycast_open3d_1thread_ms"]
         for key, val in timing.items():
             print(f"  {key:<40} {val:>8.1f} ms  ({val / base:>5.1f}x the Embree ray cast)")
-    with staged_output_dir(args.out) as out:
+    with out_dir.stage() as out:
         (out / "table52.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     print(f"\nwrote {Path(args.out) / 'table52.json'}")
     return 0

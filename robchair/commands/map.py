@@ -19,7 +19,10 @@ import argparse
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from mapping.grid import GridSpec
 
 SAMPLE_SEED = 7
 SAMPLE_SENSOR_ORIGIN = (0.0, 0.0, 1.0)  # mapping.synthetic's camera position
@@ -59,7 +62,13 @@ def register(subparsers: Any) -> None:
         help="point-cloud topic of bag inputs, PointCloud2 or PointCloud (default: the only one)",
     )
     p.add_argument(
-        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); replaced on success"
+        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); written on success"
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
     )
     p.add_argument(
         "--size",
@@ -86,6 +95,23 @@ def register(subparsers: Any) -> None:
         default=None,
         help="sensor position in the points' frame, for free space (default: a PCD VIEWPOINT if set)",
     )
+    p.add_argument(
+        "--min-range",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="drop points at most M metres from the sensor (the sensor origin if known, else the "
+        "origin of the points' frame); default 0 drops the exact zeros lidar drivers write for "
+        "'no return'; counted as points_dropped_min_range in summary.json",
+    )
+    p.add_argument(
+        "--bin-layout",
+        choices=("kitti", "nuscenes", "xyz", "xyzrgb"),
+        default=None,
+        help="float32 layout of .bin inputs: kitti (x y z intensity), nuscenes (x y z intensity ring), "
+        "xyz, xyzrgb (default: nuscenes for *.pcd.bin, kitti when the data is plausible for it, "
+        "else refused)",
+    )
     p.add_argument("--sample", action="store_true", help="map the built-in synthetic sample cloud")
     p.set_defaults(func=_run)
 
@@ -105,6 +131,8 @@ def _check_args(args: argparse.Namespace) -> None:
         raise _fail(f"--band {args.band[0]} {args.band[1]}: expected ZMIN <= ZMAX")
     if args.centre is not None and args.size is None:
         raise _fail("--centre needs --size (without --size the grid is centred on the data)")
+    if not (math.isfinite(args.min_range) and args.min_range >= 0):
+        raise _fail(f"--min-range {args.min_range}: expected a distance >= 0 m")
     if args.sample and args.inputs:
         raise _fail("give either INPUT files or --sample, not both")
 
@@ -153,7 +181,7 @@ class _Extent:
         if sensor_origin is not None:
             self.origins.append((float(sensor_origin[self.cols[0]]), float(sensor_origin[self.cols[1]])))
 
-    def grid(self, args: argparse.Namespace) -> tuple[Any, str]:
+    def grid(self, args: argparse.Namespace) -> tuple[GridSpec, str]:
         """GridSpec over the points and the sensor plus a margin, each side bounded; and how it was chosen."""
         import numpy as np
 
@@ -169,26 +197,24 @@ class _Extent:
         for o in self.origins:  # the sensor belongs inside the grid too: free space is traced from it
             lo = [min(lo[k], o[k]) for k in range(2)]
             hi = [max(hi[k], o[k]) for k in range(2)]
-        sizes, centre, capped = [], [], False
+        margins = [2 * cell + 0.05 * (hi[k] - lo[k]) for k in range(2)]
+        capped = False
         for k in range(2):
-            margin = 2 * cell + 0.05 * (hi[k] - lo[k])
-            want = hi[k] - lo[k] + 2 * margin
-            if want > MAX_GRID_SIDE_M:
+            if hi[k] - lo[k] + 2 * margins[k] > MAX_GRID_SIDE_M:
                 capped = True
-                want = MAX_GRID_SIDE_M
                 # Far outliers should not drag a bounded grid away from the bulk of the points.
                 med = np.array([(m[k], m[2]) for m in self.medians])
                 order = np.argsort(med[:, 0])
                 cum = np.cumsum(med[order, 1])
-                centre.append(float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0]))
-            else:
-                centre.append((lo[k] + hi[k]) / 2)
-            # +1 cell: snapping the centre to the lattice may shift the grid by up to one cell.
-            sizes.append((math.ceil(want / cell) + 1) * cell)
+                mid = float(med[order[np.searchsorted(cum, cum[-1] / 2)], 0])
+                # the covering grid spans at most one cell more than its box
+                half = (MAX_GRID_SIDE_M - cell) / 2
+                lo[k], hi[k], margins[k] = mid - half, mid + half, 0.0
         how = "data extent + margin" + (
             f" (capped at {MAX_GRID_SIDE_M:g} m per side, centred on the median)" if capped else ""
         )
-        return GridSpec(cell, sizes[0], sizes[1], (centre[0], centre[1]), args.axis), how
+        grid = GridSpec.covering((lo[0], lo[1]), (hi[0], hi[1]), cell, (margins[0], margins[1]), args.axis)
+        return grid, how
 
 
 def _unique_names(paths: list[Path]) -> list[str]:
@@ -204,12 +230,25 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def _warm_up(spec: Any, tolerance: float, points: Any) -> None:
+def _warm_up(spec: GridSpec, tolerance: float, points: Any) -> None:
     """Build a throwaway map from the first frame of each dtype, so the compiled kernels that frame
     needs are loaded (or compiled) before the timed insert: ``build ms`` then measures the build."""
     from mapping.vhv import VHVMap
 
     VHVMap(spec, tolerance=tolerance).insert(points)
+
+
+def _drop_close(points: Any, origin: Any, min_range: float) -> tuple[Any, int]:
+    """The points farther than ``min_range`` from ``origin`` (None: the frame's origin), as (N, 3),
+    and how many were dropped. Non-finite points are kept (the map counts those itself)."""
+    import numpy as np
+
+    pts = np.asarray(points).reshape(-1, 3)
+    ref = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        close = np.sum((pts - ref) ** 2, axis=1) <= min_range * min_range
+    n = int(np.count_nonzero(close))
+    return (pts[~close] if n else pts), n
 
 
 def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str, Any]:
@@ -233,7 +272,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
         kept: list[Any] = []
         for frame in tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"}):
             origin = tuple(args.sensor_origin) if args.sensor_origin is not None else frame.sensor_origin
-            extent.add(frame.points, origin)
+            extent.add(_drop_close(frame.points, origin, args.min_range)[0], origin)
             if source.n_frames <= 1:
                 kept.append(frame)
         spec, how = extent.grid(args)
@@ -244,12 +283,15 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
     frame_id, stamp_ns = "", 0
     sensor_origin_used = sensor_origin
     warmed: set[str] = set()
+    dropped_close = 0
     for frame in tqdm(frames if frames is not None else iter(source), **bar_kw):
         origin = sensor_origin if sensor_origin is not None else frame.sensor_origin
-        if str(frame.points.dtype) not in warmed:
-            _warm_up(spec, args.tolerance, frame.points)
-            warmed.add(str(frame.points.dtype))
-        stats = m.insert(frame.points, sensor_origin=origin)
+        points, n_close = _drop_close(frame.points, origin, args.min_range)
+        dropped_close += n_close
+        if str(points.dtype) not in warmed:
+            _warm_up(spec, args.tolerance, points)
+            warmed.add(str(points.dtype))
+        stats = m.insert(points, sensor_origin=origin)
         build_ms += stats.build_ms
         sensor_origin_used = origin
         frame_id = frame.frame_id or frame_id
@@ -259,6 +301,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
         "label": label,
         "grid_size_source": how,
         "build_ms": build_ms,
+        "points_dropped_min_range": dropped_close,
         "sensor_origin": sensor_origin_used,
         "frame_id": frame_id or "map",
         "stamp_ns": stamp_ns,
@@ -270,21 +313,28 @@ def _row(label: str, points: int, structures: int, voxels: int, ms: float, width
 
 
 def _run(args: argparse.Namespace) -> int:
-    import json
-    import sys
-
-    from mapping.export import DEFAULT_BAND, write_map_outputs
     from mapping.io import open_clouds
-    from robchair.outdir import staged_output_dir
+    from robchair.outdir import check_output_dir, deferred_stdout
 
     _check_args(args)
-    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     # Open every input first: a bad path, extension or topic fails before any work is done.
     sources: list[Any] = (
         [_SampleSource()]
         if (args.sample or not args.inputs)
-        else [open_clouds(p, topic=args.topic) for p in args.inputs]
+        else [open_clouds(p, topic=args.topic, bin_layout=args.bin_layout) for p in args.inputs]
     )
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    with deferred_stdout():
+        return _map_all(args, sources, out_dir)
+
+
+def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
+    import json
+    import sys
+
+    from mapping.export import DEFAULT_BAND, write_map_outputs
+
+    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
     names = _unique_names([s.path for s in sources])
     progress = sys.stderr.isatty()
     width = max(12, *(len(str(s.path)) + (len(s.topic) + 3 if s.topic else 0) for s in sources))
@@ -293,7 +343,7 @@ def _run(args: argparse.Namespace) -> int:
         f"{'standard voxels':>15}  {'build ms':>9}"
     )
     results = []
-    with staged_output_dir(args.out) as stage:
+    with out_dir.stage() as stage:
         for source, name in zip(sources, names):
             r = _map_one(source, args, progress)
             m = r["map"]
@@ -307,11 +357,14 @@ def _run(args: argparse.Namespace) -> int:
                 frame_id=r["frame_id"],
                 stamp_ns=r["stamp_ns"],
                 build_ms=r["build_ms"],
+                points_dropped_min_range=r["points_dropped_min_range"],
                 parameters={
                     "input": str(source.path),
                     "input_kind": source.kind,
                     "topic": source.topic,
                     "grid_size_source": r["grid_size_source"],
+                    "min_range": args.min_range,
+                    "bin_layout": source.kind if source.path.suffix == ".bin" else None,
                 },
             )
             points = summary["points_in"]
@@ -320,6 +373,7 @@ def _run(args: argparse.Namespace) -> int:
         if len(sources) > 1:
             keys = (
                 "points_in",
+                "points_dropped_min_range",
                 "points_dropped_nonfinite",
                 "points_outside_grid",
                 "points_inserted",
@@ -344,7 +398,8 @@ def _run(args: argparse.Namespace) -> int:
         where = "" if len(results) == 1 else f"{name}/: "
         print(
             f"{where}grid {p['grid_shape'][0]} x {p['grid_shape'][1]} cells of {p['cell_size']:g} m "
-            f"({p['grid_size_source']}), {summary['points_dropped_nonfinite']:,d} non-finite and "
+            f"({p['grid_size_source']}), {summary['points_dropped_min_range']:,d} within "
+            f"{args.min_range:g} m of the sensor, {summary['points_dropped_nonfinite']:,d} non-finite and "
             f"{summary['points_outside_grid']:,d} out-of-grid points dropped"
         )
     print(

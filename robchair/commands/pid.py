@@ -54,13 +54,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/pid)")
     p.add_argument("--no-plots", action="store_true", help="only print and write pid.json")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
+    )
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair import control as rc
     from robchair.errors import ConfigError
-    from robchair.outdir import staged_output_dir
+    from robchair.outdir import check_output_dir, deferred_stdout
 
     for r in args.rate:
         if not (math.isfinite(r) and r > 0):
@@ -72,6 +77,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--tp and --mp must be given together (and --tr optionally)")
     if args.tr is not None and not all(metric_args):
         raise ConfigError("--tr needs --tp and --mp")
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    with deferred_stdout():
+        return _design_all(args, out_dir)
+
+
+def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
+    from robchair import control as rc
 
     motors: list[dict[str, Any]] = []
     if args.trace is not None:
@@ -88,7 +100,7 @@ def _run(args: argparse.Namespace) -> int:
                 "trace": (t, u, y),
             }
         )
-    elif all(metric_args):
+    elif args.tp is not None and args.mp is not None:
         ident = rc.identify_from_step_metrics(args.tr, args.tp, args.mp)
         motors.append({"name": "motor", "plant": ident.plant, "ident": ident, "step_rpm": 100.0})
     else:
@@ -114,7 +126,7 @@ def _run(args: argparse.Namespace) -> int:
         m["sampled"] = {r: rc.sampled_loop(m["plant"], kq[0], kq[1], kq[2], 1.0 / r) for r in m["rates"]}
         print(_report(m, args.firmware))
 
-    with staged_output_dir(args.out) as out:
+    with out_dir.stage() as out:
         summary = {"controller_rate_hz": rc.CONTROLLER_RATE_HZ, "motors": [_to_json(m) for m in motors]}
         (out / "pid.json").write_text(json.dumps(summary, indent=2) + "\n")
         if not args.no_plots:

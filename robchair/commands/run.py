@@ -35,6 +35,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
     p.add_argument("--out", type=Path, help="output folder: run_bag/, metrics.json, odometry.csv")
     p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
+    )
+    p.add_argument(
         "--release-stop",
         action="store_true",
         help="release an emergency stop the motor controller still holds from an earlier run (!MG)",
@@ -75,10 +81,13 @@ def _run(args: argparse.Namespace) -> int:
     from hw.registry import get_backend
     from robchair.errors import ConfigError
     from robchair.kinematics import DiffDrive
+    from robchair.outdir import check_output_dir, overwrite_allowed
     from robchair.runtime import JoystickSource, PurePursuit, Route, RuntimeConfig, run_to_dir
     from robchair.safety import SafetyLayer, SafetyLimits
     from robchair.spec import load_spec
 
+    if args.out is not None:
+        check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)
     backend_cfg = dict(cfg.get(args.backend, {}))
     if isinstance(backend_cfg.get("sensor"), str) and backend_cfg["sensor"].lower() == "none":
@@ -112,15 +121,16 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(
             "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
         )
-    result = run_to_dir(
-        backend,
-        source,
-        args.duration,
-        args.out,
-        spec=spec,
-        config=runtime_config,
-        safety=safety,
-        start_pose=start_pose,
-    )
+    with overwrite_allowed(args.overwrite):
+        result = run_to_dir(
+            backend,
+            source,
+            args.duration,
+            args.out,
+            spec=spec,
+            config=runtime_config,
+            safety=safety,
+            start_pose=start_pose,
+        )
     print(json.dumps(result.metrics(), indent=2))
     return 0 if result.driver_fault is None else 1

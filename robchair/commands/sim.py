@@ -35,6 +35,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default="raycast",
         help="depth camera backend: Open3D ray casting (default) or PyBullet's renderer",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an existing non-empty --out folder (same-named entries and an earlier "
+        "robchair output there are replaced; other files are kept)",
+    )
     p.add_argument("--no-bag", action="store_true", help="do not record the ROS 2 bag")
     p.add_argument("--no-pictures", action="store_true", help="do not draw the PNG pictures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -55,19 +61,23 @@ def _run(args: argparse.Namespace) -> int:
                 f"scene {sc.scene.name:16s} {sc.description}"
             )
         return 0
+    from robchair.outdir import check_output_dir, overwrite_allowed
     from sim.runner import run_scenario
 
-    res = run_scenario(
-        args.scenario,
-        out_dir=args.out,
-        duration=args.duration,
-        sensor=args.sensor,
-        seed=args.seed,
-        progress=not args.no_progress,
-        write_bag=not args.no_bag,
-        pictures=not args.no_pictures,
-        camera_backend=args.camera_backend,
-    )
+    if args.out is not None:
+        check_output_dir(args.out, overwrite=args.overwrite)  # refuse before simulating
+    with overwrite_allowed(args.overwrite):
+        res = run_scenario(
+            args.scenario,
+            out_dir=args.out,
+            duration=args.duration,
+            sensor=args.sensor,
+            seed=args.seed,
+            progress=not args.no_progress,
+            write_bag=not args.no_bag,
+            pictures=not args.no_pictures,
+            camera_backend=args.camera_backend,
+        )
     m = res.metrics
     summary = {
         "out": str(res.out_dir),

@@ -197,25 +197,45 @@ def test_motor_flag_bits_decode_to_the_manual_names(word: int, names: list[str],
     assert flags.any_fault is fault
 
 
-@given(st.integers(0, 255))
+@given(st.integers(0, 65535))
 def test_fault_words_round_trip(word: int) -> None:
     assert codec.encode_fault_flags(codec.decode_fault_flags(word)) == word
 
 
-@given(st.integers(0, 511))
+@given(st.integers(0, 65535))
 def test_status_words_round_trip(word: int) -> None:
     assert codec.encode_status_flags(codec.decode_status_flags(word)) == word
 
 
-@given(st.integers(0, 127))
+@given(st.integers(0, 65535))
 def test_motor_flag_words_round_trip(word: int) -> None:
     assert codec.encode_motor_flags(codec.decode_motor_flags(word)) == word
 
 
-@pytest.mark.parametrize("word", [-1, 256])
-def test_fault_word_outside_eight_bits_is_a_protocol_error(word: int) -> None:
+@pytest.mark.parametrize("word", [-1, 65536])
+def test_fault_word_outside_sixteen_bits_is_a_protocol_error(word: int) -> None:
     with pytest.raises(ProtocolError, match=str(word)):
         codec.decode_fault_flags(word)
+
+
+@pytest.mark.parametrize(
+    ("decode", "word", "names", "unknown"),
+    [
+        (codec.decode_fault_flags, 256, ["f9"], 256),
+        (codec.decode_fault_flags, 16 + 32768, ["emergency_stop", "f16"], 32768),
+        (codec.decode_status_flags, 1024, ["f11"], 1024),
+        (codec.decode_motor_flags, 128, ["f8"], 128),
+    ],
+)
+def test_sixteen_bit_words_keep_the_bits_the_manual_does_not_name(decode, word, names, unknown) -> None:
+    flags = decode(word)
+    assert flags.names() == names
+    assert flags.unknown_bits == unknown
+
+
+def test_an_unknown_bit_counts_as_a_fault() -> None:
+    assert codec.decode_fault_flags(256).any
+    assert codec.decode_motor_flags(128).any_fault
 
 
 def test_fault_flags_field_order_matches_motorfaults() -> None:

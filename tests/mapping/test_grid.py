@@ -135,3 +135,49 @@ def test_invalid_gridspec_fields_are_refused_with_field_value_and_expectation(
     with pytest.raises(GridSpecError, match=match) as err:
         GridSpec(**kwargs)
     assert isinstance(err.value, MappingError) and isinstance(err.value, ValueError)
+
+
+def test_covering_grid_of_a_hand_computed_box() -> None:
+    # box x 0..1, y 0..0.5, cells of 0.5 m: x = 1.0 lies in lattice cell 2, y = 0.5 in cell 1
+    g = GridSpec.covering((0.0, 0.0), (1.0, 0.5), 0.5)
+    assert g.shape == (3, 2)
+    assert g.extent == (0.0, 1.5, 0.0, 1.0)
+    # margins: x -0.25..1.25 spans lattice cells -1..2, y -0.05..0.45 spans cells -1..0
+    g = GridSpec.covering((0.0, 0.0), (1.0, 0.4), 0.5, margin=(0.25, 0.05), axis="x")
+    assert (g.shape, g.extent, g.axis) == ((4, 2), (-0.5, 1.5, -0.5, 0.5), "x")
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    lo=st.tuples(st.floats(-50, 50), st.floats(-50, 50)),
+    size=st.tuples(st.floats(0, 20), st.floats(0, 20)),
+    cs=st.sampled_from([0.01, 0.05, 0.1, 0.3, 1.0]),
+    margin=st.floats(0, 3),
+)
+def test_covering_grid_holds_every_corner_of_the_box_and_no_spare_row(
+    lo: tuple[float, float], size: tuple[float, float], cs: float, margin: float
+) -> None:
+    hi = (lo[0] + size[0], lo[1] + size[1])
+    g = GridSpec.covering(lo, hi, cs, margin)
+    us = np.array([lo[0] - margin, hi[0] + margin, lo[0] - margin, hi[0] + margin])
+    vs = np.array([lo[1] - margin, lo[1] - margin, hi[1] + margin, hi[1] + margin])
+    i, j = g.world_to_index(us, vs)
+    assert g.contains_index(i, j).all()
+    nx, ny = g.shape
+    # the corners sit in the first and last row and column: the grid is the smallest that covers them
+    assert set(i.tolist()) == {0, nx - 1} or nx == 1
+    assert set(j.tolist()) == {0, ny - 1} or ny == 1
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (((0.0, 0.0), (1.0, 1.0), 0.0), r"cell_size=0\.0: expected a number of metres > 0"),
+        (((0.0, 0.0), (1.0, 1.0), 0.1, -0.5), r"margin=-0\.5: expected finite metres >= 0"),
+        (((1.0, 0.0), (0.0, 1.0), 0.1), r"lo=\(1\.0, 0\.0\), hi=\(0\.0, 1\.0\): expected finite bounds"),
+        (((math.nan, 0.0), (1.0, 1.0), 0.1), r"expected finite bounds with lo <= hi"),
+    ],
+)
+def test_covering_refuses_a_bad_box_cell_or_margin(args: tuple, message: str) -> None:
+    with pytest.raises(GridSpecError, match=message):
+        GridSpec.covering(*args)

@@ -42,6 +42,11 @@ def test_quick_bench_writes_json_whose_counts_match_an_independent_build(tmp_pat
             assert row[key]["median_ms"] > 0 and row[key]["cpu_median_ms"] >= 0
         assert row["vhv_fast"]["peak_extra_bytes"] > 0
         assert "open3d_voxelgrid" not in row and "octomap_insert" not in row
+    ev = result["evidence"]
+    prob = ev["insert"]["probabilistic"]
+    assert prob["median_ms"] > 0 and prob["free_intervals"] > 0 and prob["fan_passages"] > 0
+    assert "octomap" not in ev["insert"] and "dufomap" in ev["insert"]  # run, or skipped with a reason
+    assert ev["walker"]["cells"] > 0 and ev["walker"]["rate_hz"] == 30.0
 
 
 @pytest.mark.slow

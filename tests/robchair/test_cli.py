@@ -68,3 +68,15 @@ def test_open3d_imports_through_the_libusb_preload_in_a_fresh_interpreter() -> N
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip()
+
+
+def test_a_listed_command_module_that_is_missing_is_an_error_not_a_silent_skip(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(cli, "COMMANDS", (*cli.COMMANDS, "robchair.commands.no_such_command"))
+    with pytest.raises(ModuleNotFoundError, match=r"robchair\.commands\.no_such_command"):
+        cli.build_parser()
+    monkeypatch.setattr(cli, "BENCHES", (*cli.BENCHES, "robchair.commands.bench_nothing"))
+    monkeypatch.setattr(cli, "COMMANDS", cli.COMMANDS[:-1])
+    with pytest.raises(ModuleNotFoundError, match=r"robchair\.commands\.bench_nothing"):
+        cli.build_parser()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -40,7 +41,12 @@ def test_pid_without_arguments_prints_both_motors_and_writes_the_pictures(tmp_pa
     assert np.array(m2["achieved_poles"]) == pytest.approx(
         np.array([[-33, 0], [-3.3, 0], [-3.3, 0]]), abs=1e-6
     )
-    assert m2["identification"]["rise_time_residual_0_100"] == pytest.approx(0.1524 - 0.24734, abs=1e-4)
+    # Ogata's 0-100 % rise time of the identified plant, by hand: t_r = (pi - beta) / omega_d with
+    # omega_d = pi / t_p, beta = arccos(xi) and xi = -ln M_p / sqrt(pi^2 + ln^2 M_p)
+    ln_mp = math.log(0.12)
+    xi = -ln_mp / math.hypot(math.pi, ln_mp)
+    t_r_model = (math.pi - math.acos(xi)) / (math.pi / 0.3590)
+    assert m2["identification"]["rise_time_residual_0_100"] == pytest.approx(0.1524 - t_r_model, rel=1e-9)
     assert m2["margins"]["gain_margin"] is None  # inf: the phase never crosses -180 deg
 
 

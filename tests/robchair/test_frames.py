@@ -85,3 +85,35 @@ def test_optical_frame_looks_along_the_link_x_axis() -> None:
     np.testing.assert_allclose(frames.R_LINK_OPTICAL @ [1, 0, 0], [0, -1, 0])
     assert frames.optical_frame("kinect") == "kinect_optical_frame"
     assert frames.link_frame("laser") == "laser_link"
+
+
+def test_quaternion_of_rpy_matches_the_rotation_and_keeps_w_non_negative() -> None:
+    # a half turn about z: (0, 0, 1, 0); 90 deg pitch: (0, sin 45, 0, cos 45)
+    assert frames.quat_from_rpy(0.0, 0.0, math.pi) == pytest.approx((0.0, 0.0, 1.0, 0.0), abs=1e-12)
+    h = math.sqrt(0.5)
+    assert frames.quat_from_rpy(0.0, math.pi / 2, 0.0) == pytest.approx((0.0, h, 0.0, h))
+    assert frames.quat_from_rpy(0.1, -0.2, 3.0)[3] >= 0.0
+
+
+def test_yaw_of_a_quaternion_is_the_heading() -> None:
+    assert frames.yaw_from_quat((0.0, 0.0, math.sin(0.35), math.cos(0.35))) == pytest.approx(0.7)
+    assert frames.yaw_from_quat(frames.quat_from_rpy(0.05, -0.1, -2.0)) == pytest.approx(-2.0)
+
+
+@given(q=st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: sum(c * c for c in q) > 1e-6))
+def test_matrix_of_a_quaternion_agrees_with_scipy(q: tuple[float, float, float, float]) -> None:
+    from scipy.spatial.transform import Rotation
+
+    np.testing.assert_allclose(frames.matrix_from_quat(q), Rotation.from_quat(q).as_matrix(), atol=1e-12)
+
+
+@given(roll=angles, pitch=angles, yaw=angles)
+def test_rpy_matrix_and_quaternion_agree_with_scipy(roll: float, pitch: float, yaw: float) -> None:
+    from scipy.spatial.transform import Rotation
+
+    ref = Rotation.from_euler("xyz", [roll, pitch, yaw])
+    np.testing.assert_allclose(frames.rotation_rpy(roll, pitch, yaw), ref.as_matrix(), atol=1e-12)
+    q = np.array(frames.quat_from_rpy(roll, pitch, yaw))
+    r = ref.as_quat()
+    assert q[3] >= 0.0
+    assert np.allclose(q, r, atol=1e-12) or np.allclose(q, -r, atol=1e-12)

@@ -93,35 +93,47 @@ def test_spec_is_frozen():
 def test_negative_wheel_radius_is_refused_naming_field_and_value(raw):
     d = copy.deepcopy(raw)
     d["drive"]["wheel_radius"] = -0.172
-    with pytest.raises(ConfigError, match=r"drive\.wheel_radius = -0\.172: expected a positive number"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^<dict>: drive\.wheel_radius = -0\.172: expected a finite number > 0$",
+    ):
         spec_from_dict(d)
 
 
 def test_missing_field_is_refused(raw):
     d = copy.deepcopy(raw)
     del d["drive"]["gear_ratio"]
-    with pytest.raises(ConfigError, match=r"drive\.gear_ratio: missing field"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^<dict>: drive\.gear_ratio: missing; expected a finite number > 0$",
+    ):
         spec_from_dict(d)
     d = copy.deepcopy(raw)
     del d["mounts"]["kinect_link"]
-    with pytest.raises(ConfigError, match=r"mounts\.kinect_link: missing"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^<dict>: mounts\.kinect_link: missing; expected a table with parent, xyz, rpy$",
+    ):
         spec_from_dict(d)
 
 
 def test_unknown_key_is_refused(raw):
     d = copy.deepcopy(raw)
     d["drive"]["wheel_radus"] = 0.2
-    with pytest.raises(ConfigError, match=r"drive\.wheel_radus: unknown key"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^<dict>: drive\.wheel_radus: unknown key \(value 0\.2\); expected one of encoder_on, ",
+    ):
         spec_from_dict(d)
 
 
 @pytest.mark.parametrize(
     ("table", "key", "value", "message"),
     [
-        ("drive", "encoder_on", "axle", r"encoder_on = 'axle': expected one of"),
-        ("drive", "encoder_ppr", 1000.5, r"encoder_ppr = 1000\.5: expected a positive integer"),
-        ("body", "mass", float("nan"), r"body\.mass = nan: expected a finite number"),
-        ("body", "height", "tall", r"body\.height = 'tall'"),
+        ("drive", "encoder_on", "axle", r"drive\.encoder_on = 'axle': expected one of motor, wheel$"),
+        ("drive", "encoder_ppr", 1000.5, r"drive\.encoder_ppr = 1000\.5: expected an integer > 0$"),
+        ("body", "mass", float("nan"), r"body\.mass = nan: expected a finite number > 0$"),
+        ("body", "height", "tall", r"body\.height = 'tall': expected a finite number > 0$"),
     ],
 )
 def test_invalid_values_are_refused(raw, table, key, value, message):
@@ -134,23 +146,32 @@ def test_invalid_values_are_refused(raw, table, key, value, message):
 def test_overshoot_outside_zero_one_is_refused(raw):
     d = copy.deepcopy(raw)
     d["motor_steps"][0]["M_p"] = 10
-    with pytest.raises(ConfigError, match=r"motor_steps\[0\]\.M_p = 10\.0: expected an overshoot fraction"):
+    with pytest.raises(
+        ConfigError,
+        match=r"motor_steps\[0\]\.M_p = 10: expected a finite number > 0 and < 1$",
+    ):
         spec_from_dict(d)
 
 
 def test_bad_vector_and_joint_limits_are_refused(raw):
     d = copy.deepcopy(raw)
     d["mounts"]["kinect_link"]["xyz"] = [0.0, 1.0]
-    with pytest.raises(ConfigError, match=r"mounts\.kinect_link\.xyz = \[0\.0, 1\.0\]: expected three"):
+    with pytest.raises(
+        ConfigError,
+        match=r"mounts\.kinect_link\.xyz = \[0\.0, 1\.0\]: expected a list of 3 finite numbers$",
+    ):
         spec_from_dict(d)
     d = copy.deepcopy(raw)
     d["mounts"]["sonar_array_left"]["joint"]["lower"] = 2.0
-    with pytest.raises(ConfigError, match=r"joint: lower = 2\.0 must be below upper"):
+    with pytest.raises(
+        ConfigError,
+        match=r"mounts\.sonar_array_left\.joint\.upper = 1\.57\d*: expected a finite number > 2$",
+    ):
         spec_from_dict(d)
 
 
 def test_missing_file_and_bad_toml_are_config_errors(tmp_path):
-    with pytest.raises(ConfigError, match="does not exist"):
+    with pytest.raises(ConfigError, match=r"nope\.toml: spec file does not exist$"):
         load_spec(tmp_path / "nope.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text("[drive\nwheel_radius = 1\n")
@@ -183,5 +204,48 @@ def test_mount_transforms_are_proper_rigid_motions(rpy, angle):
 def test_unknown_top_level_table_is_refused(raw):
     d = copy.deepcopy(raw)
     d["wheels"] = {"radius": 0.2}
-    with pytest.raises(ConfigError, match="wheels: unknown key"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^<dict>: wheels: unknown key \(value \{'radius': 0\.2\}\); expected one of body, casters, ",
+    ):
+        spec_from_dict(d)
+
+
+def test_error_in_a_spec_file_names_the_file_and_the_line_of_the_field(tmp_path):
+    p = tmp_path / "chair.toml"
+    p.write_text(DEFAULT_SPEC_PATH.read_text().replace("wheel_radius = 0.172", "wheel_radius = -0.172"))
+    line = next(n for n, s in enumerate(p.read_text().splitlines(), 1) if s.startswith("wheel_radius"))
+    with pytest.raises(ConfigError, match=rf"chair\.toml:{line}: drive\.wheel_radius = -0\.172: expected"):
+        load_spec(p)
+
+
+def test_sonar_arrays_give_the_outer_angle_and_the_servo_convention():
+    arrays = load_spec().sonar_arrays
+    assert (arrays.outer_sonar_deg, arrays.servo_centre_deg) == (30.0, 90.0)
+    assert arrays.sonar_offsets_m[0] == (0.0, 0.0, 0.02)
+    # servo command 135 deg = the array turned 45 deg to the left of straight ahead
+    assert arrays.joint_angle(135.0) == pytest.approx(math.pi / 4)
+    assert arrays.servo_deg(-math.pi / 2) == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        (
+            "outer_sonar_deg",
+            95.0,
+            r"sonar_arrays\.outer_sonar_deg = 95\.0: expected a finite number > 0 and < 90$",
+        ),
+        (
+            "sonar_offsets_m",
+            [[0.0, 0.0, 0.02], [0.0, 0.0]],
+            r"sonar_arrays\.sonar_offsets_m = \[\[0\.0, 0\.0, 0\.02\], \[0\.0, 0\.0\]\]: "
+            r"expected a list of 3 lists of 3 finite numbers$",
+        ),
+    ],
+)
+def test_bad_sonar_array_geometry_is_refused(raw, key, value, message):
+    d = copy.deepcopy(raw)
+    d["sonar_arrays"][key] = value
+    with pytest.raises(ConfigError, match=message):
         spec_from_dict(d)

@@ -397,3 +397,16 @@ def test_excluded_links_and_bodies_are_invisible_to_both_backends(client):
     )
     assert not np.any(pb.body == near)
     assert np.any((pb.body == two) & (pb.link == 0))
+
+
+def test_compiled_kernels_and_the_camera_module_share_constants_without_importing_each_other():
+    import ast
+    import inspect
+
+    import sim._kinect_kernels as kernels
+
+    tree = ast.parse(inspect.getsource(kernels))
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert "sim.kinect" not in imported
+    assert "sim.kinect_params" in imported

@@ -86,7 +86,11 @@ colour = [1.0, 0.0, 0.0]
 xyz = [3.0, 0.0, 0.5]
 """,
     )
-    with pytest.raises(ScenarioError, match=rf"{p.name}:8: object 'w': colour: unknown key"):
+    with pytest.raises(
+        ScenarioError,
+        match=rf"{p.name}:8: object\[0\]\.colour: unknown key \(value \[1\.0, 0\.0, 0\.0\]\); "
+        r"expected one of color, ",
+    ):
         load_scene(p)
 
 
@@ -103,7 +107,9 @@ xyz = [3.0, 0.0, 0.0]
 """,
     )
     with pytest.raises(
-        ScenarioError, match=r"scene.toml:7: object 'ghost': mesh: mesh file 'no_such_mesh.obj' not found"
+        ScenarioError,
+        match=r"scene\.toml:7: object\[0\]\.mesh = 'no_such_mesh\.obj': "
+        r"expected a mesh file in .* \(not found\)$",
     ):
         load_scene(p)
 
@@ -121,7 +127,9 @@ radius = 0.5
 xyz = {xyz}
 """,
     )
-    with pytest.raises(ScenarioError, match=r"object 'w': xyz: must be finite"):
+    with pytest.raises(
+        ScenarioError, match=r"scene\.toml:8: object\[0\]\.xyz = \[.*\]: expected a list of 3 finite numbers$"
+    ):
         load_scene(p)
 
 
@@ -138,7 +146,7 @@ xyz = [3.0, 0.0, 0.2]
 """,
     )
     with pytest.raises(
-        ScenarioError, match=r"object 'sunk': xyz: impossible pose: .*-0.300 m, below the floor"
+        ScenarioError, match=r"scene\.toml:8: object\[0\]\.xyz: impossible pose: .*-0.300 m, below the floor"
     ):
         load_scene(p)
 
@@ -184,11 +192,31 @@ def test_a_valid_scenario_loads_with_its_values(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "route", "match"),
     [
-        ('sensor = "kinect3"\n', "waypoints = [[1.0, 0.0]]", r"run.toml:4: scenario.sensor: expected one of"),
-        ("duration = -1.0\n", "waypoints = [[1.0, 0.0]]", r"scenario.duration: must be > 0"),
-        ("seed = 1.5\n", "waypoints = [[1.0, 0.0]]", r"scenario.seed: expected a non-negative integer"),
-        ("", "waypoints = [[1.0]]", r"route.waypoints: expected a list of 2 numbers"),
-        ("", "speed = 0.5", r"route.waypoints: missing"),
+        (
+            'sensor = "kinect3"\n',
+            "waypoints = [[1.0, 0.0]]",
+            r"run\.toml:4: scenario\.sensor = 'kinect3': expected one of kinect2, ",
+        ),
+        (
+            "duration = -1.0\n",
+            "waypoints = [[1.0, 0.0]]",
+            r"run\.toml:4: scenario\.duration = -1\.0: expected a finite number > 0$",
+        ),
+        (
+            "seed = 1.5\n",
+            "waypoints = [[1.0, 0.0]]",
+            r"run\.toml:4: scenario\.seed = 1\.5: expected an integer >= 0$",
+        ),
+        (
+            "",
+            "waypoints = [[1.0]]",
+            r"run\.toml:6: route\.waypoints = \[\[1\.0\]\]: expected a list of at least 1 \[x, y\] points",
+        ),
+        (
+            "",
+            "speed = 0.5",
+            r"run\.toml:5: route\.waypoints: missing; expected a list of at least 1 \[x, y\] points",
+        ),
         ("", "waypoints = [[1.0, 0.0]]\nturbo = true", r"run.toml:7: route.turbo: unknown key"),
     ],
 )
@@ -199,7 +227,10 @@ def test_bad_scenario_values_are_refused_with_key_and_reason(tmp_path, extra, ro
 
 def test_scenario_naming_a_missing_scene_is_refused(tmp_path):
     p = _write(tmp_path, '[scenario]\nscene = "atlantis"\n[route]\nwaypoints = [[1.0, 0.0]]\n', "run.toml")
-    with pytest.raises(ScenarioError, match=r"scenario.scene: scene 'atlantis' not found"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"run\.toml:2: scenario\.scene = 'atlantis': expected the name of a scene file \(not found: ",
+    ):
         load_scenario(p)
 
 
@@ -255,3 +286,50 @@ def test_scene_builds_one_pybullet_body_per_object():
         walker = next(o for o in scene.objects if o.name == "walker_crossing")
         pos, _ = p.getBasePositionAndOrientation(bodies.ids["walker_crossing"], physicsClientId=w.client)
         assert pos[:2] == pytest.approx(walker.motion.pose_at(2.0)[:2], abs=1e-6)
+
+
+def test_error_in_a_walking_persons_motion_names_the_line_in_its_sub_table(tmp_path):
+    p = _write(
+        tmp_path,
+        SCENE_HEAD
+        + """
+[[object]]
+name = "w"
+shape = "sphere"
+radius = 0.5
+xyz = [3.0, 0.0, 0.5]
+[object.motion]
+waypoints = [[3.0, 0.0], [5.0, 0.0]]
+speed = -1.2
+""",
+    )
+    with pytest.raises(
+        ScenarioError, match=r"scene\.toml:11: object\[0\]\.motion\.speed = -1\.2: expected a finite"
+    ):
+        load_scene(p)
+
+
+def test_duplicate_object_names_are_refused_at_the_second_one(tmp_path):
+    obj = '\n[[object]]\nname = "w"\nshape = "sphere"\nradius = 0.5\nxyz = [3.0, 0.0, 0.5]\n'
+    p = _write(tmp_path, SCENE_HEAD + obj + obj)
+    with pytest.raises(ScenarioError, match=r"scene\.toml:11: object\[1\]\.name: duplicate object name 'w'$"):
+        load_scene(p)
+
+
+def test_capsule_is_one_closed_outward_surface_of_the_right_size():
+    from collections import Counter
+
+    from sim.meshgen import capsule
+
+    m = capsule(0.3, 1.0, rings=8, segments=32)
+    lo, hi = m.bounds()
+    np.testing.assert_allclose(lo, [-0.3, -0.3, -0.8], atol=1e-12)
+    np.testing.assert_allclose(hi, [0.3, 0.3, 0.8], atol=1e-12)
+    # every directed edge appears once and its reverse once: closed and consistently wound
+    edges = Counter((int(u), int(v)) for a, b, c in m.faces for u, v in ((a, b), (b, c), (c, a)))
+    assert set(edges.values()) == {1} and all((v, u) in edges for u, v in edges)
+    # outward winding gives a positive signed volume, a little below the true capsule's
+    a, b, c = (m.vertices[m.faces[:, k]] for k in range(3))
+    volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+    true = math.pi * 0.3**2 * 1.0 + 4 / 3 * math.pi * 0.3**3
+    assert 0.97 * true < volume < true

@@ -1,0 +1,879 @@
+"""A probabilistic variable-height map: occupied and free evidence over vertical intervals per cell.
+
+The thesis's VHV map (:class:`mapping.vhv.VHVMap`) only accumulates: whatever was seen once stays, and
+a cell nobody saw reads like a free one. Its future work (section 6.2) asks for merged free structures
+(Fig. 5.14) and a probability of occupation per cell. :class:`ProbabilisticVHV` does both, in the
+spirit of MVOG (Dryanovski et al., IROS 2010: positive and negative vertical volumes per 2D cell) with
+OctoMap's clamped log-odds update (Hornung et al., 2013).
+
+Per frame (:meth:`ProbabilisticVHV.insert`)
+-------------------------------------------
+1. **Occupied structures**: the frame's VHV structures (the thesis build of :mod:`mapping.vhv`,
+   unchanged). Each is a sample of a surface: its evidence is the slab ``[bottom - t, top + t]`` with
+   ``t = surface_half_thickness`` (default half a cell, what a voxel of the cell size gives a hit).
+2. **Free intervals per structure** (Fig. 5.14): two lines from the sensor to the structure's bottom
+   and top (aimed at its cell centre); every cell the segment passes through *before* the structure's
+   cell gets one free interval, the heights the fan spans in that cell. Computed per structure, never
+   per point (a 2.07M-point frame has a few thousand structures).
+3. **Merging**: free intervals are united per cell on a bit table of height bins, so they never
+   overlap each other; runs closer than ``gap_fill`` (2 cm: sampling holes between neighbouring
+   fans) are joined; each run is then shrunk by ``surface_margin`` at both ends (the near-surface
+   rule, below) and the frame's own occupied slabs are cut out of it, so free evidence never overlaps
+   the frame's occupied evidence.
+4. **Update**: per touched cell, the stored intervals and the frame's evidence are swept together;
+   each elementary piece gets ``clamp(L + l_hit)`` under an occupied slab, ``clamp(L + l_miss)`` under
+   a free interval, and keeps ``L`` elsewhere (``L = 0``, p = 0.5, where nothing was known). Intervals
+   split where evidence starts or stops inside them and neighbours with equal log-odds merge again.
+   Nothing is created where no evidence came: **unknown is what no evidence has touched**, and free
+   space is remembered (MVOG's negative volumes).
+
+Thresholds and defaults (:class:`EvidenceParams`, OctoMap's defaults): ``prob_hit = 0.7`` (log-odds
++0.847), ``prob_miss = 0.4`` (-0.405), clamping to ``[0.1192, 0.971]`` (log-odds [-2.0, +3.5]); an
+interval is **occupied** when ``p >= occupied_threshold = 0.5`` and **free** when ``p <
+free_threshold = 0.5``. A walker seen for a long time (clamped at 0.971) reads free after 9 frames of
+free evidence (0.3 s at 30 Hz); a structure seen once reads free after 3.
+
+Near-surface rule (why surfaces do not flicker and tables are not erased)
+-------------------------------------------------------------------------
+* A fan stops before the cell of its own structure: a ray that ends *on* a surface never clears it.
+* In every cell, the frame's own occupied slabs are cut out of its free intervals: a surface hit by a
+  frame gets only occupied evidence from that frame, so a surface hit by every frame is never lowered.
+* Each per-cell run of free bins is shrunk by ``surface_margin`` (default one cell size) at both ends.
+  A fan is a hull over the cell's width and aimed at cell centres, so near the end of a run it may dip
+  a few centimetres into a surface the real rays only grazed: e.g. rays passing over a table top to
+  the floor behind. The shrink keeps that graze off the table; space is cleared only where the fans
+  cover it with this margin to spare. A moving obstacle is cleared because fans pass *through* its
+  former place, far from the run's ends.
+* Clamping gives hysteresis: a surface at the upper bound needs 9 consecutive frames of free evidence
+  before it reads free.
+
+Storage (structure of arrays)
+-----------------------------
+Heights are integers on a lattice of ``height_resolution`` (1 cm by default): noisy observations of a
+surface then give identical bounds and merge instead of fragmenting. Per grid cell a dense table holds
+the start, count and reserved room of the cell's list in a pool of ``(lo, hi, log_odds)`` arrays
+(int32, int32, float32), sorted and disjoint; a frame rewrites only the cells it touches, in place
+when the list fits, else appended at the pool's end (the pool is compacted when half of it is dead).
+
+The pure thesis method stays available as :class:`mapping.vhv.VHVMap` (accumulate only, no free
+space); :func:`make_map` chooses by name.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mapping.errors import MappingError
+from mapping.grid import GridSpec
+from mapping.vhv import InsertStats, Method, Structures, VHVMap, as_points
+
+#: Map kinds of :func:`make_map`.
+MapKind = Literal["probabilistic", "thesis"]
+
+# Heights farther than this many lattice steps from 0 cannot be stored (int32 bounds).
+_LATTICE_LIMIT = float(2**30)
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+@dataclass(frozen=True)
+class EvidenceParams:
+    """Parameters of the evidence update (OctoMap's defaults for the probabilities).
+
+    Args:
+        prob_hit: probability of occupation after one hit on an unknown interval (0.5 < p < 1).
+        prob_miss: probability after one pass of free space (0 < p < 0.5).
+        clamp_min: lower clamping bound of the probability (keeps free space revisable).
+        clamp_max: upper clamping bound (keeps a moving obstacle clearable within a few frames).
+        occupied_threshold: an interval with ``p >= occupied_threshold`` is occupied.
+        free_threshold: an interval with ``p < free_threshold`` is free (between both: unknown).
+        height_resolution: lattice step of interval bounds along the kept axis, metres.
+        surface_half_thickness: half thickness of the slab a structure's hit covers, metres; None =
+            half the cell size.
+        surface_margin: how much each per-cell run of free space is shrunk at both ends (near-surface
+            rule), metres; None = one cell size.
+        gap_fill: free runs of one cell separated by at most this much are joined before the shrink,
+            metres. Neighbouring fans leave holes of a centimetre or two where the cloud's sampling
+            left a cell without points; a surface is thicker than that, and a surface the frame hits is
+            cut out of the free space anyway.
+        max_table_bytes: memory for the per-frame (cell, height bin) bit table; beyond it the free bins
+            grow coarser (whole multiples of ``height_resolution``).
+
+    Raises:
+        MappingError: a value out of its range.
+    """
+
+    prob_hit: float = 0.7
+    prob_miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    occupied_threshold: float = 0.5
+    free_threshold: float = 0.5
+    height_resolution: float = 0.01
+    surface_half_thickness: float | None = None
+    surface_margin: float | None = None
+    gap_fill: float = 0.02
+    max_table_bytes: int = 64 << 20
+
+    def __post_init__(self) -> None:
+        def prob(name: str, lo: float, hi: float) -> None:
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and lo < v < hi):
+                raise MappingError(f"EvidenceParams.{name}={v!r}: expected a probability in ({lo}, {hi})")
+
+        prob("prob_hit", 0.5, 1.0)
+        prob("prob_miss", 0.0, 0.5)
+        prob("clamp_min", 0.0, 1.0)
+        prob("clamp_max", 0.0, 1.0)
+        prob("occupied_threshold", 0.0, 1.0)
+        prob("free_threshold", 0.0, 1.0)
+        if not self.clamp_min < self.clamp_max:
+            raise MappingError(
+                f"EvidenceParams clamp_min={self.clamp_min!r} >= clamp_max={self.clamp_max!r}: "
+                "expected min < max"
+            )
+        if self.free_threshold > self.occupied_threshold:
+            raise MappingError(
+                f"EvidenceParams free_threshold={self.free_threshold!r} > occupied_threshold="
+                f"{self.occupied_threshold!r}: expected free <= occupied"
+            )
+        r = self.height_resolution
+        if not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
+            raise MappingError(f"EvidenceParams.height_resolution={r!r}: expected metres > 0")
+        for name in ("surface_half_thickness", "surface_margin", "gap_fill"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise MappingError(f"EvidenceParams.{name}={v!r}: expected metres >= 0 or None")
+        if int(self.max_table_bytes) < 1 << 16:
+            raise MappingError(f"EvidenceParams.max_table_bytes={self.max_table_bytes!r}: expected >= 65536")
+
+    @property
+    def log_odds(self) -> dict[str, float]:
+        """The parameters as log-odds: hit, miss, min, max, occupied, free."""
+        return {
+            "hit": _logit(self.prob_hit),
+            "miss": _logit(self.prob_miss),
+            "min": _logit(self.clamp_min),
+            "max": _logit(self.clamp_max),
+            "occupied": _logit(self.occupied_threshold),
+            "free": _logit(self.free_threshold),
+        }
+
+
+@dataclass(frozen=True)
+class EvidenceStats(InsertStats):
+    """What one insertion did: :class:`mapping.vhv.InsertStats` plus the evidence it produced.
+
+    Attributes:
+        free_intervals: free intervals of the frame after merging (per cell, disjoint).
+        occupied_slabs: occupied slabs of the frame (per cell, disjoint).
+        fan_passages: (structure, cell) passages the fans marked.
+        cells_updated: cells whose intervals were rewritten.
+        intervals: intervals stored in the map after the frame.
+        truncated_points: points beyond ``max_range`` (free space up to the range, no hit).
+    """
+
+    free_intervals: int = 0
+    occupied_slabs: int = 0
+    fan_passages: int = 0
+    cells_updated: int = 0
+    intervals: int = 0
+    truncated_points: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class EvidenceIntervals:
+    """Every stored interval as a structure of arrays, sorted by cell then bottom.
+
+    Attributes:
+        i, j: cell indices (int32).
+        bottom, top: interval bounds along the kept axis, metres (float64); ``[bottom, top)``.
+        log_odds: clamped log-odds of occupation (float32).
+        probability: ``1 / (1 + exp(-log_odds))`` (float64).
+        occupied: ``probability >= occupied_threshold``.
+        free: ``probability < free_threshold``.
+    """
+
+    i: NDArray[np.int32]
+    j: NDArray[np.int32]
+    bottom: NDArray[np.float64]
+    top: NDArray[np.float64]
+    log_odds: NDArray[np.float32]
+    probability: NDArray[np.float64] = field(repr=False)
+    occupied: NDArray[np.bool_] = field(repr=False)
+    free: NDArray[np.bool_] = field(repr=False)
+
+    def __len__(self) -> int:
+        return int(self.i.shape[0])
+
+
+def _structures_from(
+    key: NDArray[np.int64], lo: NDArray[np.float64], hi: NDArray[np.float64], ny: int
+) -> Structures:
+    return Structures.from_bounds((key // ny).astype(np.int32), (key % ny).astype(np.int32), lo, hi)
+
+
+def _join_touching(
+    key: NDArray[np.int64], lo: NDArray[np.int32], hi: NDArray[np.int32]
+) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32]]:
+    """Join consecutive intervals of one cell that touch (sorted, disjoint input)."""
+    if key.shape[0] == 0:
+        return key, lo, hi
+    start = np.ones(key.shape[0], bool)
+    start[1:] = (key[1:] != key[:-1]) | (lo[1:] != hi[:-1])
+    s = np.flatnonzero(start)
+    ends = np.r_[s[1:], key.shape[0]] - 1
+    return key[s], lo[s], hi[ends]
+
+
+class ProbabilisticVHV:
+    """A variable-height map that keeps occupied and free evidence per vertical interval.
+
+    Accepts the same inputs as :class:`mapping.vhv.VHVMap` (``insert(points, sensor_origin=...)``) and
+    answers the same occupied-structure queries (``structures()``, ``n_structures``, ...), so
+    :mod:`mapping.derived` and :mod:`mapping.export` take either. It adds free space, log-odds per
+    interval and three-valued views (:meth:`occupancy_2d`).
+
+    Args:
+        spec: the grid.
+        tolerance: VHV clustering tolerance of each frame's occupied structures, metres (> 0).
+        params: evidence parameters (default :class:`EvidenceParams`).
+
+    Example:
+        >>> import numpy as np
+        >>> m = ProbabilisticVHV(GridSpec(cell_size=0.1, size_x=4.0, size_y=4.0))
+        >>> wall = np.array([[1.5, y, z] for y in np.arange(-0.5, 0.5, 0.02) for z in np.arange(0, 1, 0.02)])
+        >>> _ = m.insert(wall, sensor_origin=(0.0, 0.0, 0.5))
+        >>> codes = m.occupancy_2d((0.1, 0.9))
+        >>> int(codes[m.spec.world_to_index(1.5, 0.0)]), int(codes[m.spec.world_to_index(1.0, 0.0)])
+        (100, 0)
+        >>> int(codes[m.spec.world_to_index(-1.0, 0.0)])  # behind the sensor: never seen
+        -1
+    """
+
+    def __init__(self, spec: GridSpec, tolerance: float = 0.05, params: EvidenceParams | None = None) -> None:
+        # VHVMap validates spec and tolerance with the project's messages.
+        self._occ_base = VHVMap(spec, tolerance)
+        self.spec = spec
+        self.tolerance = float(tolerance)
+        self.params = params if params is not None else EvidenceParams()
+        if not isinstance(self.params, EvidenceParams):
+            raise MappingError(
+                f"ProbabilisticVHV params={params!r}: expected mapping.probabilistic.EvidenceParams"
+            )
+        p = self.params
+        cs = spec.cell_size
+        self._r = float(p.height_resolution)
+        self._half = float(cs / 2.0 if p.surface_half_thickness is None else p.surface_half_thickness)
+        self._margin = float(cs if p.surface_margin is None else p.surface_margin)
+        self._gap = float(p.gap_fill)
+        lo = p.log_odds
+        self._l_hit = np.float32(lo["hit"])
+        self._l_miss = np.float32(lo["miss"])
+        self._l_min = np.float32(lo["min"])
+        self._l_max = np.float32(lo["max"])
+        self._l_occ = np.float32(lo["occupied"])
+        self._l_free = np.float32(lo["free"])
+        nx, ny = spec.shape
+        self._cstart = np.zeros(nx * ny, np.int64)
+        self._ccount = np.zeros(nx * ny, np.int32)
+        self._ccap = np.zeros(nx * ny, np.int32)
+        cap = 1 << 16
+        self._plo = np.empty(cap, np.int32)
+        self._phi = np.empty(cap, np.int32)
+        self._pl = np.empty(cap, np.float32)
+        self._used = 0
+        self._garbage = 0
+        self._n_intervals = 0
+        self._cache: dict[str, Any] = {}
+        self.frames = 0
+        self.points_inserted = 0
+        self.points_dropped_nonfinite = 0
+        self.points_outside_grid = 0
+        self.sensor_origins: list[tuple[float, float, float]] = []
+
+    # ------------------------------------------------------------------ insertion
+    def insert(
+        self,
+        points: ArrayLike,
+        sensor_origin: ArrayLike | None = None,
+        method: Method = "auto",
+        max_range: float | None = None,
+    ) -> EvidenceStats:
+        """Insert one cloud (world frame): occupied evidence at its structures, free evidence in front.
+
+        Args:
+            points: ``(N, 3)`` or organized ``(H, W, 3)`` xyz in metres (float32/float64; NaN/inf
+                dropped and counted), as for :meth:`mapping.vhv.VHVMap.insert`.
+            sensor_origin: world xyz of the sensor. Without it the frame gives occupied evidence only.
+            method: VHV build path ("auto", "bins", "sort", "numpy").
+            max_range: metres; points farther from the sensor give no hit, only free space up to this
+                range along their ray (OctoMap's ``maxrange``). None: no limit.
+
+        Returns:
+            :class:`EvidenceStats`.
+
+        Raises:
+            PointsError: wrong shape or dtype.
+            MappingError: bad method, sensor origin or max_range (max_range needs a sensor origin).
+        """
+        t0 = time.perf_counter()
+        origin = self._check_origin(sensor_origin)
+        pts = as_points(points)
+        n_in = int(pts.shape[0])
+        truncated = None
+        n_trunc = 0
+        if max_range is not None:
+            mr = float(max_range)
+            if not (math.isfinite(mr) and mr > 0):
+                raise MappingError(f"insert max_range={max_range!r}: expected a finite number of metres > 0")
+            if origin is None:
+                raise MappingError("insert max_range needs a sensor_origin (the range is measured from it)")
+            from mapping import _evidence_kernels as E
+
+            n_trunc = int(E.count_beyond(pts, *origin, mr))
+            if n_trunc:
+                kept = np.empty_like(pts)
+                truncated = np.empty((n_trunc, 3), np.float64)
+                E.split_beyond(pts, *origin, mr, kept, truncated)
+                pts = kept
+        return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
+
+    def _counted(
+        self,
+        pts: NDArray[np.floating],
+        n_in: int,
+        free_only: NDArray[np.float64] | None,
+        origin: tuple[float, float, float] | None,
+        method: str,
+        t0: float,
+        n_free_only: int,
+    ) -> EvidenceStats:
+        stats = self._insert(pts, free_only, origin, method)
+        n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - (n_free_only if n_in else 0)
+        self.frames += 1
+        self.points_inserted += n_ins
+        self.points_dropped_nonfinite += stats["n_nonfinite"]
+        self.points_outside_grid += stats["n_outside"]
+        if origin is not None:
+            self.sensor_origins.append(origin)
+        return EvidenceStats(
+            points_in=n_in,
+            points_dropped_nonfinite=stats["n_nonfinite"],
+            points_outside_grid=stats["n_outside"],
+            points_inserted=n_ins,
+            build_ms=(time.perf_counter() - t0) * 1e3,
+            frame_structures=stats["frame_structures"],
+            method=stats["method"],
+            free_intervals=stats["free_intervals"],
+            occupied_slabs=stats["occupied_slabs"],
+            fan_passages=stats["fan_passages"],
+            cells_updated=stats["cells_updated"],
+            intervals=self._n_intervals,
+            truncated_points=n_free_only,
+        )
+
+    def insert_frame(
+        self, points_world: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None
+    ) -> EvidenceStats:
+        """One depth frame, for a perception stage: ``insert`` with a required sensor origin.
+
+        Args:
+            points_world: ``(N, 3)`` / ``(H, W, 3)`` world xyz, metres, NaN for no return.
+            sensor_origin: world xyz of the sensor's optical centre, metres.
+            max_range: metres; farther points clear up to this range and give no hit.
+        """
+        if sensor_origin is None:
+            raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
+        return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+
+    def insert_free(self, targets: ArrayLike, sensor_origin: ArrayLike) -> EvidenceStats:
+        """Free evidence only: space from the sensor up to (not into) the cells of ``targets`` is free.
+
+        Used for readings that found nothing within their range (the targets are the range's end).
+        """
+        t0 = time.perf_counter()
+        origin = self._check_origin(sensor_origin)
+        if origin is None:
+            raise MappingError("insert_free sensor_origin=None: free space needs the sensor position")
+        tg = as_points(targets, "targets").astype(np.float64)
+        tg = tg[np.isfinite(tg).all(axis=1)]
+        return self._counted(np.empty((0, 3), np.float64), 0, tg, origin, "auto", t0, int(tg.shape[0]))
+
+    def insert_sonar(
+        self,
+        fusion: Any,
+        t_world_array: ArrayLike,
+        max_range_m: float = 1.0,
+        ppc: int = 40,
+    ) -> EvidenceStats:
+        """Evidence of one fused sonar-array reading (thesis 5.2, 5.4; :mod:`mapping.sonar`).
+
+        With an echo the zone's cone (Fig. 5.7 points at the fused range, :func:`mapping.sonar.cone_points`)
+        is occupied and the zone's solid beam from the array up to that range is free (fans to a
+        sampling of the beam's cross-section at the range: the printed Fig. 5.7 rings leave the
+        beam's axis unsampled), through the same core as a depth frame. With no echo within range
+        (every sonar silent or over 1 m) the array's whole coverage (hull of the three beams, each
+        beam's own width as vertical aperture) is free up to ``max_range_m``.
+
+        Args:
+            fusion: a :class:`mapping.sonar.FusionResult`.
+            t_world_array: ``(4, 4)`` pose of the array frame (x along sonar 2, z up) in the world.
+            max_range_m: range trusted free when nothing echoes, metres (the thesis accepts readings
+                under 1 m).
+            ppc: points per cone circle.
+
+        Raises:
+            MappingError: malformed pose or range.
+        """
+        from mapping.sonar import OUTER_SONAR_DEG, cone_points, half_apertures_deg, sonar_intervals_deg
+
+        t0 = time.perf_counter()
+        t = np.asarray(t_world_array, dtype=np.float64)
+        if t.shape != (4, 4) or not bool(np.all(np.isfinite(t))):
+            raise MappingError(
+                f"insert_sonar t_world_array: expected a finite (4, 4) pose, got shape {t.shape}"
+            )
+        if not (math.isfinite(max_range_m) and max_range_m > 0):
+            raise MappingError(f"insert_sonar max_range_m={max_range_m!r}: expected metres > 0")
+        origin = (float(t[0, 3]), float(t[1, 3]), float(t[2, 3]))
+        rot, pos = t[:3, :3], t[:3, 3]
+        if fusion.has_obstacle and fusion.theta_deg > 0.0:
+            d = float(fusion.distance_m)
+            pts = cone_points(d, fusion.theta_deg, fusion.alpha_deg, ppc) @ rot.T + pos
+            beam = _solid_beam(d, fusion.alpha_deg, fusion.theta_deg, fusion.theta_deg / 2.0) @ rot.T + pos
+            return self._counted(pts, int(pts.shape[0]), beam, origin, "auto", t0, 0)
+        d_cm = min(max_range_m * 100.0, 100.0)  # the detection model's domain
+        iv = sonar_intervals_deg(d_cm, OUTER_SONAR_DEG)
+        lo, hi = float(iv[:, 0].min()), float(iv[:, 1].max())
+        left, right = half_apertures_deg(d_cm)
+        half_elev = float(np.asarray(left + right)) / 2.0
+        beam = _solid_beam(max_range_m, lo, hi - lo, half_elev) @ rot.T + pos
+        return self._counted(np.empty((0, 3), np.float64), 0, beam, origin, "auto", t0, int(beam.shape[0]))
+
+    # ------------------------------------------------------------------ core
+    def _check_origin(self, sensor_origin: ArrayLike | None) -> tuple[float, float, float] | None:
+        if sensor_origin is None:
+            return None
+        o = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
+        if o.shape != (3,) or not bool(np.all(np.isfinite(o))):
+            raise MappingError(f"sensor_origin={sensor_origin!r}: expected finite (x, y, z) in metres")
+        return float(o[0]), float(o[1]), float(o[2])
+
+    def _insert(
+        self,
+        pts: NDArray[np.floating],
+        free_only: NDArray[np.float64] | None,
+        origin: tuple[float, float, float] | None,
+        method: str,
+    ) -> dict[str, Any]:
+        ev = self._evidence(pts, free_only, origin, method)
+        ncells = 0
+        if ev["okey"].shape[0] or ev["fkey"].shape[0]:
+            ncells = self._update(ev["okey"], ev["olo"], ev["ohi"], ev["fkey"], ev["flo"], ev["fhi"])
+        self._cache.clear()
+        ev["cells_updated"] = ncells
+        return ev
+
+    def _evidence(
+        self,
+        pts: NDArray[np.floating],
+        free_only: NDArray[np.float64] | None,
+        origin: tuple[float, float, float] | None,
+        method: str,
+    ) -> dict[str, Any]:
+        """One frame's occupied slabs and merged free intervals (lattice units), without touching the map."""
+        from mapping import _evidence_kernels as E
+        from mapping.vhv import _build_compiled, _build_numpy
+
+        spec, tol = self.spec, self.tolerance
+        if method not in ("auto", "bins", "sort", "numpy"):
+            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
+        if method == "numpy":
+            with np.errstate(over="ignore"):
+                key, bot, top, n_nf, n_out = _build_numpy(pts, spec, tol)
+            used = "numpy"
+        else:
+            key, bot, top, n_nf, n_out, used = _build_compiled(pts, spec, tol, method)
+        r = self._r
+        lim = _LATTICE_LIMIT * r * 0.5
+        ok = (bot > -lim) & (top < lim)
+        if not bool(ok.all()):
+            key, bot, top = key[ok], bot[ok], top[ok]
+        okey, olo, ohi = E.occupied_evidence(
+            key, bot, top, 1.0 / r, self._half, -_LATTICE_LIMIT, _LATTICE_LIMIT
+        )
+        fkey = np.empty(0, np.int64)
+        flo = np.empty(0, np.int32)
+        fhi = np.empty(0, np.int32)
+        passages = 0
+        if origin is not None:
+            tkey, tbot, ttop = key, bot, top
+            if free_only is not None and free_only.shape[0]:
+                k2, b2, t2, _, _ = (
+                    _build_numpy(free_only, spec, tol)
+                    if method == "numpy"
+                    else _build_compiled(free_only, spec, tol, "auto")[:5]
+                )
+                ok2 = (b2 > -lim) & (t2 < lim)
+                tkey = np.concatenate([key, k2[ok2]])
+                tbot = np.concatenate([bot, b2[ok2]])
+                ttop = np.concatenate([top, t2[ok2]])
+            if tkey.shape[0]:
+                fkey, flo, fhi, passages = self._free_evidence(tkey, tbot, ttop, origin, okey, olo, ohi)
+        return {
+            "n_nonfinite": int(n_nf),
+            "n_outside": int(n_out),
+            "frame_structures": int(key.shape[0]),
+            "method": used,
+            "free_intervals": int(fkey.shape[0]),
+            "occupied_slabs": int(okey.shape[0]),
+            "fan_passages": int(passages),
+            "okey": okey,
+            "olo": olo,
+            "ohi": ohi,
+            "fkey": fkey,
+            "flo": flo,
+            "fhi": fhi,
+        }
+
+    def frame_evidence(
+        self, points: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None
+    ) -> tuple[Structures, Structures]:
+        """What one frame would add, without adding it: ``(occupied slabs, free intervals)``.
+
+        Both are per-cell sorted structure lists in metres; free intervals are disjoint from each other
+        and from the occupied slabs (the merge of step 3 in the module docs).
+        """
+        origin = self._check_origin(sensor_origin)
+        if origin is None:
+            raise MappingError("frame_evidence sensor_origin=None: free space needs the sensor position")
+        pts = as_points(points)
+        truncated = None
+        if max_range is not None:
+            from mapping import _evidence_kernels as E
+
+            mr = float(max_range)
+            n_trunc = int(E.count_beyond(pts, *origin, mr))
+            if n_trunc:
+                kept = np.empty_like(pts)
+                truncated = np.empty((n_trunc, 3), np.float64)
+                E.split_beyond(pts, *origin, mr, kept, truncated)
+                pts = kept
+        ev = self._evidence(pts, truncated, origin, "auto")
+        ny, r = self.spec.shape[1], self._r
+        occ = _structures_from(ev["okey"], ev["olo"] * r, ev["ohi"] * r, ny)
+        free = _structures_from(ev["fkey"], ev["flo"] * r, ev["fhi"] * r, ny)
+        return occ, free
+
+    def _free_evidence(
+        self,
+        key: NDArray[np.int64],
+        bot: NDArray[np.float64],
+        top: NDArray[np.float64],
+        origin: tuple[float, float, float],
+        okey: NDArray[np.int64],
+        olo: NDArray[np.int32],
+        ohi: NDArray[np.int32],
+    ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], int]:
+        """The frame's merged free intervals (fans of every target structure), see the module docs."""
+        from mapping import _evidence_kernels as E
+
+        spec = self.spec
+        nx, ny = spec.shape
+        (ou, ov), cs = spec.origin, spec.cell_size
+        su, sv, sh = (float(c) for c in spec.to_grid_frame(np.asarray(origin)))
+        si, sj = (int(c) for c in spec.world_to_index(su, sv))
+        ti = key // ny
+        tj = key % ny
+        i0 = max(min(int(ti.min()), si), 0)
+        i1 = min(max(int(ti.max()), si), nx - 1)
+        j0 = max(min(int(tj.min()), sj), 0)
+        j1 = min(max(int(tj.max()), sj), ny - 1)
+        ni, nj = i1 - i0 + 1, j1 - j0 + 1
+        r = self._r
+        inv_r = 1.0 / r
+        b0 = math.floor(min(sh, float(bot.min())) * inv_r)
+        b1 = math.floor(max(sh, float(top.max())) * inv_r)
+        span = b1 - b0 + 1
+        words_budget = max(1, int(self.params.max_table_bytes) // (8 * ni * nj))
+        m = max(1, math.ceil(span / (64 * words_budget)))
+        nbins = math.ceil(span / m)
+        nw = (nbins + 63) // 64
+        bits = np.zeros(ni * nj * nw, np.uint64)
+        passages = E.fan_bits(
+            key, bot, top, ny, cs, ou, ov, su, sv, sh, i0, j0, ni, nj, nw, inv_r, b0, m, nbins, bits
+        )
+        erode = math.ceil(self._margin / (m * r) - 1e-9)
+        gap = math.floor(self._gap / (m * r) + 1e-9)
+        fkey, flo, fhi = E.extract_free(
+            bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
+        )
+        return fkey, flo, fhi, int(passages)
+
+    def _update(
+        self,
+        okey: NDArray[np.int64],
+        olo: NDArray[np.int32],
+        ohi: NDArray[np.int32],
+        fkey: NDArray[np.int64],
+        flo: NDArray[np.int32],
+        fhi: NDArray[np.int32],
+    ) -> int:
+        from mapping import _evidence_kernels as E
+
+        tkey, toff, tlo, thi, tl = E.update_cells(
+            self._cstart, self._ccount, self._plo, self._phi, self._pl,
+            okey, olo, ohi, fkey, flo, fhi,
+            self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
+        )  # fmt: skip
+        extra = int(E.relocation_slots(tkey, toff, self._ccap))
+        if self._used + extra > self._plo.shape[0]:
+            self._grow(self._used + extra)
+        used, freed, delta = E.write_back(
+            tkey, toff, tlo, thi, tl, self._cstart, self._ccount, self._ccap,
+            self._plo, self._phi, self._pl, self._used,
+        )  # fmt: skip
+        self._used = int(used)
+        self._garbage += int(freed)
+        self._n_intervals += int(delta)
+        if self._garbage > 2 * self._n_intervals + (1 << 16):
+            self._compact()
+        return int(tkey.shape[0])
+
+    def _grow(self, need: int) -> None:
+        cap = max(2 * self._plo.shape[0], need)
+        for name in ("_plo", "_phi", "_pl"):
+            old = getattr(self, name)
+            new = np.empty(cap, old.dtype)
+            new[: self._used] = old[: self._used]
+            setattr(self, name, new)
+
+    def _compact(self) -> None:
+        from mapping import _evidence_kernels as E
+
+        slack = 2
+        cells = int(np.count_nonzero(self._ccount))
+        cap = max(self._n_intervals + slack * cells + 1024, 1 << 16)
+        lo, hi, lv = np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32)
+        # cells with no interval keep no room
+        self._ccap[self._ccount == 0] = 0
+        self._used = int(
+            E.compact(
+                self._cstart, self._ccount, self._ccap, self._plo, self._phi, self._pl, lo, hi, lv, slack
+            )
+        )
+        self._plo, self._phi, self._pl = lo, hi, lv
+        self._garbage = 0
+
+    # ------------------------------------------------------------------ queries
+    def _flat(self) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.float32]]:
+        if "flat" not in self._cache:
+            from mapping import _evidence_kernels as E
+
+            self._cache["flat"] = E.gather(
+                self._cstart, self._ccount, self._plo, self._phi, self._pl, self._n_intervals
+            )
+        flat: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.float32]] = (
+            self._cache["flat"]
+        )
+        return flat
+
+    def intervals(self) -> EvidenceIntervals:
+        """Every stored interval (occupied, free or in between) with its log-odds and probability."""
+        key, lo, hi, lv = self._flat()
+        ny = self.spec.shape[1]
+        with np.errstate(over="ignore"):
+            prob = 1.0 / (1.0 + np.exp(-lv.astype(np.float64)))
+        return EvidenceIntervals(
+            i=(key // ny).astype(np.int32),
+            j=(key % ny).astype(np.int32),
+            bottom=lo.astype(np.float64) * self._r,
+            top=hi.astype(np.float64) * self._r,
+            log_odds=lv.copy(),
+            probability=prob,
+            occupied=lv >= self._l_occ,
+            free=lv < self._l_free,
+        )
+
+    def _state(self, which: str) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+        if which not in self._cache:
+            key, lo, hi, lv = self._flat()
+            sel = lv >= self._l_occ if which == "occupied" else lv < self._l_free
+            k, a, b = _join_touching(key[sel], lo[sel], hi[sel])
+            self._cache[which] = (k, a.astype(np.float64) * self._r, b.astype(np.float64) * self._r)
+        out: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] = self._cache[which]
+        return out
+
+    def _occupied_view(self) -> VHVMap:
+        if "view" not in self._cache:
+            k, b, t = self._state("occupied")
+            v = VHVMap(self.spec, self.tolerance)
+            v._key, v._bottom, v._top = k, b, t
+            self._cache["view"] = v
+        view: VHVMap = self._cache["view"]
+        return view
+
+    def structures(self) -> Structures:
+        """Occupied intervals as VHV structures (touching occupied pieces of a cell joined).
+
+        Bounds are those of the stored slabs: the hits' extent widened by ``surface_half_thickness``
+        and snapped outward to the height lattice.
+        """
+        return self._occupied_view().structures()
+
+    def free_structures(self) -> Structures:
+        """Free intervals (touching free pieces of a cell joined), same layout as :meth:`structures`."""
+        k, b, t = self._state("free")
+        return _structures_from(k, b, t, self.spec.shape[1])
+
+    def structures_in_cell(self, i: int, j: int) -> Structures:
+        """Occupied structures of cell ``(i, j)``."""
+        return self._occupied_view().structures_in_cell(i, j)
+
+    def structures_at(self, u: float, v: float) -> Structures:
+        """Occupied structures of the cell containing grid-plane point ``(u, v)``."""
+        return self._occupied_view().structures_at(u, v)
+
+    @property
+    def cell_keys(self) -> NDArray[np.int64]:
+        """Cell key ``i * ny + j`` of every occupied structure (sorted)."""
+        return self._occupied_view().cell_keys
+
+    @property
+    def n_structures(self) -> int:
+        """Number of occupied structures."""
+        return self._occupied_view().n_structures
+
+    @property
+    def n_cells_occupied(self) -> int:
+        """Cells holding at least one occupied structure."""
+        return self._occupied_view().n_cells_occupied
+
+    @property
+    def n_voxels(self) -> int:
+        """Standard voxels the occupied structures cover."""
+        return self._occupied_view().n_voxels
+
+    @property
+    def n_intervals(self) -> int:
+        """Stored intervals of every state."""
+        return self._n_intervals
+
+    def bbox(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """World bounds of the occupied structures, or None."""
+        return self._occupied_view().bbox()
+
+    def elevation(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """2.5D elevation ``(top_max, bottom_min)`` of the occupied structures, ``(nx, ny)`` float64.
+
+        NaN where a cell holds no occupied interval: unknown, or known free with no surface.
+        """
+        from mapping.derived import elevation
+
+        return elevation(self._occupied_view())
+
+    def occupancy_2d(
+        self,
+        band: tuple[float, float],
+        unknown: int = -1,
+        min_free_fraction: float = 0.5,
+    ) -> NDArray[np.int8]:
+        """Three-valued 2D map of the height band, ``nav_msgs/OccupancyGrid`` codes, ``(nx, ny)`` int8.
+
+        * 100: an occupied interval overlaps ``[band[0], band[1]]``;
+        * 0: no occupied interval there, and free intervals cover at least ``min_free_fraction`` of
+          the band;
+        * ``unknown`` (default -1) otherwise. Pass ``unknown=100`` to plan as if unknown were blocked,
+          or 0 to treat it as free (the default keeps it apart: not free).
+
+        Raises:
+            MappingError: a malformed band, ``unknown`` not one of -1, 0, 100, or a fraction outside [0, 1].
+        """
+        z0, z1 = _check_band(band)
+        if unknown not in (-1, 0, 100):
+            raise MappingError(f"occupancy_2d unknown={unknown!r}: expected -1, 0 or 100")
+        if not (math.isfinite(min_free_fraction) and 0.0 <= min_free_fraction <= 1.0):
+            raise MappingError(
+                f"occupancy_2d min_free_fraction={min_free_fraction!r}: expected a value in [0, 1]"
+            )
+        nx, ny = self.spec.shape
+        codes = np.full(nx * ny, unknown, np.int8)
+        fk, fb, ft = self._state("free")
+        touch = (fb <= z1) & (ft > z0)
+        cover = np.minimum(ft, z1) - np.maximum(fb, z0)
+        covered = np.bincount(fk[touch], weights=np.maximum(cover[touch], 0.0), minlength=nx * ny)
+        any_free = np.bincount(fk[touch], minlength=nx * ny) > 0
+        free = any_free & (covered >= min_free_fraction * (z1 - z0) - 1e-12)
+        codes[free] = 0
+        ok, ob, ot = self._state("occupied")
+        hit = (ob <= z1) & (ot > z0)
+        codes[ok[hit]] = 100
+        return codes.reshape(nx, ny)
+
+    def free_cells(
+        self, band: tuple[float, float], unknown_is_free: bool = False, min_free_fraction: float = 0.5
+    ) -> NDArray[np.bool_]:
+        """``(nx, ny)`` True where the band is free; unknown counts as free only if asked."""
+        codes = self.occupancy_2d(
+            band, unknown=0 if unknown_is_free else 100, min_free_fraction=min_free_fraction
+        )
+        return np.asarray(codes == 0)
+
+    def __repr__(self) -> str:
+        return (
+            f"ProbabilisticVHV(cells={self.spec.shape}, cell_size={self.spec.cell_size}, "
+            f"tolerance={self.tolerance}, intervals={self._n_intervals}, frames={self.frames})"
+        )
+
+
+def _solid_beam(
+    range_m: float, alpha_deg: float, theta_deg: float, half_elev_deg: float
+) -> NDArray[np.float64]:
+    """Points at ``range_m`` (array frame) filling bearings ``[alpha, alpha + theta]`` and elevations
+    ``[-half_elev, +half_elev]`` on a 1-degree lattice (both ends included)."""
+    nb = max(2, math.ceil(theta_deg) + 1)
+    ne = max(2, math.ceil(2.0 * half_elev_deg) + 1)
+    b = np.radians(np.linspace(alpha_deg, alpha_deg + theta_deg, nb))[:, None]
+    e = np.radians(np.linspace(-half_elev_deg, half_elev_deg, ne))[None, :]
+    xyz = np.stack([np.cos(e) * np.cos(b), np.cos(e) * np.sin(b), np.sin(e) * np.ones_like(b)], axis=-1)
+    return np.asarray(range_m * xyz.reshape(-1, 3), dtype=np.float64)
+
+
+def _check_band(band: tuple[float, float]) -> tuple[float, float]:
+    try:
+        z0, z1 = (float(b) for b in band)
+    except (TypeError, ValueError):
+        raise MappingError(f"height band {band!r}: expected (z_min, z_max) in metres") from None
+    if not (math.isfinite(z0) and math.isfinite(z1)) or z0 > z1:
+        raise MappingError(f"height band [{z0!r}, {z1!r}]: expected finite z_min <= z_max")
+    return z0, z1
+
+
+def make_map(
+    spec: GridSpec,
+    tolerance: float = 0.05,
+    kind: MapKind = "probabilistic",
+    params: EvidenceParams | None = None,
+) -> VHVMap | ProbabilisticVHV:
+    """The map of ``kind``: "probabilistic" (:class:`ProbabilisticVHV`) or "thesis" (accumulate only,
+    :class:`mapping.vhv.VHVMap`, the method of Table 5.2).
+
+    Raises:
+        MappingError: unknown kind, or params given for the thesis map.
+    """
+    if kind == "thesis":
+        if params is not None:
+            raise MappingError("make_map kind='thesis': the accumulate-only map takes no evidence params")
+        return VHVMap(spec, tolerance)
+    if kind == "probabilistic":
+        return ProbabilisticVHV(spec, tolerance, params)
+    raise MappingError(f"make_map kind={kind!r}: expected 'probabilistic' or 'thesis'")

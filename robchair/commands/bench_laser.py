@@ -1,0 +1,129 @@
+"""`robchair bench laser`: one simulated URG-04LX scan (683 rays) with Embree vs PyBullet's rayTestBatch.
+
+Workload: the chair stands in a scene (default ``office``) with its laser at the spec's
+``laser_link`` mount; the chair turns by a small yaw between scans so every scan casts from a new
+pose. Both casters are timed in the same run, interleaved, on one thread each (Embree with
+``nthreads=1``, ``rayTestBatch`` with ``numThreads=1``), and ranges without noise are compared to
+show they see the same world. Embree casts against the visual triangles mirrored from PyBullet
+(:mod:`sim.raycast`; the mirror's ``sync`` is included in its time), PyBullet against its collision
+shapes (which include the chair itself, so beams that reach the chair's body are left out of the
+agreement figure). Reported: median milliseconds per scan and the ratio; JSON in ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+DEFAULT_OUT = "out/bench_laser.json"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("laser", help="simulated Hokuyo scan: Embree mirror vs PyBullet rayTestBatch")
+    p.add_argument("--scans", type=int, default=200, help="scans per caster (median; default 200)")
+    p.add_argument("--scene", default="office", help="scene in assets/scenes (default office)")
+    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    p.set_defaults(func=_run)
+
+
+def measure(scene: str, scans: int) -> dict[str, Any]:
+    """Time both casters on ``scans`` poses; returns medians (ms) and the agreement of their ranges."""
+    import numpy as np
+    import pybullet as p
+
+    from robchair.paths import ASSETS
+    from sim.backend import SimChair
+    from sim.laser import LaserSim
+    from sim.raycast import MeshMirror
+
+    path = ASSETS / "scenes" / f"{scene}.toml"
+    chair = SimChair(scene=path, sensor=None, sonars=False, noise=False)
+    try:
+        c = chair.world.client
+        mirror = MeshMirror(c, exclude_bodies=(chair.robot.body,), nthreads=1)
+        embree = LaserSim(c, mirror=mirror, noise=False)
+        bullet = LaserSim(c, caster="pybullet", noise=False)
+        base = chair.robot.link_transform("laser_link")
+        poses = []
+        for k in range(scans):
+            yaw = 2.0 * math.pi * k / scans
+            rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+            t = base.copy()
+            t[:3, :3] = rz @ base[:3, :3]
+            poses.append(t)
+        embree.true_ranges(poses[0])  # warm-up: builds the mirror (not timed)
+        te, tb, agree, hit = [], [], [], []
+        for t in poses:
+            t0 = time.perf_counter()
+            re = embree.true_ranges(t)
+            t1 = time.perf_counter()
+            hits = p.rayTestBatch(
+                np.broadcast_to(t[:3, 3], (683, 3)).tolist(),
+                (t[:3, 3] + (embree._dirs @ t[:3, :3].T) * 4.0).tolist(),
+                numThreads=1,
+                physicsClientId=c,
+            )
+            t2 = time.perf_counter()
+            rb = np.array([h[2] * 4.0 if h[0] >= 0 and h[0] != chair.robot.body else np.inf for h in hits])
+            own = np.array([h[0] == chair.robot.body for h in hits])
+            te.append(t1 - t0)
+            tb.append(t2 - t1)
+            both = ~own & (np.isfinite(re) | np.isfinite(rb))
+            hit.append(float(np.mean(np.isfinite(re))))
+            agree.append(
+                float(np.mean(np.abs(np.nan_to_num(re[both] - rb[both], posinf=9, neginf=9)) < 0.01))
+            )
+        del bullet
+        return {
+            "embree_ms": 1e3 * statistics.median(te),
+            "pybullet_ms": 1e3 * statistics.median(tb),
+            "agreement_1cm": statistics.median(agree),
+            "beams_with_return": statistics.median(hit),
+            "scans": scans,
+        }
+    finally:
+        chair.close()
+
+
+def _run(args: argparse.Namespace) -> int:
+    from robchair.errors import RobChairError
+
+    if args.scans < 1:
+        raise RobChairError(f"--scans must be >= 1, got {args.scans}")
+    load0 = os.getloadavg()
+    m = measure(args.scene, args.scans)
+    load1 = os.getloadavg()
+    print(f"robchair bench laser: {args.scene}, 683 rays per scan, median of {m['scans']} scans, 1 thread")
+    print(f"{'caster':34s} {'ms/scan':>8s}")
+    print(f"{'Embree mirror (Open3D), with sync':34s} {m['embree_ms']:8.3f}")
+    print(f"{'PyBullet rayTestBatch':34s} {m['pybullet_ms']:8.3f}")
+    faster = "Embree" if m["embree_ms"] < m["pybullet_ms"] else "PyBullet"
+    ratio = max(m["embree_ms"], m["pybullet_ms"]) / max(min(m["embree_ms"], m["pybullet_ms"]), 1e-12)
+    print(
+        f"{faster} is {ratio:.1f}x faster; {100 * m['beams_with_return']:.0f} % of beams return, and the two "
+        f"casters agree within 1 cm on {100 * m['agreement_1cm']:.1f} % of the beams not on the chair"
+    )
+    print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result = {
+        "scene": args.scene,
+        **m,
+        "faster": faster,
+        "ratio": ratio,
+        "load_average_before": load0,
+        "load_average_after": load1,
+        "cpus": os.cpu_count(),
+        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    tmp = out.with_suffix(".json.partial")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(out)
+    print(f"wrote {out}")
+    return 0

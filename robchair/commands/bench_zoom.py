@@ -1,0 +1,115 @@
+"""``robchair bench zoom``: the costs of issue-free local mapping extras on a 512x424 depth frame.
+
+Zoom: the cost of a 1 cm zoom region on the insert of a 512x424 depth frame.
+
+Baseline: the plain coarse :class:`mapping.vhv.VHVMap` insert of the same frame (5 cm cells) into a map
+that already holds the previous frames. Measured: the :class:`mapping.zoom.ZoomMap` insert (coarse map +
+a 2 m x 2 m region at 1 cm in front of the camera). One core, medians. Target: at most +20 %.
+
+Matching: :class:`mapping.matching.ScanMatcher` registering a 512x424 frame (displaced by 5 cm and 1 deg)
+against the map of the previous frames. One core, median. Target: at most 10 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "zoom", help="zoom region cost: 512x424 frame insert, coarse vs coarse + 1 cm region"
+    )
+    p.add_argument("--repeats", type=int, default=31, help="timed inserts per variant (median)")
+    p.add_argument("--fine-cell", type=float, default=0.01, help="fine cell side, m (default 0.01)")
+    p.add_argument("--region", type=float, default=2.0, help="side of the square region, m (default 2)")
+    p.add_argument("--out", type=Path, default=Path("out/bench_zoom"), help="output folder (JSON)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    import numpy as np
+
+    from mapping.grid import GridSpec
+    from mapping.synthetic import render_scene
+    from mapping.vhv import VHVMap
+    from mapping.zoom import ZoomMap
+    from robchair.errors import RobChairError
+
+    if args.repeats < 3:
+        raise RobChairError(f"--repeats {args.repeats}: expected at least 3")
+    factor = round(0.05 / args.fine_cell)
+    if factor < 2 or abs(factor * args.fine_cell - 0.05) > 1e-9:
+        raise RobChairError(f"--fine-cell {args.fine_cell}: expected 0.05 m divided by an integer >= 2")
+    rng = np.random.default_rng(0)
+    frames = [render_scene(rng, 424, 512).reshape(-1, 3) for _ in range(4)]
+    spec = GridSpec(cell_size=0.05, size_x=12.0, size_y=12.0, centre=(2.0, 0.0))
+    region = (0.5, -args.region / 2, 0.5 + args.region, args.region / 2)
+
+    def timed(make: Any) -> tuple[float, int]:
+        m = make()
+        for f in frames:  # warm up (numba) and fill the map with earlier frames
+            m.insert(f)
+        ts = []
+        for k in range(args.repeats):
+            t0 = time.perf_counter()
+            m.insert(frames[k % len(frames)])
+            ts.append(time.perf_counter() - t0)
+        fine = getattr(m, "fine", None)
+        return statistics.median(ts), (fine.n_structures if fine is not None else 0)
+
+    coarse_s, _ = timed(lambda: VHVMap(spec, 0.05))
+    zoom_s, fine_n = timed(lambda: ZoomMap(spec, 0.05, factor=factor, region=region))
+    extra = zoom_s / coarse_s - 1.0
+    print(f"frame: 512x424 ({frames[0].shape[0]} points, {int(np.isnan(frames[0][:, 2]).sum())} NaN)")
+    print(f"{'coarse VHV insert (5 cm)':<44} {coarse_s * 1e3:8.2f} ms")
+    label = f"coarse + zoom insert ({args.fine_cell * 100:g} cm over {args.region:g} m x {args.region:g} m)"
+    print(
+        f"{label:<44}"
+        f" {zoom_s * 1e3:8.2f} ms   +{extra * 100:.1f} %  (target <= +20 %)  fine structures {fine_n}"
+    )
+    from mapping.matching import ScanMatcher
+
+    base = VHVMap(spec, 0.05)
+    for f in frames:
+        base.insert(f)
+    c, s_ = np.cos(np.radians(1.0)), np.sin(np.radians(1.0))
+    moved = [
+        f.astype(np.float64) @ np.array([[c, s_, 0], [-s_, c, 0], [0, 0, 1]]) + [0.05, 0.0, 0.0]
+        for f in frames
+    ]
+    matcher = ScanMatcher()
+    ts = []
+    for k in range(args.repeats):
+        matcher.t_map_odom = np.eye(4)
+        t0 = time.perf_counter()
+        matcher.match(moved[k % len(moved)], base)
+        ts.append(time.perf_counter() - t0)
+    match_s = statistics.median(ts)
+    accepted = sum(r.accepted for r in matcher.results)
+    print(
+        f"{'scan-to-map matching of the frame':<44} {match_s * 1e3:8.2f} ms   (target <= 10 ms)"
+        f"  accepted {accepted}/{len(matcher.results)}"
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "bench_zoom.json").write_text(
+        json.dumps(
+            {
+                "coarse_insert_s": coarse_s,
+                "zoom_insert_s": zoom_s,
+                "extra_fraction": extra,
+                "fine_cell_m": args.fine_cell,
+                "region_m": args.region,
+                "fine_structures": fine_n,
+            },
+            indent=1,
+        ),
+        encoding="utf-8",
+    )
+    return 0

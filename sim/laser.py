@@ -1,0 +1,250 @@
+"""Simulated Hokuyo URG-04LX laser range finder: 683 rays in one plane, datasheet accuracy as noise.
+
+The model (SPEC section 3, Hokuyo URG-04LX datasheet): 240 deg field of view in 683 steps of
+360/1024 = 0.3515625 deg, symmetric about the sensor's x axis (beam 341 looks straight ahead), ranges
+0.02 - 4 m, one scan per 100 ms (600 rpm), accuracy +-10 mm up to 1 m and +-1 % of the range beyond.
+(The real sensor's ``PP`` reports the measurable steps 44..725, 682 values at the same spacing;
+:mod:`hw.hokuyo` uses what the device reports.)
+
+Rays are cast in the sensor's scan plane into the shared :class:`sim.raycast.MeshMirror` (Open3D's
+Embree ``RaycastingScene``), or, for comparison, with PyBullet's ``rayTestBatch`` against the collision
+shapes; ``robchair bench laser`` times both. The chair does not see itself: the mirror leaves its body
+out (see :class:`sim.backend.SimChair`).
+
+Ranges follow REP-117 like the driver's: nothing within ``range_max`` is ``+inf``; a surface closer
+than ``range_min`` is ``-inf``; otherwise the true range plus Gaussian noise of standard deviation
+``accuracy(r) / accuracy_sigmas`` (the datasheet's +- bound is taken as the ``accuracy_sigmas``-sigma
+envelope, 3 by default: 99.7 % of the readings inside it), rounded to whole millimetres as the sensor
+reports. Noise comes from a ``numpy.random.Generator`` that is passed in, so a seed fixes every scan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from hw.interfaces import Clock, Device, LaserScan
+from sim.errors import SimError
+from sim.raycast import MeshMirror, pose_matrix
+
+FloatArray = npt.NDArray[np.float64]
+
+CASTERS = ("embree", "pybullet")
+
+
+class LaserSimError(SimError, ValueError):
+    """A simulated laser was configured or queried with invalid values."""
+
+
+@dataclass(frozen=True)
+class LaserModel:
+    """Geometry, range limits, timing and accuracy of a planar scanning laser.
+
+    Attributes:
+        name: Model name.
+        n_beams: Beams per scan.
+        angle_increment: Angle between beams, rad.
+        range_min, range_max: Valid range, m.
+        scan_time: Time of one scan, s.
+        accuracy_near_m: Accuracy bound up to ``accuracy_knee_m``, m.
+        accuracy_knee_m: Range where the bound becomes relative, m.
+        accuracy_relative: Accuracy bound beyond the knee, fraction of the range.
+        resolution_m: Range quantum the sensor reports, m.
+    """
+
+    name: str
+    n_beams: int
+    angle_increment: float
+    range_min: float
+    range_max: float
+    scan_time: float
+    accuracy_near_m: float
+    accuracy_knee_m: float
+    accuracy_relative: float
+    resolution_m: float = 0.001
+
+    def __post_init__(self) -> None:
+        if self.n_beams < 1 or not self.angle_increment > 0:
+            raise LaserSimError(f"laser model {self.name!r}: needs >= 1 beam and a positive increment")
+        if not 0 < self.range_min < self.range_max:
+            raise LaserSimError(
+                f"laser model {self.name!r}: range {self.range_min}-{self.range_max} m invalid"
+            )
+
+    @property
+    def angle_min(self) -> float:
+        return -0.5 * (self.n_beams - 1) * self.angle_increment
+
+    @property
+    def angle_max(self) -> float:
+        return 0.5 * (self.n_beams - 1) * self.angle_increment
+
+    @property
+    def time_increment(self) -> float:
+        """Time between beams, s (the mirror turns a full revolution per scan)."""
+        return self.scan_time * self.angle_increment / (2.0 * math.pi)
+
+    def angles(self) -> FloatArray:
+        """(n_beams,) beam angles, rad, REP-103 (0 forward, counter-clockwise positive)."""
+        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
+
+    def accuracy(self, range_m: Any) -> FloatArray:
+        """The datasheet's +- accuracy bound at ``range_m``, m."""
+        r = np.asarray(range_m, dtype=np.float64)
+        return np.where(r <= self.accuracy_knee_m, self.accuracy_near_m, self.accuracy_relative * r)
+
+
+URG_04LX = LaserModel(
+    name="urg-04lx",
+    n_beams=683,
+    angle_increment=2.0 * math.pi / 1024.0,
+    range_min=0.02,
+    range_max=4.0,
+    scan_time=0.1,
+    accuracy_near_m=0.010,
+    accuracy_knee_m=1.0,
+    accuracy_relative=0.01,
+)
+
+
+class LaserSim(Device):
+    """A simulated URG-04LX in a PyBullet world, a :class:`hw.interfaces.LaserScanner`.
+
+    Use :meth:`scan` with an explicit world pose, or :meth:`read` with the ``pose`` and ``clock``
+    given here (e.g. ``pose=lambda: chair.robot.link_transform("laser_link")``).
+
+    Args:
+        client: PyBullet physics client id.
+        model: the laser model (default :data:`URG_04LX`).
+        mirror: a shared :class:`MeshMirror` (made here, leaving out ``exclude_bodies``, if None).
+        exclude_bodies: bodies the laser does not see (the chair itself).
+        caster: ``"embree"`` (the mirror) or ``"pybullet"`` (``rayTestBatch`` on collision shapes; sees
+            every body, ``exclude_bodies`` included).
+        noise: add the datasheet accuracy as Gaussian noise.
+        accuracy_sigmas: the datasheet bound is this many standard deviations.
+        rng: Generator (or int seed) for the noise; None means seed 0.
+        pose: ``() -> 4x4`` world pose of ``laser_link`` for :meth:`read`.
+        clock: stamps of :meth:`read` (default: 0).
+        frame_id: the scans' frame.
+    """
+
+    name = "laser-sim"
+
+    def __init__(
+        self,
+        client: int,
+        model: LaserModel = URG_04LX,
+        *,
+        mirror: MeshMirror | None = None,
+        exclude_bodies: Any = (),
+        caster: str = "embree",
+        noise: bool = True,
+        accuracy_sigmas: float = 3.0,
+        rng: np.random.Generator | int | None = None,
+        pose: Callable[[], Any] | None = None,
+        clock: Clock | None = None,
+        frame_id: str = "laser_link",
+    ) -> None:
+        if caster not in CASTERS:
+            raise LaserSimError(f"caster={caster!r}: expected one of {CASTERS}")
+        if not (math.isfinite(accuracy_sigmas) and accuracy_sigmas > 0):
+            raise LaserSimError(f"accuracy_sigmas={accuracy_sigmas!r}: expected a positive number")
+        self.client = int(client)
+        self.model = model
+        self.caster = caster
+        self.mirror = mirror
+        if caster == "embree" and self.mirror is None:
+            self.mirror = MeshMirror(client, exclude_bodies=exclude_bodies)
+        self.noise = bool(noise)
+        self.accuracy_sigmas = float(accuracy_sigmas)
+        self.rng = (
+            rng if isinstance(rng, np.random.Generator) else np.random.default_rng(0 if rng is None else rng)
+        )
+        self._pose = pose
+        self._clock = clock
+        self.frame_id = frame_id
+        a = model.angles()
+        self._dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # sensor frame
+
+    # ---- casting ----------------------------------------------------------------------------
+
+    def true_ranges(self, pose: Any) -> FloatArray:
+        """(n_beams,) distance to the first surface along each beam from the world ``pose``, m
+        (``inf`` for none within ``range_max``); no noise, no limits below."""
+        t = pose_matrix(pose)
+        origin = t[:3, 3]
+        dirs = self._dirs @ t[:3, :3].T
+        rmax = self.model.range_max
+        if self.caster == "embree":
+            assert self.mirror is not None
+            self.mirror.sync()
+            return self.mirror.cast(origin, dirs, max_range=rmax, normals=False).distance
+        import pybullet as p
+
+        ends = origin + dirs * rmax
+        hits = p.rayTestBatch(
+            np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
+        )
+        frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
+        return frac * rmax
+
+    def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
+        """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``."""
+        m = self.model
+        r = self.true_ranges(pose)
+        hit = np.isfinite(r) & (r <= m.range_max)
+        near = hit & (r < m.range_min)
+        ok = hit & ~near
+        out = np.full(r.shape, np.inf)
+        meas = r[ok]
+        if self.noise:
+            gen = rng if rng is not None else self.rng
+            meas = meas + gen.standard_normal(meas.shape) * (m.accuracy(meas) / self.accuracy_sigmas)
+        out[ok] = np.round(meas / m.resolution_m) * m.resolution_m
+        out[near] = -np.inf
+        return out.astype(np.float32)
+
+    def scan(self, pose: Any, stamp_ns: int = 0, *, rng: np.random.Generator | None = None) -> LaserScan:
+        """A :class:`hw.interfaces.LaserScan` of the laser at world ``pose`` (4x4 or (pos, quat_xyzw))."""
+        m = self.model
+        return LaserScan(
+            stamp_ns=int(stamp_ns),
+            angle_min=m.angle_min,
+            angle_max=m.angle_max,
+            angle_increment=m.angle_increment,
+            time_increment=m.time_increment,
+            scan_time=m.scan_time,
+            range_min=m.range_min,
+            range_max=m.range_max,
+            ranges=self.ranges(pose, rng=rng),
+            frame_id=self.frame_id,
+        )
+
+    # ---- the LaserScanner interface ------------------------------------------------------------
+
+    def read(self) -> LaserScan:
+        """A scan at the current ``pose()``, stamped by ``clock``.
+
+        Raises:
+            DeviceClosedError: before ``open()`` or after ``close()``.
+            LaserSimError: no ``pose`` was given.
+        """
+        self._check_open()
+        if self._pose is None:
+            raise LaserSimError("LaserSim.read needs pose=... (a function giving laser_link's world pose)")
+        stamp = self._clock.now_ns() if self._clock is not None else 0
+        return self.scan(self._pose(), stamp)
+
+
+def mounted_pose(base_pose: Any, spec: Any = None) -> FloatArray:
+    """World pose (4x4) of ``laser_link`` for the chair's ``base_link`` at ``base_pose``, from the spec's
+    laser mount (``mounts.laser_link`` in ``assets/robchair.toml``)."""
+    from robchair.spec import load_spec
+
+    s = spec if spec is not None else load_spec()
+    return pose_matrix(base_pose) @ s.laser_mount.transform()

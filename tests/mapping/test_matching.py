@@ -1,0 +1,127 @@
+"""Local-to-global matching: known offsets recovered, degenerate frames fall back to odometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapping.errors import MappingError
+from mapping.grid import GridSpec
+from mapping.matching import MatchParams, ScanMatcher, occupied_cell_centroids
+from mapping.synthetic import render_scene
+from mapping.vhv import VHVMap
+
+SPEC = GridSpec(cell_size=0.05, size_x=16.0, size_y=16.0, centre=(3.0, 0.0))
+
+
+def _rot(points: np.ndarray, dx: float, dy: float, dyaw: float) -> np.ndarray:
+    c, s = math.cos(dyaw), math.sin(dyaw)
+    p = points.reshape(-1, 3).astype(np.float64)
+    x, y = p[:, 0] * c - p[:, 1] * s + dx, p[:, 0] * s + p[:, 1] * c + dy
+    return np.column_stack([x, y, p[:, 2]])
+
+
+@pytest.fixture(scope="module")
+def room() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(7)
+    first = render_scene(rng, 212, 256, nan_fraction=0.05, pitch_deg=5.0)
+    second = render_scene(rng, 212, 256, nan_fraction=0.05, pitch_deg=5.0)  # another noisy view
+    return first.reshape(-1, 3), second.reshape(-1, 3)
+
+
+@pytest.mark.parametrize("offset", [(0.08, -0.05, math.radians(2.0)), (-0.1, 0.06, math.radians(-3.0))])
+def test_a_known_rigid_offset_is_recovered(room, offset) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    # the odometry is off: the second view arrives displaced by the inverse of the offset
+    dx, dy, dyaw = offset
+    c, s = math.cos(-dyaw), math.sin(-dyaw)
+    displaced = _rot(second, -(c * dx - s * dy), -(s * dx + c * dy), -dyaw)
+    matcher = ScanMatcher()
+    res = matcher.match(displaced, m)
+    assert res.accepted, res
+    # tolerance: half a degree in heading, and every point of the frame (up to 4.3 m away) within one
+    # 5 cm cell of where it belongs; the map's cells are a 5 cm lattice, so this is its resolution
+    assert res.dyaw == pytest.approx(dyaw, abs=math.radians(0.5))
+    corrected = _rot(displaced, res.dx, res.dy, res.dyaw)
+    err = np.nanmax(np.linalg.norm(corrected[:, :2] - second[:, :2].astype(np.float64), axis=1))
+    assert err < 0.05
+    uncorrected = np.nanmax(np.linalg.norm(displaced[:, :2] - second[:, :2].astype(np.float64), axis=1))
+    assert uncorrected > 0.15
+    np.testing.assert_allclose(matcher.t_map_odom[:2, 3], [res.dx, res.dy])
+
+
+def test_a_frame_already_in_place_gets_almost_no_correction(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    res = ScanMatcher().match(second, m)
+    assert res.accepted
+    assert math.hypot(res.dx, res.dy) < 0.01 and abs(res.dyaw) < math.radians(0.2)
+
+
+@pytest.mark.parametrize(
+    ("frame", "reason"),
+    [
+        (np.empty((0, 3)), "too few frame cells"),
+        (np.full((5000, 3), np.nan), "too few frame cells"),
+        # a featureless floor: every point below the matched band
+        (
+            np.column_stack([np.random.default_rng(0).uniform(0, 4, (20000, 2)), np.zeros(20000)]),
+            "too few frame cells",
+        ),
+        # one straight wall: only the offset across it is observable
+        (
+            np.column_stack(
+                [
+                    np.full(20000, 2.0),
+                    np.random.default_rng(1).uniform(-2, 2, 20000),
+                    np.random.default_rng(2).uniform(0, 2, 20000),
+                ]
+            ),
+            "frame cells along one line",
+        ),
+    ],
+)
+def test_frames_with_nothing_to_match_fall_back_to_odometry_and_are_counted(room, frame, reason) -> None:
+    first, _ = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    before = m.structures()
+    matcher = ScanMatcher()
+    res = matcher.match(frame, m)
+    assert not res.accepted and res.reason == reason
+    assert matcher.rejections[reason] == 1
+    np.testing.assert_array_equal(matcher.t_map_odom, np.eye(4))
+    assert m.structures().equals(before)  # matching never writes the map
+
+
+def test_an_empty_map_is_a_rejection_not_an_error(room) -> None:
+    _, second = room
+    res = ScanMatcher().match(second, VHVMap(SPEC, 0.05))
+    assert not res.accepted and res.reason == "too few map cells"
+
+
+def test_a_correction_beyond_the_per_frame_bound_is_rejected(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    params = MatchParams(max_translation=0.03)
+    res = ScanMatcher(params).match(_rot(second, 0.1, 0.0, 0.0), m)
+    assert not res.accepted and res.reason == "correction too large"
+
+
+def test_occupied_cells_give_the_centroid_of_their_points_in_the_band() -> None:
+    pts = np.array(
+        [[0.01, 0.01, 0.5], [0.02, 0.03, 0.6], [0.07, 0.01, 0.5], [0.07, 0.04, 0.05], [np.nan, 0, 1]]
+    )
+    got = occupied_cell_centroids(pts, 0.05, (0.15, 1.8))
+    np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], [[0.015, 0.02], [0.07, 0.01]])
+
+
+def test_bad_parameters_are_refused() -> None:
+    with pytest.raises(MappingError, match="min_fitness"):
+        MatchParams(min_fitness=1.5)
