@@ -182,8 +182,9 @@ class RobChairSpec:
 
     def __reduce__(self) -> tuple[Any, ...]:
         """Pickle / deep-copy support: ``mounts`` is a read-only ``mappingproxy``, which cannot be pickled."""
-        fields = (self.body, self.drive, self.casters, dict(self.mounts), self.motor_steps, self.source)
-        return (_spec_from_fields, fields)
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        values["mounts"] = dict(self.mounts)
+        return (_spec_from_fields, (values,))
 
     @property
     def wheel_radius(self) -> float:
@@ -245,10 +246,8 @@ class RobChairSpec:
 # --------------------------------------------------------------------------------------------- loading
 
 
-def _spec_from_fields(
-    body: Body, drive: Drive, casters: Any, mounts: Any, steps: Any, source: str
-) -> RobChairSpec:
-    return RobChairSpec(body, drive, casters, MappingProxyType(mounts), steps, source)
+def _spec_from_fields(values: dict[str, Any]) -> RobChairSpec:
+    return RobChairSpec(**{**values, "mounts": MappingProxyType(values["mounts"])})
 
 
 def load_spec(path: Path | str | None = None) -> RobChairSpec:

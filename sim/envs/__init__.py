@@ -8,8 +8,9 @@ docstring); the ``-v0`` ids keep the nominal chair.
 * ``RobChair/Navigation-v0`` - the office scene, a decimated Kinect v2 (128x106) feeding the
   variable-height-voxel map.
 * ``RobChair/NavigationSonar-v0`` - the same task seen only through the two three-sonar arrays.
-* ``RobChair/Navigation-v1`` - the light observation: the six sonars, the egocentric local map
-  that the chair's own map builds from them, the goal and the measured velocity; office scene.
+* ``RobChair/Navigation-v1`` - the light observation: the Hokuyo URG-04LX laser scan (683 ranges),
+  the six sonars, the egocentric local map that the chair's own map builds from both, the goal and
+  the measured velocity; office scene.
 * ``RobChair/NavigationRooms-v1`` - the light observation on a new random floor
   (:mod:`sim.rooms`, training seeds) every episode; ``room_seeds="eval"`` for evaluation floors.
 * ``RobChair/NavigationKinect-v1`` - the light observation plus the decimated Kinect v2 in the map.
@@ -29,7 +30,7 @@ from __future__ import annotations
 
 import gymnasium
 
-_LIGHT = {"sensor": None, "sonars": True}
+_LIGHT = {"sensor": None, "sonars": True, "laser": True}
 
 _REGISTRATIONS: dict[str, dict[str, object]] = {
     "RobChair/Navigation-v0": {

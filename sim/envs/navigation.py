@@ -66,6 +66,7 @@ ACTION_TYPES = ("continuous", "discrete")
 DISCRETE_ACTIONS = ((0.0, 0.0), (0.3, 0.0), (0.7, 0.0), (0.0, 0.5), (0.0, -0.5))
 ROOM_SPLITS = ("train", "eval")
 ELEVATION_MAX = 2.5  # m, top of the elevation observation's box
+LASER_ACCURACY_SIGMAS = 3.0  # the datasheet's +- accuracy is this many standard deviations (sim.laser)
 
 
 class NavigationEnvError(SimError, ValueError):
@@ -518,6 +519,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         sensor: str | None = "kinect2",
         kinect_decimation: int = 4,
         sonars: bool = False,
+        laser: bool = False,
         noise: bool = True,
         agent_hz: int = AGENT_HZ,
         start: tuple[float, float, float] | None = None,
@@ -551,6 +553,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             sensor=sensor,
             kinect_decimation=kinect_decimation,
             sonars=sonars,
+            laser=laser,
             noise=noise,
             agent_hz=agent_hz,
             start=start,
@@ -583,8 +586,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self.render_mode = render_mode
         if sensor is not None and sensor not in SENSORS:
             raise NavigationEnvError(f"sensor={sensor!r}: expected one of {SENSORS} or None")
-        if sensor is None and not sonars:
-            raise NavigationEnvError("sensor=None and sonars=False: the chair would see nothing")
+        if sensor is None and not sonars and not laser:
+            raise NavigationEnvError("sensor=None, sonars=False and laser=False: the chair would see nothing")
         if (
             isinstance(kinect_decimation, bool)
             or not isinstance(kinect_decimation, int)
@@ -665,6 +668,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self.drive = DiffDrive(self.spec_robot)
         self.scene = _load_scene_arg(scene)
         self.sensor, self.sonars_on, self.noise = sensor, bool(sonars), bool(noise)
+        self.laser_on = bool(laser)
         self.agent_hz = agent_hz
         self.substeps = PHYSICS_HZ // agent_hz
         self.goal_distance = (lo, hi)
@@ -781,6 +785,18 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._base_mass = float(dyn[0])
         self._base_inertia = tuple(float(v) for v in dyn[2])
         self._sonar_noise = {m: float(a.noise_std_m) for m, a in self._chair.sonars.items()}
+        self._laser: Any = None
+        if self.laser_on:
+            from sim.laser import LaserSim
+
+            self._laser = LaserSim(
+                self.client,
+                mirror=self._chair.mirror,
+                exclude_bodies=(self.robot.body,),  # used when no other sensor made the mirror
+                noise=self.noise,
+                accuracy_sigmas=LASER_ACCURACY_SIGMAS,
+            )
+            self._laser_ranges = np.zeros(self._laser.model.n_beams, dtype=np.float32)
         self._people = tuple(body for body, _ in self._chair.bodies.moving)
         self._closed = False
 
@@ -808,6 +824,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if self.sonars_on:
             self.sonar_max_range = float(max(a.model.max_range_m for a in self._chair.sonars.values()))
             obs["sonar"] = spaces.Box(0.0, self.sonar_max_range, shape=(6,), dtype=np.float32)
+        if self._laser is not None:
+            lm = self._laser.model
+            obs["laser"] = spaces.Box(0.0, lm.range_max, shape=(lm.n_beams,), dtype=np.float32)
         if self.depth_image:
             m = self._chair.kinect.model
             self._depth_shape = (int(m.height), int(m.width))
@@ -1189,9 +1208,31 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             self._sonar_ranges = np.where(
                 np.isfinite(rr), np.clip(rr, 0.0, self.sonar_max_range), self.sonar_max_range
             ).astype(np.float32)
+        if self._laser is not None:
+            self._sense_laser(pose, gt)
         from mapping.derived import occupancy_2d
 
         self._occ = occupancy_2d(self._map, *self.band)
+
+    def _sense_laser(self, pose: Pose2D, gt: bool) -> None:
+        """One Hokuyo scan (REP-117 ranges) into the observation and its hits into the map."""
+        laser = self._laser
+        laser.accuracy_sigmas = LASER_ACCURACY_SIGMAS / max(self.dynamics.sensor_noise_scale, 1e-6)
+        r = laser.ranges(self.robot.link_transform("laser_link"), rng=self._sensor_rng).astype(np.float64)
+        m = laser.model
+        # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
+        rr = np.where(np.isposinf(r), m.range_max, np.where(np.isneginf(r), 0.0, r))
+        self._laser_ranges = np.clip(rr, 0.0, m.range_max).astype(np.float32)  # noise may pass range_max
+        hit = np.isfinite(r)
+        if hit.any():
+            a = m.angles()[hit]
+            local = np.stack([r[hit] * np.cos(a), r[hit] * np.sin(a), np.zeros(int(hit.sum()))], axis=1)
+            t = (
+                self.robot.link_transform("laser_link")
+                if gt
+                else planar_transform(pose) @ self.spec_robot.mounts["laser_link"].transform()
+            )
+            self._map.insert(local @ t[:3, :3].T + t[:3, 3], sensor_origin=t[:3, 3])
 
     def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
         assert self._occ is not None
@@ -1208,6 +1249,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         }
         if self.sonars_on:
             obs["sonar"] = self._sonar_ranges.copy()
+        if self._laser is not None:
+            obs["laser"] = self._laser_ranges.copy()
         if self.depth_image:
             obs["depth"] = self._depth.copy()
         if self.elevation_map:

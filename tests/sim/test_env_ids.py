@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -131,3 +133,18 @@ def test_vector_envs_run_every_id(env_id, mode):
             envs.step(envs.action_space.sample())
     finally:
         envs.close()
+
+
+def test_the_light_observation_carries_the_hokuyo_scan_of_the_wall_ahead():
+    env = gymnasium.make("RobChair/Navigation-v1", randomization=False)
+    try:
+        # facing the corridor's left wall (face at y = 1.2); laser_link is 0.60 m ahead of base_link
+        obs, _ = env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (4.0, 0.0)})
+        laser = obs["laser"]
+        assert laser.shape == (683,)
+        assert laser[341] == pytest.approx(0.6, abs=0.03)  # beam 341 looks straight ahead
+        assert env.observation_space.contains(obs)
+        rows = np.nonzero(obs["occupancy"].any(axis=1))[0]
+        assert rows.size and rows.min() <= 29  # the scan's hits are in the chair's own map
+    finally:
+        env.close()
