@@ -311,7 +311,8 @@ def floor_is_feasible(floor: Floor, cfg: FloorConfig, cell: float = 0.05) -> boo
     left out), with the clearance of half the chair's width plus ``cfg.pass_margin``.
     """
     from mapping.grid import GridSpec
-    from sim.envs.navigation import FreeSpace, NavigationEnvError
+    from sim.envs.errors import NavigationEnvError
+    from sim.envs.geometry import FreeSpace
 
     x0, y0, x1, y1 = floor.scene.bounds_xy()
     nx, ny = math.ceil((x1 - x0 + 2) / cell), math.ceil((y1 - y0 + 2) / cell)
