@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +97,8 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.navigation.metrics import format_table, summarize
     from robchair.outdir import staged_output_dir
 
+    if getattr(args, "verbose", 0) == 0:  # one line per safety stop would bury the progress bar
+        logging.getLogger("robchair.safety").setLevel(logging.ERROR)
     if args.episodes < 1:
         raise EvaluationError(f"--episodes {args.episodes}: expected at least 1")
     if args.env not in sim.envs.ENV_IDS:

@@ -137,7 +137,9 @@ def evaluate_episode(
     Returns:
         ``seed``, ``success``, ``collision``, ``contacts``, ``truncated``, ``steps``, ``time_s``,
         ``path_length_m``, ``shortest_path_m``, ``spl``, ``barn_score``, ``safety_interventions``
-        (None when the environment reports no safety layer), ``start``, ``goal``, ``scene``.
+        (steps on which the safety layer changed the command: stopped or limited it) and
+        ``safety_stops`` (steps it stopped the chair) - both None when the environment reports no
+        safety layer - ``start``, ``goal``, ``scene``.
     """
     env = _env(env_id, dict(env_kwargs or {}))
     obs, info = env.reset(seed=int(seed))
@@ -149,6 +151,7 @@ def evaluate_episode(
     goal = tuple(info["goal"])
     traj = [start]
     interventions: int | None = None
+    stops: int | None = None
     terminated = truncated = False
     steps = 0
     while not (terminated or truncated):
@@ -158,6 +161,7 @@ def evaluate_episode(
         shield = info.get("safety")
         if isinstance(shield, dict) and "intervened" in shield:
             interventions = (interventions or 0) + int(bool(shield["intervened"]))
+            stops = (stops or 0) + int(bool(shield.get("stopped")))
     shortest = shortest_path_length(env, start, goal)  # type: ignore[arg-type]
     driven = path_length(traj)
     success = bool(info["is_success"])
@@ -178,6 +182,7 @@ def evaluate_episode(
         "spl": spl_term(success, shortest, driven),
         "barn_score": barn_score(success, shortest, u.drive.max_speed, time_s),
         "safety_interventions": interventions,
+        "safety_stops": stops,
     }
     if keep_trajectory:
         grid, own = u.own_occupancy()
