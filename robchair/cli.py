@@ -27,6 +27,7 @@ COMMANDS = (
     "robchair.commands.sweep",
     "robchair.commands.view",
     "robchair.commands.report",
+    "robchair.commands.nav_eval",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",

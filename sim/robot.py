@@ -150,7 +150,7 @@ class SimRobot:
             self.joints[info[1].decode()] = i
             self.links[info[12].decode()] = i
         self.wheel_ids = tuple(self.joints[j] for j in WHEEL_JOINTS)
-        apply_contact_dynamics(self.client, self.body, spec)
+        apply_contact_dynamics(self.client, self.body, spec, floor=world.plane)
         # the base's PyBullet frame is its inertial frame; keep the offset to report base_link itself
         dyn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)
         self._inertial_inv = p.invertTransform(dyn[3], dyn[4])
