@@ -30,6 +30,7 @@ APPLICATION = (
     "robchair.commands",
     "robchair.outdir",
     "robchair.sweep",
+    "robchair.navigation",
 )
 MAPPING_FORBIDDEN_THIRD_PARTY = ("pybullet", "serial", "smbus2")
 
