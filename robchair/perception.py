@@ -52,6 +52,7 @@ from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec
 
 POSE_SOURCES = ("odometry", "matched", "ground-truth")
+SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 
@@ -221,6 +222,12 @@ class Perception:
         self._lock = threading.Lock()
         self._depth: tuple[float | None, Pose2D] | None = None  # (distance at capture, pose at capture)
         self._zoom_depth: tuple[float | None, Pose2D] | None = None  # the same from the zoom's fine cells
+        # what the loop sees of the mapping thread's work: the state after frame k - SNAPSHOT_LAG when
+        # frame k is delivered, threaded or not (so both runs decide the same, bit for bit)
+        self._seq = 0
+        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D]] = {}
+        self._frame_futs: dict[int, Future[None]] = {}
+        self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
         self._servo: dict[str, float] = {}
         self.map_ms: list[float] = []
@@ -291,11 +298,29 @@ class Perception:
         self._depth = (self.corridor.distance_ahead(band[:, :2]), pose)
         self.last_depth_stamp_ns = frame.stamp_ns
         placed = [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
-        self._submit(self._insert_frame, frame, t_world_base, t_base_sensor, placed, pose)
+        self._take_snapshot()
+        fut = self._submit(self._insert_frame, frame, t_world_base, t_base_sensor, placed, pose, self._seq)
+        if fut is not None:
+            self._frame_futs[self._seq] = fut
+        self._seq += 1
         return frame
 
+    def _take_snapshot(self) -> None:
+        """Make the mapping state after frame ``seq - SNAPSHOT_LAG`` the one the loop sees."""
+        if self.matcher is None and self.zoom is None:
+            return
+        k = self._seq - SNAPSHOT_LAG
+        fut = self._frame_futs.pop(k, None)
+        if fut is not None:
+            fut.result()
+        snap = self._after_frame.pop(k, None)
+        if snap is not None:
+            self._t_map_odom, d, pose = snap
+            self._zoom_depth = (d, pose) if self.zoom is not None else None
+
     def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
-                      placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D) -> None:  # fmt: skip
+                      placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D,
+                      seq: int) -> None:  # fmt: skip
         pts = np.asarray(frame.points).reshape(-1, 3)
         t_odom_sensor = t_world_base["odometry"] @ t_base_sensor
         poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
@@ -328,20 +353,23 @@ class Perception:
                     st["points_in"] += int(getattr(s, "points_in", 0))
                     st["points_dropped_nonfinite"] += int(getattr(s, "points_dropped_nonfinite", 0))
                     st["points_outside_grid"] += int(getattr(s, "points_outside_grid", 0))
-        if self.zoom is not None:
+        if self.matcher is not None or self.zoom is not None:
             d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
-                self._zoom_depth = (d, pose)
+                self._after_frame[seq] = (t, d, pose)
 
-    def _submit(self, fn: Callable[..., None], *args: Any) -> None:
+    def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:
             fn(*args)
-            return
+            return None
         while self._pending and self._pending[0].done():
             self._pending.popleft().result()  # a mapping error surfaces here, in the loop
         while len(self._pending) >= 3:
             self._pending.popleft().result()
-        self._pending.append(self._pool.submit(fn, *args))
+        fut = self._pool.submit(fn, *args)
+        self._pending.append(fut)
+        return fut
 
     def depth_distance_m(self, pose: Pose2D) -> float | None:
         """Nearest depth point in the band inside the corridor ahead, from the front edge, m.
@@ -358,9 +386,7 @@ class Perception:
         Answered at the zoom's fine resolution (None: no zoom, or nothing ahead in it), measured
         when the last frame was inserted; the forward travel since then is taken off.
         """
-        with self._lock:
-            zd = self._zoom_depth
-        return _travelled(zd, pose)
+        return _travelled(self._zoom_depth, pose)
 
     def _zoom_corridor(self, t_world_base: np.ndarray) -> float | None:
         """Corridor distance of the zoom's fine cells whose structures overlap the band."""
@@ -386,8 +412,12 @@ class Perception:
 
     @property
     def t_map_odom(self) -> np.ndarray:
-        """(4, 4) ``map -> odom`` of the scan-to-map matching (identity without a matcher)."""
-        return np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
+        """(4, 4) ``map -> odom`` of the scan-to-map matching (identity without a matcher).
+
+        As the loop sees it: the matcher's transform after the frame delivered :data:`SNAPSHOT_LAG`
+        frames ago (the mapping thread may be further), the same threaded or not.
+        """
+        return np.array(self._t_map_odom)
 
     # --- sonars -----------------------------------------------------------------------------------
 
