@@ -646,6 +646,11 @@ class Runtime:
         res.extra["frames"] = dict(p.stats)
         res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
         res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        zoom = getattr(p, "zoom", None)
+        if zoom is not None and zoom.fine is not None:
+            res.maps["zoom"] = zoom.fine
+            res.extra["zoom"] = {"region_m": list(zoom.region), "cell_size_m": zoom.fine_cell_size,
+                                 "structures": zoom.fine.n_structures}  # fmt: skip
         matcher = getattr(p, "matcher", None)
         if matcher is not None:
             mm = np.asarray(p.match_ms) if p.match_ms else np.array([np.nan])

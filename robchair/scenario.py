@@ -293,6 +293,34 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     return res
 
 
+def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) -> None:
+    """``zoom_2d.png``: the run's map with the zoom region outlined, beside the region at its fine cells.
+
+    Occupancy in the height ``band`` (m); the region is where it was at the end of the run.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    from mapping.derived import occupancy_2d
+
+    main = res.maps.get(res.extra.get("matching", {}).get("pose", "odometry").replace("-", "_"))
+    main = main if main is not None else res.maps["odometry"]
+    fine = res.maps["zoom"]
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [2, 1]})
+    for ax, m, title in ((ax0, main, "map"), (ax1, fine, "zoom")):
+        x0, x1, y0, y1 = m.spec.extent
+        ax.imshow(occupancy_2d(m, *band).T, origin="lower", extent=(x0, x1, y0, y1), cmap="Greys",
+                  interpolation="nearest")  # fmt: skip
+        ax.set_title(f"{title}: {m.spec.cell_size * 100:g} cm cells")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    x0, x1, y0, y1 = fine.spec.extent
+    ax0.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="tab:red", linewidth=1.5))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
     """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
     arrays: dict[str, np.ndarray] = {}
@@ -315,6 +343,8 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
         write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
                           build_ms=res.extra.get("mapping_ms_total"),
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip
+        if "zoom" in res.maps:
+            write_zoom_picture(res, tuple(band), out / "map" / "zoom_2d.png")
         import matplotlib.pyplot as plt
 
         plt.imsave(out / "scene.png", render_scene(scenario, spec))
