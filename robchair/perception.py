@@ -494,9 +494,11 @@ class Perception:
 
 def _travelled(measured: tuple[float | None, Pose2D] | None, pose: Pose2D) -> float | None:
     """A corridor distance measured at pose ``p0``, less the forward travel from ``p0`` to ``pose``."""
-    if measured is None or measured[0] is None:
+    if measured is None:
         return None
     d, p0 = measured
+    if d is None:
+        return None
     fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
     return max(0.0, d - max(0.0, fwd))
 
