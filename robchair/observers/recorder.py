@@ -8,7 +8,7 @@ topic                                  type                             frame
 =====================================  ===============================  ==================================
 ``/odom``                              nav_msgs/Odometry                ``odom`` -> ``base_link``
 ``/tf``                                tf2_msgs/TFMessage               ``map`` -> ``odom`` (scan-to-map
-                                                                        matching) and ``odom`` ->
+                                                                        matching, else identity), ``odom`` ->
                                                                         ``base_link`` each cycle;
                                                                         ``base_link`` -> ``<array>`` with
                                                                         the servo angle at each reading
@@ -244,10 +244,10 @@ class RunRecorder(Observer):
         stamp = cycle.stamp_ns
         p = cycle.pose
         bag.odometry("/odom", stamp, ODOM, BASE_LINK, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w)
-        tfs = [(ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))]
-        if getattr(runtime.perception, "matcher", None) is not None:
-            tfs.insert(0, (MAP, ODOM, runtime.perception.t_map_odom))  # REP-105: the localisation's part
-        bag.tf(stamp, tfs)
+        # REP-105: map -> odom is the localisation's part (identity without scan-to-map matching), so every
+        # backend's bag has the same tree
+        t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
+        bag.tf(stamp, [(MAP, ODOM, t_map_odom), (ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
         arrays = dict(zip(runtime.sonar_names, runtime.backend.sonar_arrays))
         for name, reading in runtime.last_sonars:
             arr = arrays.get(name)
