@@ -641,12 +641,31 @@ class Runtime:
         ]
         p = self.perception
         res.maps["odometry"] = p.map
+        for name, m in getattr(p, "pose_maps", {}).items():  # odometry, matched, ground truth
+            res.maps[name.replace("-", "_")] = m
         if p.sonar_map is not p.map:
             res.maps["sonar"] = p.sonar_map
         ms = np.asarray(p.map_ms) if p.map_ms else np.array([np.nan])
         res.extra["frames"] = dict(p.stats)
         res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
         res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        zoom = getattr(p, "zoom", None)
+        if zoom is not None and zoom.fine is not None:
+            res.maps["zoom"] = zoom.fine
+            res.extra["zoom"] = {"region_m": list(zoom.region), "cell_size_m": zoom.fine_cell_size,
+                                 "structures": zoom.fine.n_structures}  # fmt: skip
+        matcher = getattr(p, "matcher", None)
+        if matcher is not None:
+            mm = np.asarray(p.match_ms) if p.match_ms else np.array([np.nan])
+            res.extra["matching"] = {
+                "pose": p.pose,
+                "frames": len(p.match_ms),
+                "accepted": p.stats["matches_accepted"],
+                "rejected": dict(sorted(matcher.rejections.items())),
+                "ms_per_frame_median": float(np.median(mm)) if p.match_ms else None,
+                "ms_per_frame_p90": float(np.percentile(mm, 90)) if p.match_ms else None,
+                "t_map_odom_final": [float(v) for v in _planar(p.t_map_odom)],
+            }
         poses = np.asarray(res.poses, dtype=np.float64).reshape(-1, 4)
         res.paths["odometry"] = poses[:, 1:]
         trips = getattr(self.backend.motors, "watchdog_trips", None)
@@ -704,6 +723,11 @@ def _has_servo(array: Any) -> bool:
     if flag is not None:
         return bool(flag)
     return getattr(array, "servo", None) is not None and hasattr(array, "set_servo_deg")
+
+
+def _planar(t: np.ndarray) -> tuple[float, float, float]:
+    """(x, y, yaw) of a planar (4, 4) transform."""
+    return float(t[0, 3]), float(t[1, 3]), math.atan2(float(t[1, 0]), float(t[0, 0]))
 
 
 def _min_or(a: float | None, b: float | None) -> float | None:
