@@ -118,7 +118,8 @@ def test_short_headless_run_writes_the_run_folder_with_the_one_metrics_schema(tm
     assert m["frames"]["depth_frames"] == 6  # cycles 0, 2, ..., 10 at 60 Hz
     assert m["frames"]["sonar_readings"] == 2 * 3  # SRF08 ranging 65 ms: cycles 0, 4, 8
     assert m["safety"]["enabled"] is True and isinstance(m["safety"]["stops"], list)
-    assert m["controller"] == {"watchdog_ms": 42, "watchdog_trips": 0}  # 2.5 periods of 60 Hz
+    # 2.5 periods of 60 Hz; the simulated controller has no diagnostics
+    assert m["controller"] == {"watchdog_ms": 42, "watchdog_trips": 0, "diagnostics": None}
     assert m["collisions"] == 0
     assert set(m["route"]) >= {"goal_reached", "distance_travelled_m"}
     assert set(m["map"]) >= {"odometry_map_vs_scene", "ground_truth_pose_map_vs_scene"}
