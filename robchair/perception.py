@@ -10,10 +10,15 @@ T_base_sensor(mount)`` (:mod:`robchair.frames`), then ``map.insert(points_world,
   a sonar map; the fused arc gives the *sonar distance*; the servo is turned toward the nearest echo;
 * laser scans: points (N, 3) in the scanner's frame, into the map.
 
-The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))`` (a
-:class:`mapping.vhv.VHVMap` by default; a probabilistic map is one ``map=`` argument away). Further
-*layers* (e.g. the simulation's map placed with ground-truth poses) receive the same frames placed
-with their own pose source.
+The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))``. By default
+it is a :class:`mapping.probabilistic.ProbabilisticVHV` (``map_kind="probabilistic"``: occupied and free
+evidence per vertical interval, so people who walk past are cleared and unknown is told apart from
+free); ``map_kind="thesis"`` gives the thesis's accumulate-only :class:`mapping.vhv.VHVMap`. Sonar
+readings go into a probabilistic map through its ``insert_sonar`` (free inside the zone's cone up to
+the fused range, occupied at the range; a reading with no echo gives free space up to
+:data:`SONAR_FREE_RANGE_M`), into a thesis map as the cone points only. Further *layers* (e.g. the
+simulation's map placed with ground-truth poses) receive the same frames placed with their own pose
+source; :meth:`Perception.new_map` makes them of the same kind.
 
 Depth frames go through a small pipeline so that capturing and mapping overlap the rest of the loop:
 a camera offering ``submit_read()`` (the simulated Kinect) captures up to ``camera.max_inflight``
@@ -41,6 +46,8 @@ from robchair.spec import RobChairSpec
 
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
+MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
+SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
 
 
 class PointMap(Protocol):
@@ -126,6 +133,13 @@ class Perception:
         threaded: insert frames into the maps on a background thread.
         frames: extra sensor frames ``{frame_id: T_base_frame (4, 4)}`` beyond the spec's mounts.
         tolerance: merge tolerance of the default VHV maps, m.
+        map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
+            ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
+        evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
+            (default: the mapping core's defaults).
+
+    Raises:
+        ConfigError: an unknown ``map_kind``.
     """
 
     def __init__(
@@ -140,15 +154,23 @@ class Perception:
         threaded: bool = False,
         frames: dict[str, np.ndarray] | None = None,
         tolerance: float = 0.05,
+        map_kind: str = MAP_KINDS[0],
+        evidence_params: Any = None,
     ) -> None:
         from mapping.grid import GridSpec
-        from mapping.vhv import VHVMap
 
+        if map_kind not in MAP_KINDS:
+            from robchair.errors import ConfigError
+
+            raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
         self.spec = spec
+        self.map_kind = map_kind
+        self.tolerance = float(tolerance)
+        self.evidence_params = evidence_params
         self.grid = grid if grid is not None else GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
-        self.map: PointMap = map if map is not None else VHVMap(self.grid, tolerance)
+        self.map: PointMap = map if map is not None else self.new_map()
         if isinstance(sonar_map, str):
-            sonar_map = VHVMap(self.grid, tolerance)
+            sonar_map = self.new_map()
         self.sonar_map: PointMap = sonar_map if sonar_map is not None else self.map
         self.band = (float(band[0]), float(band[1]) if band[1] is not None else float(spec.body.height))
         self.corridor = Corridor.from_spec(spec)
@@ -175,6 +197,13 @@ class Perception:
             "laser_scans": 0,
         }
         self.last_depth_stamp_ns: int | None = None
+
+    def new_map(self) -> PointMap:
+        """An empty map of this stage's kind on its grid (``map_kind``, ``tolerance``, evidence params)."""
+        from mapping.probabilistic import make_map
+
+        params = self.evidence_params if self.map_kind == "probabilistic" else None
+        return make_map(self.grid, self.tolerance, self.map_kind, params)  # type: ignore[arg-type]
 
     # --- frames -----------------------------------------------------------------------------------
 
@@ -287,8 +316,13 @@ class Perception:
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
-        if len(pts):
-            joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
+        if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
+            t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
+            insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
+            self.stats["sonar_points"] += len(pts)
+        elif len(pts):
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
             self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
@@ -323,12 +357,34 @@ class Perception:
         while self._pending:
             self._pending.popleft().result()
 
-    def occupancy_2d(self, which: PointMap | None = None) -> np.ndarray:
-        """2D occupancy (bool, grid shape) of the height band in a map (default the main one)."""
-        from mapping.derived import occupancy_2d
+    def occupancy_2d(self, which: PointMap | None = None, unknown: int = -1) -> np.ndarray:
+        """Three-valued 2D map (int8, grid shape) of the height band in a map (default the main one).
+
+        ``nav_msgs/OccupancyGrid`` codes: 100 occupied, 0 free, ``unknown`` (default -1) where nothing
+        is known; pass ``unknown=100`` to treat unknown as blocked or 0 as free. A probabilistic map
+        answers from its evidence (occupied above its occupancy threshold, remembered free space); the
+        thesis map knows no free space: a cell is 100 when a structure overlaps the band, 0 when it
+        holds only structures outside the band (seen, nothing in the band), unknown otherwise.
+
+        Raises:
+            MappingError: ``unknown`` not one of -1, 0, 100.
+        """
+        from mapping.derived import occupancy_codes
 
         self.flush()
-        return occupancy_2d(which if which is not None else self.map, *self.band)  # type: ignore[arg-type]
+        return occupancy_codes(which if which is not None else self.map, self.band, unknown=unknown)
+
+    def occupied_2d(self, which: PointMap | None = None) -> np.ndarray:
+        """2D occupancy (bool, grid shape) of the height band: True where the map is occupied.
+
+        Unknown is not occupied (for a probabilistic map: an interval overlapping the band at or above
+        the occupancy threshold; for the thesis map: a structure overlapping the band).
+        """
+        return np.asarray(self.occupancy_2d(which) == 100)
+
+    def free_2d(self, which: PointMap | None = None, unknown_is_free: bool = False) -> np.ndarray:
+        """Cells (bool, grid shape) where the height band is free; unknown counts as free only if asked."""
+        return np.asarray(self.occupancy_2d(which, unknown=0 if unknown_is_free else 100) == 0)
 
     def close(self) -> None:
         """Finish pending work and stop the mapping thread."""

@@ -14,7 +14,8 @@ One run:
 3. observers: the run recorder (MCAP bag), the ground-truth evaluation (odometry drift, maps against
    the scene, collisions), a progress bar;
 4. writes the run folder atomically (:mod:`robchair.outdir`): ``metrics.json`` (the schema of every
-   run), ``maps.npz``, the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
+   run), ``maps.npz`` (each map's structures and its three-valued 2D occupancy of the height band,
+   ``nav_msgs/OccupancyGrid`` codes), the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
    ``scene.png`` and the bag.
 
 A failure inside the loop (e.g. the physics diverging) stops the chair; what was recorded so far is
@@ -37,6 +38,7 @@ import numpy as np
 from robchair.errors import ConfigError
 from robchair.kinematics import DiffDrive, Pose2D
 from robchair.observers import Observer
+from robchair.perception import MAP_KINDS
 from robchair.route import PurePursuit, Route
 from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
 from robchair.safety import SafetyLayer, SafetyLimits
@@ -143,6 +145,7 @@ def run_scenario(
     safety: bool = True,
     safety_limits: SafetyLimits | None = None,
     bag_storage: str = "mcap",
+    map_kind: str = "probabilistic",
 ) -> RunResult:
     """Run a scenario through the runtime and (with ``write``) write its run folder.
 
@@ -164,6 +167,8 @@ def run_scenario(
         safety: the safety layer on (default) or off (recorded in the metrics).
         safety_limits: limits of the safety layer (default: from the spec).
         bag_storage: ``"mcap"`` or ``"sqlite3"``.
+        map_kind: the maps (odometry and ground-truth pose): ``"probabilistic"`` (free space and
+            unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).
@@ -185,13 +190,15 @@ def run_scenario(
     seed = scenario.seed if seed is None else int(seed)
     if seed < 0:
         raise ConfigError(f"seed = {seed}: expected >= 0")
+    if map_kind not in MAP_KINDS:
+        raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
     wall0 = time.perf_counter()
     chair = SimChair(spec, scenario.scene, scenario.start, sensor=camera,
                      sonars=scenario.sonars and sensors, seed=seed, camera_backend=camera_backend,
                      raycast_threads=raycast_threads)  # fmt: skip
     backend = backend_from_chair(chair, default_watchdog_ms(CONTROL_HZ), threaded=pipeline)
     config = RuntimeConfig(rate_hz=CONTROL_HZ, camera_every=KINECT_EVERY,
-                           sonar_every=sonar_every(chair, sonar_hz))  # fmt: skip
+                           sonar_every=sonar_every(chair, sonar_hz), map_kind=map_kind)  # fmt: skip
     target = None
     if write:
         target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
@@ -232,7 +239,7 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     if cam is not None and cam.frame_id not in spec.mounts:  # HD/qHD clouds are in the colour camera
         frames[cam.frame_id] = spec.mounts["kinect_link"].transform() @ cam.link_to_frame()
     perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
-                            tolerance=MAP_TOLERANCE)  # fmt: skip
+                            tolerance=MAP_TOLERANCE, map_kind=config.map_kind)  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
     if stage is not None and o["write_bag"]:
@@ -274,11 +281,16 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
 
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
     """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
+    from mapping.derived import occupancy_codes
+
     arrays: dict[str, np.ndarray] = {}
+    band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
     for name, m in res.maps.items():
         s = m.structures()
         for field in ("i", "j", "bottom", "top"):
             arrays[f"{name}_{field}"] = np.asarray(getattr(s, field))
+        # nav_msgs/OccupancyGrid codes of the band: 100 occupied, 0 free, -1 unknown
+        arrays[f"{name}_occupancy"] = occupancy_codes(m, (float(band[0]), float(band[1])))
     for name, p in res.paths.items():
         arrays[f"path_{name}"] = p
     np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
@@ -290,7 +302,6 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
 
         t0 = time.perf_counter()
         (out / "map").mkdir()
-        band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
         write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
                           build_ms=res.extra.get("mapping_ms_total"),
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip

@@ -58,6 +58,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         action="store_true",
         help="ask glibc to keep freed heap blocks for reuse (faster per-frame allocations; process-wide)",
     )
+    p.add_argument(
+        "--map",
+        choices=("probabilistic", "thesis"),
+        default="probabilistic",
+        help="map kind: probabilistic (free space, unknown, moving people cleared; default) or thesis "
+        "(the thesis's accumulate-only VHV map)",
+    )
     p.add_argument("--no-pictures", action="store_true", help="do not draw the PNG pictures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
@@ -97,6 +104,7 @@ def _run(args: argparse.Namespace) -> int:
             camera_backend=args.camera_backend,
             safety=not args.no_safety,
             bag_storage=args.bag_storage,
+            map_kind=args.map,
         )
     m = res.metrics()
     summary = {
@@ -110,6 +118,7 @@ def _run(args: argparse.Namespace) -> int:
         "collisions": m["collisions"],
         "odometry_final_error_m": round(m["odometry_drift"]["final_position_error_m"], 4),
         "iou_odometry_vs_ground_truth_pose": m["map"]["iou_odometry_vs_ground_truth_pose"],
+        "map_kind": m["map"]["kind"],
     }
     print(json.dumps(summary, indent=2))
     return 0

@@ -56,10 +56,8 @@ class GroundTruthEvaluation(Observer):
 
     def episode_start(self, runtime: Runtime) -> None:
         if self.ground_truth_map:
-            from mapping.vhv import VHVMap
-
             p = runtime.perception
-            self.gt_map = VHVMap(p.grid, getattr(p.map, "tolerance", 0.05))
+            self.gt_map = p.new_map()  # the same kind as the perception's maps
             p.add_layer("ground_truth", self.gt_map, self.chair.ground_truth_transform)
 
     def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
@@ -114,9 +112,9 @@ class GroundTruthEvaluation(Observer):
         p = runtime.perception
         grid = p.grid
         truth = scene_occupancy(self.scene, grid, p.band)
-        occ = {"odometry": p.occupancy_2d()}
+        occ = {"odometry": p.occupied_2d()}
         if self.gt_map is not None:
-            occ["ground_truth"] = p.occupancy_2d(self.gt_map)
+            occ["ground_truth"] = p.occupied_2d(self.gt_map)
         out: dict[str, Any] = {
             "grid": {"cell_size": grid.cell_size, "shape": list(grid.shape), "centre": list(grid.centre)},
             "occupancy_band_m": list(p.band),
