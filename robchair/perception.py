@@ -47,6 +47,7 @@ from robchair.spec import RobChairSpec
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
+NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
 SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
 
 
@@ -133,6 +134,13 @@ class Perception:
         threaded: insert frames into the maps on a background thread.
         frames: extra sensor frames ``{frame_id: T_base_frame (4, 4)}`` beyond the spec's mounts.
         tolerance: merge tolerance of the default VHV maps, m.
+        clear_no_return: a depth pixel without a return gives free space along its ray up to the
+            camera's ``max_range_m`` in maps that keep free space (OctoMap's max-range rays): open
+            space above the horizon and beyond the range clears people who walked there. A return
+            lost on a surface too close or too dark is cleared through too (the sonars cover the
+            close range; the safety layer's distances come from the frames' points, not the map).
+        depth_max_range_m: the depth camera's maximum range, m (None: its ``max_range_m`` attribute,
+            if it has one; without a range, no-return pixels give nothing).
         map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
             ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
@@ -156,6 +164,8 @@ class Perception:
         tolerance: float = 0.05,
         map_kind: str = MAP_KINDS[0],
         evidence_params: Any = None,
+        clear_no_return: bool = True,
+        depth_max_range_m: float | None = None,
     ) -> None:
         from mapping.grid import GridSpec
 
@@ -167,6 +177,10 @@ class Perception:
         self.map_kind = map_kind
         self.tolerance = float(tolerance)
         self.evidence_params = evidence_params
+        self.clear_no_return = bool(clear_no_return)
+        self.depth_max_range_m = depth_max_range_m
+        self._camera_range: float | None = None
+        self._rays: dict[tuple[str, int, int], np.ndarray] = {}
         self.grid = grid if grid is not None else GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
         self.map: PointMap = map if map is not None else self.new_map()
         if isinstance(sonar_map, str):
@@ -234,6 +248,7 @@ class Perception:
         """
         t_world_base = se3_planar(pose.x, pose.y, pose.theta)
         layer_poses = [layer.t_world_base() for layer in self.layers]
+        self._camera_range = self.depth_max_range_m or getattr(camera, "max_range_m", None)
         submit = getattr(camera, "submit_read", None)
         depth = int(getattr(camera, "max_inflight", 0)) if submit is not None else 0
         fut: Any = submit() if submit is not None else _Done(camera.read())
@@ -262,16 +277,63 @@ class Perception:
 
     def _insert_frame(self, frame: DepthFrame, placed: list[tuple[PointMap, np.ndarray, bool]]) -> None:
         pts = np.asarray(frame.points).reshape(-1, 3)
+        r = self._camera_range if self.clear_no_return else None
+        far = self._no_return_points(frame, r) if r else None
         for m, t, main in placed:
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
+            free_ms = 0.0
+            if far is not None and len(far) and getattr(m, "insert_free", None) is not None:
+                # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays),
+                # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
+                # floor within the range lost its return on something (or grazing the floor), not in air
+                fw = transform_points(t, far, np.float32)
+                f = m.insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
+                free_ms = float(getattr(f, "build_ms", 0.0))
             if main and s is not None:
                 with self._lock:
-                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)))
+                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)) + free_ms)
                     st = self.stats
                     st["depth_frames"] += 1
                     st["points_in"] += int(getattr(s, "points_in", 0))
                     st["points_dropped_nonfinite"] += int(getattr(s, "points_dropped_nonfinite", 0))
                     st["points_outside_grid"] += int(getattr(s, "points_outside_grid", 0))
+
+    def _no_return_points(self, frame: DepthFrame, range_m: float) -> np.ndarray | None:
+        """Points (M, 3) in the camera frame at depth ``range_m`` along the rays of no-return pixels.
+
+        The pixel rays come from a pinhole model fitted once per (frame_id, H, W) to the frame's own
+        returns (``y/x`` linear in the column, ``z/x`` in the row); a frame that does not fit a pinhole
+        (residual over 1 %) gives none. Every ``camera_stride``-th pixel each way is used: the free
+        space is built per cell, not per ray.
+        """
+        pts = np.asarray(frame.points)
+        if pts.ndim != 3:
+            return None
+        h, w = pts.shape[:2]
+        key = (frame.frame_id, h, w)
+        rays = self._rays.get(key)
+        if rays is None:
+            x = pts[..., 0]
+            ok = np.isfinite(pts).all(axis=2) & (x > 1e-3)
+            if ok.sum() < 100:
+                return None
+            v, u = np.nonzero(ok)
+            a, b = pts[v, u, 1] / x[v, u], pts[v, u, 2] / x[v, u]
+            cu, cv = np.polyfit(u, a, 1), np.polyfit(v, b, 1)
+            if max(np.abs(np.polyval(cu, u) - a).max(), np.abs(np.polyval(cv, v) - b).max()) > 0.01:
+                self._rays[key] = np.zeros((0, 0, 3))  # not a pinhole camera: no free space from no-returns
+                return None
+            s = self.camera_stride
+            uu, vv = np.meshgrid(np.arange(w)[::s], np.arange(h)[::s])
+            d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
+            rays = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            self._rays[key] = rays
+        if rays.size == 0:
+            return None
+        s = self.camera_stride
+        nan = ~np.isfinite(pts[::s, ::s]).all(axis=2)
+        d = rays[nan]
+        return np.asarray(d * (range_m / d[:, :1]))  # the range is a depth (x), not a distance
 
     def _submit(self, fn: Callable[..., None], *args: Any) -> None:
         if self._pool is None:
@@ -354,6 +416,11 @@ class Perception:
         """Deliver the frames still being captured and wait for every map insertion."""
         while self._inflight:
             self._deliver()
+        while self._pending:
+            self._pending.popleft().result()
+
+    def wait_for_maps(self) -> None:
+        """Wait for the map insertions already submitted (frames still being captured stay in flight)."""
         while self._pending:
             self._pending.popleft().result()
 

@@ -15,8 +15,8 @@ One run:
    the scene, collisions), a progress bar;
 4. writes the run folder atomically (:mod:`robchair.outdir`): ``metrics.json`` (the schema of every
    run), ``maps.npz`` (each map's structures and its three-valued 2D occupancy of the height band,
-   ``nav_msgs/OccupancyGrid`` codes), the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
-   ``scene.png`` and the bag.
+   ``nav_msgs/OccupancyGrid`` codes), the map exports and pictures of :mod:`mapping.export`
+   (``map/``), a rendered ``scene.png`` and the bag.
 
 A failure inside the loop (e.g. the physics diverging) stops the chair; what was recorded so far is
 written (``status`` = ``"error"`` in the metrics) and the error is raised afterwards. Same scenario +
@@ -238,8 +238,10 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     cam = backend.depth_camera
     if cam is not None and cam.frame_id not in spec.mounts:  # HD/qHD clouds are in the colour camera
         frames[cam.frame_id] = spec.mounts["kinect_link"].transform() @ cam.link_to_frame()
+    depth_range = chair.kinect.model.max_range_m if chair.kinect is not None else None
     perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
-                            tolerance=MAP_TOLERANCE, map_kind=config.map_kind)  # fmt: skip
+                            tolerance=MAP_TOLERANCE, map_kind=config.map_kind,
+                            depth_max_range_m=depth_range)  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
     if stage is not None and o["write_bag"]:
