@@ -282,12 +282,13 @@ class Perception:
         for m, t, main in placed:
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
             free_ms = 0.0
-            if far is not None and len(far) and getattr(m, "insert_free", None) is not None:
+            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
+            if far is not None and len(far) and insert_free is not None:
                 # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays),
                 # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
                 # floor within the range lost its return on something (or grazing the floor), not in air
                 fw = transform_points(t, far, np.float32)
-                f = m.insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
+                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
                 free_ms = float(getattr(f, "build_ms", 0.0))
             if main and s is not None:
                 with self._lock:

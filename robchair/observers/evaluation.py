@@ -69,8 +69,8 @@ class WalkerClearing:
             if obj.motion is None:
                 continue
             at_origin = dataclasses.replace(obj, motion=None, xyz=(0.0, 0.0, obj.xyz[2]))
-            pts = ground_truth_points(SimpleNamespace(objects=(at_origin,)), grid.cell_size / 2,
-                                      np.random.default_rng(0))  # fmt: skip
+            one = SimpleNamespace(objects=(at_origin,))  # ground_truth_points reads only .objects
+            pts = ground_truth_points(one, grid.cell_size / 2, np.random.default_rng(0))  # type: ignore[arg-type]
             pts = pts[(pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])]
             self.walkers.append((obj.motion, pts[:, :2]))
         self.excluded = binary_dilation(static, np.ones((3, 3), dtype=bool))
