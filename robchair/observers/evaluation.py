@@ -8,7 +8,8 @@ and the ground-truth-pose map see the same frames, and writes into the run's met
 * ``route.distance_travelled_m`` (ground truth), ``odometry_drift`` (final / max position error, final
   heading error, error per metre travelled);
 * ``map.odometry_map_vs_scene`` and ``map.ground_truth_pose_map_vs_scene``: precision and recall of
-  the 2D occupancy in the chair's height band against the static scene rasterised
+  the occupied cells of the 2D map in the chair's height band (for the probabilistic map: occupied =
+  at or above its occupancy threshold; unknown is not occupied) against the static scene rasterised
   (:func:`sim.truth.scene_occupancy`), with one cell of tolerance both ways;
 * ``collisions``: distinct contact events between the chair and scene bodies (a body that starts
   touching the chair; walking people count when they overlap it);
@@ -242,9 +243,10 @@ class GroundTruthEvaluation(Observer):
                 precision_recall(occ["ground_truth"], truth) if "ground_truth" in occ else None
             ),
             "iou_odometry_vs_ground_truth_pose": None,
-            "notes": "occupancy = a structure overlapping the band; precision/recall with one-cell tolerance "
-            "against the static scene rasterised from its meshes (moving people are not in the scene truth; "
-            "recall counts every static surface, seen or not, so it measures coverage)",
+            "notes": "occupied = a structure overlapping the band (probabilistic map: an interval at or "
+            "above its occupancy threshold; unknown and free are not occupied); precision/recall with "
+            "one-cell tolerance against the static scene rasterised from its meshes (moving people are not "
+            "in the scene truth; recall counts every static surface, seen or not, so it measures coverage)",
         }
         if "ground_truth" in occ:
             union = int(np.sum(occ["odometry"] | occ["ground_truth"]))
