@@ -10,10 +10,15 @@ T_base_sensor(mount)`` (:mod:`robchair.frames`), then ``map.insert(points_world,
   a sonar map; the fused arc gives the *sonar distance*; the servo is turned toward the nearest echo;
 * laser scans: points (N, 3) in the scanner's frame, into the map.
 
-The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))`` (a
-:class:`mapping.vhv.VHVMap` by default; a probabilistic map is one ``map=`` argument away). Further
-*layers* (e.g. the simulation's map placed with ground-truth poses) receive the same frames placed
-with their own pose source.
+The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))``. By default
+it is a :class:`mapping.probabilistic.ProbabilisticVHV` (``map_kind="probabilistic"``: occupied and free
+evidence per vertical interval, so people who walk past are cleared and unknown is told apart from
+free); ``map_kind="thesis"`` gives the thesis's accumulate-only :class:`mapping.vhv.VHVMap`. Sonar
+readings go into a probabilistic map through its ``insert_sonar`` (free inside the zone's cone up to
+the fused range, occupied at the range; a reading with no echo gives free space up to
+:data:`SONAR_FREE_RANGE_M`), into a thesis map as the cone points only. Further *layers* (e.g. the
+simulation's map placed with ground-truth poses) receive the same frames placed with their own pose
+source; :meth:`Perception.new_map` makes them of the same kind.
 
 Scan-to-map matching (REP-105). With a :class:`mapping.matching.ScanMatcher`, each depth frame placed
 by odometry in ``odom`` is registered against the *matched* map before it is inserted; the matcher keeps
@@ -55,6 +60,9 @@ POSE_SOURCES = ("odometry", "matched", "ground-truth")
 SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
+MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
+NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
+SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
 
 
 class PointMap(Protocol):
@@ -146,9 +154,20 @@ class Perception:
         ground_truth: ``() -> T_world_base`` (4, 4), the pose source of ``pose="ground-truth"``.
         zoom_half_width: half-width, m, of the fine square around the chair (None: no zoom).
         zoom_factor: refinement of the zoom (fine cell = grid cell / factor).
+        clear_no_return: a depth pixel without a return gives free space along its ray up to the
+            camera's ``max_range_m`` in maps that keep free space (OctoMap's max-range rays): open
+            space above the horizon and beyond the range clears people who walked there. A return
+            lost on a surface too close or too dark is cleared through too (the sonars cover the
+            close range; the safety layer's distances come from the frames' points, not the map).
+        depth_max_range_m: the depth camera's maximum range, m (None: its ``max_range_m`` attribute,
+            if it has one; without a range, no-return pixels give nothing).
+        map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
+            ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
+        evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
+            (default: the mapping core's defaults).
 
     Raises:
-        ConfigError: an unknown ``pose``, or ``"ground-truth"`` without ``ground_truth``.
+        ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
     """
 
     def __init__(
@@ -168,6 +187,10 @@ class Perception:
         ground_truth: Callable[[], np.ndarray] | None = None,
         zoom_half_width: float | None = None,
         zoom_factor: int = 5,
+        map_kind: str = MAP_KINDS[0],
+        evidence_params: Any = None,
+        clear_no_return: bool = True,
+        depth_max_range_m: float | None = None,
     ) -> None:
         from mapping.grid import GridSpec
         from mapping.vhv import VHVMap
@@ -177,12 +200,20 @@ class Perception:
             raise ConfigError(f"pose = {pose!r}: expected one of {', '.join(POSE_SOURCES)}")
         if pose == "ground-truth" and ground_truth is None:
             raise ConfigError("pose = 'ground-truth' needs a ground-truth pose source (a simulated chair)")
-
+        if map_kind not in MAP_KINDS:
+            raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
         self.spec = spec
+        self.map_kind = map_kind
+        self.tolerance = float(tolerance)
+        self.evidence_params = evidence_params
+        self.clear_no_return = bool(clear_no_return)
+        self.depth_max_range_m = depth_max_range_m
+        self._camera_range: float | None = None
+        self._rays: dict[tuple[str, int, int], np.ndarray] = {}
         self.grid = grid if grid is not None else GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
-        self.map: PointMap = map if map is not None else VHVMap(self.grid, tolerance)
+        self.map: PointMap = map if map is not None else self.new_map()
         if isinstance(sonar_map, str):
-            sonar_map = VHVMap(self.grid, tolerance)
+            sonar_map = self.new_map()
         self.sonar_map: PointMap = sonar_map if sonar_map is not None else self.map
         if matcher is None and pose == "matched":
             from mapping.matching import ScanMatcher
@@ -196,7 +227,7 @@ class Perception:
         if matcher is not None and "matched" not in self.pose_maps:
             self.pose_maps["matched"] = VHVMap(self.grid, tolerance)
         if pose != "odometry":
-            self.pose_maps["odometry"] = VHVMap(self.grid, tolerance)
+            self.pose_maps["odometry"] = self.new_map()
         if matcher is not None and not hasattr(self.pose_maps["matched"], "structures"):
             raise ConfigError(f"scan-to-map matching needs a VHV map; got {type(self.pose_maps['matched'])}")
         self.match_ms: list[float] = []
@@ -245,6 +276,13 @@ class Perception:
         }
         self.last_depth_stamp_ns: int | None = None
 
+    def new_map(self) -> PointMap:
+        """An empty map of this stage's kind on its grid (``map_kind``, ``tolerance``, evidence params)."""
+        from mapping.probabilistic import make_map
+
+        params = self.evidence_params if self.map_kind == "probabilistic" else None
+        return make_map(self.grid, self.tolerance, self.map_kind, params)  # type: ignore[arg-type]
+
     # --- frames -----------------------------------------------------------------------------------
 
     def t_base_sensor(self, frame_id: str) -> np.ndarray:
@@ -276,6 +314,7 @@ class Perception:
         if self.ground_truth is not None and "ground-truth" in self.pose_maps:
             t_world_base["ground-truth"] = np.asarray(self.ground_truth(), dtype=float)
         layer_poses = [layer.t_world_base() for layer in self.layers]
+        self._camera_range = self.depth_max_range_m or getattr(camera, "max_range_m", None)
         submit = getattr(camera, "submit_read", None)
         depth = int(getattr(camera, "max_inflight", 0)) if submit is not None else 0
         fut: Any = submit() if submit is not None else _Done(camera.read())
@@ -341,13 +380,24 @@ class Perception:
             if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
                 main.append((self.zoom, poses[self.pose], False))
         others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
+        r = self._camera_range if self.clear_no_return else None
+        far = self._no_return_points(frame, r) if r else None
         for m, t, is_main in main + others + placed:
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
             if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
                 s = s[0]
+            free_ms = 0.0
+            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
+            if far is not None and len(far) and insert_free is not None:
+                # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays),
+                # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
+                # floor within the range lost its return on something (or grazing the floor), not in air
+                fw = transform_points(t, far, np.float32)
+                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
+                free_ms = float(getattr(f, "build_ms", 0.0))
             if is_main and s is not None:
                 with self._lock:
-                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)))
+                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)) + free_ms)
                     st = self.stats
                     st["depth_frames"] += 1
                     st["points_in"] += int(getattr(s, "points_in", 0))
@@ -358,6 +408,43 @@ class Perception:
             t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
                 self._after_frame[seq] = (t, d, pose)
+
+    def _no_return_points(self, frame: DepthFrame, range_m: float) -> np.ndarray | None:
+        """Points (M, 3) in the camera frame at depth ``range_m`` along the rays of no-return pixels.
+
+        The pixel rays come from a pinhole model fitted once per (frame_id, H, W) to the frame's own
+        returns (``y/x`` linear in the column, ``z/x`` in the row); a frame that does not fit a pinhole
+        (residual over 1 %) gives none. Every ``camera_stride``-th pixel each way is used: the free
+        space is built per cell, not per ray.
+        """
+        pts = np.asarray(frame.points)
+        if pts.ndim != 3:
+            return None
+        h, w = pts.shape[:2]
+        key = (frame.frame_id, h, w)
+        rays = self._rays.get(key)
+        if rays is None:
+            x = pts[..., 0]
+            ok = np.isfinite(pts).all(axis=2) & (x > 1e-3)
+            if ok.sum() < 100:
+                return None
+            v, u = np.nonzero(ok)
+            a, b = pts[v, u, 1] / x[v, u], pts[v, u, 2] / x[v, u]
+            cu, cv = np.polyfit(u, a, 1), np.polyfit(v, b, 1)
+            if max(np.abs(np.polyval(cu, u) - a).max(), np.abs(np.polyval(cv, v) - b).max()) > 0.01:
+                self._rays[key] = np.zeros((0, 0, 3))  # not a pinhole camera: no free space from no-returns
+                return None
+            s = self.camera_stride
+            uu, vv = np.meshgrid(np.arange(w)[::s], np.arange(h)[::s])
+            d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
+            rays = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            self._rays[key] = rays
+        if rays.size == 0:
+            return None
+        s = self.camera_stride
+        nan = ~np.isfinite(pts[::s, ::s]).all(axis=2)
+        d = rays[nan]
+        return np.asarray(d * (range_m / d[:, :1]))  # the range is a depth (x), not a distance
 
     def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:
@@ -439,8 +526,13 @@ class Perception:
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
-        if len(pts):
-            joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
+        if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
+            t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
+            insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
+            self.stats["sonar_points"] += len(pts)
+        elif len(pts):
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
             self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
@@ -475,12 +567,39 @@ class Perception:
         while self._pending:
             self._pending.popleft().result()
 
-    def occupancy_2d(self, which: PointMap | None = None) -> np.ndarray:
-        """2D occupancy (bool, grid shape) of the height band in a map (default the main one)."""
-        from mapping.derived import occupancy_2d
+    def wait_for_maps(self) -> None:
+        """Wait for the map insertions already submitted (frames still being captured stay in flight)."""
+        while self._pending:
+            self._pending.popleft().result()
+
+    def occupancy_2d(self, which: PointMap | None = None, unknown: int = -1) -> np.ndarray:
+        """Three-valued 2D map (int8, grid shape) of the height band in a map (default the main one).
+
+        ``nav_msgs/OccupancyGrid`` codes: 100 occupied, 0 free, ``unknown`` (default -1) where nothing
+        is known; pass ``unknown=100`` to treat unknown as blocked or 0 as free. A probabilistic map
+        answers from its evidence (occupied above its occupancy threshold, remembered free space); the
+        thesis map knows no free space: a cell is 100 when a structure overlaps the band, 0 when it
+        holds only structures outside the band (seen, nothing in the band), unknown otherwise.
+
+        Raises:
+            MappingError: ``unknown`` not one of -1, 0, 100.
+        """
+        from mapping.derived import occupancy_codes
 
         self.flush()
-        return occupancy_2d(which if which is not None else self.map, *self.band)  # type: ignore[arg-type]
+        return occupancy_codes(which if which is not None else self.map, self.band, unknown=unknown)
+
+    def occupied_2d(self, which: PointMap | None = None) -> np.ndarray:
+        """2D occupancy (bool, grid shape) of the height band: True where the map is occupied.
+
+        Unknown is not occupied (for a probabilistic map: an interval overlapping the band at or above
+        the occupancy threshold; for the thesis map: a structure overlapping the band).
+        """
+        return np.asarray(self.occupancy_2d(which) == 100)
+
+    def free_2d(self, which: PointMap | None = None, unknown_is_free: bool = False) -> np.ndarray:
+        """Cells (bool, grid shape) where the height band is free; unknown counts as free only if asked."""
+        return np.asarray(self.occupancy_2d(which, unknown=0 if unknown_is_free else 100) == 0)
 
     def close(self) -> None:
         """Finish pending work and stop the mapping thread."""

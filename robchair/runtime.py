@@ -51,7 +51,7 @@ from hw.interfaces import Backend, MotorState, SonarArrayReading
 from robchair.errors import ConfigError, RobChairError
 from robchair.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.observers import Observer
-from robchair.perception import Corridor, Perception, sonar_obstacle_points
+from robchair.perception import MAP_KINDS, Corridor, Perception, sonar_obstacle_points
 from robchair.route import PurePursuit, Route
 from robchair.safety import SafetyDecision, SafetyInputs, SafetyLayer, SafetyLimits, StopReason, StopRecord
 from robchair.sources import Command, CommandSource, JoystickSource, Observation, PolicySource
@@ -97,6 +97,8 @@ class RuntimeConfig:
         camera_every: read the depth camera every this many cycles (0 = never).
         sonar_every: read the sonar arrays every this many cycles (0 = never).
         stop_on_driver_fault: end the run after a driver fault (the chair is stopped either way).
+        map_kind: map of the default perception stage: ``"probabilistic"`` (occupied, free and unknown
+            per vertical interval) or ``"thesis"`` (accumulate only); see :class:`Perception`.
     """
 
     rate_hz: float = 10.0
@@ -104,8 +106,11 @@ class RuntimeConfig:
     camera_every: int = 5
     sonar_every: int = 1
     stop_on_driver_fault: bool = True
+    map_kind: str = "probabilistic"
 
     def __post_init__(self) -> None:
+        if self.map_kind not in MAP_KINDS:
+            raise ConfigError(f"runtime.map_kind = {self.map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
         if not (isinstance(self.rate_hz, int | float) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ConfigError(f"runtime.rate_hz = {self.rate_hz!r}: expected a finite number > 0")
         if not (math.isfinite(self.deadline_slack) and self.deadline_slack >= 0):
@@ -262,7 +267,9 @@ class Runtime:
         self.drive = DiffDrive(self.spec)
         self.safety = safety if safety is not None else SafetyLayer(SafetyLimits.from_spec(self.spec))
         self.safety_enabled = bool(safety_enabled)
-        self.perception = perception if perception is not None else Perception(self.spec)
+        self.perception = (
+            perception if perception is not None else Perception(self.spec, map_kind=self.config.map_kind)
+        )
         self.observers = list(observers)
         self.odometry = Odometry(self.spec, start_pose)
         self.period_ns = round(1e9 / self.config.rate_hz)
@@ -643,6 +650,7 @@ class Runtime:
         res.maps["odometry"] = p.map
         for name, m in getattr(p, "pose_maps", {}).items():  # odometry, matched, ground truth
             res.maps[name.replace("-", "_")] = m
+        res.extra.setdefault("map", {})["kind"] = getattr(p, "map_kind", None)
         if p.sonar_map is not p.map:
             res.maps["sonar"] = p.sonar_map
         ms = np.asarray(p.map_ms) if p.map_ms else np.array([np.nan])

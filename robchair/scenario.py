@@ -14,8 +14,9 @@ One run:
 3. observers: the run recorder (MCAP bag), the ground-truth evaluation (odometry drift, maps against
    the scene, collisions), a progress bar;
 4. writes the run folder atomically (:mod:`robchair.outdir`): ``metrics.json`` (the schema of every
-   run), ``maps.npz``, the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
-   ``scene.png`` and the bag.
+   run), ``maps.npz`` (each map's structures and its three-valued 2D occupancy of the height band,
+   ``nav_msgs/OccupancyGrid`` codes), the map exports and pictures of :mod:`mapping.export`
+   (``map/``), a rendered ``scene.png`` and the bag.
 
 A failure inside the loop (e.g. the physics diverging) stops the chair; what was recorded so far is
 written (``status`` = ``"error"`` in the metrics) and the error is raised afterwards. Same scenario +
@@ -37,6 +38,7 @@ import numpy as np
 from robchair.errors import ConfigError
 from robchair.kinematics import DiffDrive, Pose2D
 from robchair.observers import Observer
+from robchair.perception import MAP_KINDS
 from robchair.route import PurePursuit, Route
 from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
 from robchair.safety import SafetyLayer, SafetyLimits
@@ -149,6 +151,7 @@ def run_scenario(
     pose: str = POSE_DEFAULT,
     matching: bool = True,
     zoom: bool = True,
+    map_kind: str = "probabilistic",
 ) -> RunResult:
     """Run a scenario through the runtime and (with ``write``) write its run folder.
 
@@ -175,6 +178,8 @@ def run_scenario(
         matching: run the scan-to-map matching (its map and drift beside the others); forced by
             ``pose="matched"``.
         zoom: map a 2 m x 2 m region around the chair at 1 cm (:mod:`mapping.zoom`).
+        map_kind: the maps (odometry and ground-truth pose): ``"probabilistic"`` (free space and
+            unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).
@@ -196,13 +201,15 @@ def run_scenario(
     seed = scenario.seed if seed is None else int(seed)
     if seed < 0:
         raise ConfigError(f"seed = {seed}: expected >= 0")
+    if map_kind not in MAP_KINDS:
+        raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
     wall0 = time.perf_counter()
     chair = SimChair(spec, scenario.scene, scenario.start, sensor=camera,
                      sonars=scenario.sonars and sensors, seed=seed, camera_backend=camera_backend,
                      raycast_threads=raycast_threads)  # fmt: skip
     backend = backend_from_chair(chair, default_watchdog_ms(CONTROL_HZ), threaded=pipeline)
     config = RuntimeConfig(rate_hz=CONTROL_HZ, camera_every=KINECT_EVERY,
-                           sonar_every=sonar_every(chair, sonar_hz))  # fmt: skip
+                           sonar_every=sonar_every(chair, sonar_hz), map_kind=map_kind)  # fmt: skip
     target = None
     if write:
         target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
@@ -249,11 +256,13 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
         from mapping.matching import ScanMatcher
 
         matcher = ScanMatcher()
+    depth_range = chair.kinect.model.max_range_m if chair.kinect is not None else None
     perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
                             tolerance=MAP_TOLERANCE, matcher=matcher, pose=o.get("pose", POSE_DEFAULT),
                             ground_truth=chair.ground_truth_transform,
                             zoom_half_width=ZOOM_HALF_WIDTH_M if o.get("zoom", True) else None,
-                            zoom_factor=ZOOM_FACTOR)  # fmt: skip
+                            zoom_factor=ZOOM_FACTOR, map_kind=config.map_kind,
+                            depth_max_range_m=depth_range)  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
     recorder = None
@@ -332,11 +341,16 @@ def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) ->
 
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
     """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
+    from mapping.derived import occupancy_codes
+
     arrays: dict[str, np.ndarray] = {}
+    band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
     for name, m in res.maps.items():
         s = m.structures()
         for field in ("i", "j", "bottom", "top"):
             arrays[f"{name}_{field}"] = np.asarray(getattr(s, field))
+        # nav_msgs/OccupancyGrid codes of the band: 100 occupied, 0 free, -1 unknown
+        arrays[f"{name}_occupancy"] = occupancy_codes(m, (float(band[0]), float(band[1])))
     for name, p in res.paths.items():
         arrays[f"path_{name}"] = p
     np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
@@ -348,7 +362,6 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
 
         t0 = time.perf_counter()
         (out / "map").mkdir()
-        band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
         write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
                           build_ms=res.extra.get("mapping_ms_total"),
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip

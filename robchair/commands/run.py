@@ -33,6 +33,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
     p.add_argument("--out", type=Path, help="output folder: bag/, metrics.json, odometry.csv")
     p.add_argument(
+        "--map",
+        choices=("probabilistic", "thesis"),
+        help="map kind (overrides [runtime] map_kind; default probabilistic): probabilistic (free space, "
+        "unknown) or thesis (accumulate only)",
+    )
+    p.add_argument(
         "--no-safety",
         action="store_true",
         help="pass commands through without the safety layer (recorded in metrics.json)",
@@ -103,6 +109,8 @@ def _run(args: argparse.Namespace) -> int:
     rt_cfg = dict(cfg.get("runtime", {}))
     if args.rate is not None:
         rt_cfg["rate_hz"] = args.rate
+    if args.map is not None:
+        rt_cfg["map_kind"] = args.map
     runtime_config = RuntimeConfig.from_dict(rt_cfg)
     safety = SafetyLayer(SafetyLimits.from_spec(spec, **cfg.get("safety", {})))
     route = None

@@ -69,6 +69,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--no-matching", action="store_true", help="no scan-to-map matching (unless --pose matched)"
     )
     p.add_argument("--no-zoom", action="store_true", help="no 1 cm zoom region around the chair")
+    p.add_argument(
+        "--map",
+        choices=("probabilistic", "thesis"),
+        default="probabilistic",
+        help="map kind: probabilistic (free space, unknown, moving people cleared; default) or thesis "
+        "(the thesis's accumulate-only VHV map)",
+    )
     p.add_argument("--no-pictures", action="store_true", help="do not draw the PNG pictures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
@@ -111,6 +118,7 @@ def _run(args: argparse.Namespace) -> int:
             **({"pose": args.pose} if args.pose else {}),
             matching=not args.no_matching,
             zoom=not args.no_zoom,
+            map_kind=args.map,
         )
     m = res.metrics()
     summary = {
@@ -124,6 +132,7 @@ def _run(args: argparse.Namespace) -> int:
         "collisions": m["collisions"],
         "odometry_final_error_m": round(m["odometry_drift"]["final_position_error_m"], 4),
         "iou_odometry_vs_ground_truth_pose": m["map"]["iou_odometry_vs_ground_truth_pose"],
+        "map_kind": m["map"]["kind"],
     }
     matched = (m["odometry_drift"] or {}).get("matched")
     if matched:
