@@ -41,6 +41,7 @@ from hw.interfaces import (
     PIDConfig,
     SonarArrayReading,
 )
+from robchair.config import ConfigSource, ConfigTable
 from robchair.frames import quat_from_yaw
 from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec, load_spec
@@ -478,7 +479,7 @@ _CONFIG_KEYS = {
 }
 
 
-def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
+def make_sim_backend(config: Mapping[str, Any] | ConfigTable | None = None) -> SimBackend:
     """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of :mod:`robchair.backends`).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
@@ -487,16 +488,19 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
     ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
-    (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
+    (path of a platform TOML). An unknown key or a bad ``start`` / ``watchdog_ms`` raises
+    :class:`sim.errors.SimError` (or the error class of a :class:`robchair.config.ConfigTable`'s source,
+    whose file and line the message then names), in the :mod:`robchair.config` dialect.
 
     The returned backend has the underlying :class:`SimChair` as ``backend.chair`` (for ground truth).
     """
-    cfg = dict(config or {})
-    unknown = set(cfg) - _CONFIG_KEYS
-    if unknown:
-        raise SimError(
-            f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}"
-        )
+    table = (
+        config
+        if isinstance(config, ConfigTable)
+        else ConfigTable(dict(config or {}), ConfigSource(error=SimError), "sim")
+    )
+    table.keys(_CONFIG_KEYS)
+    cfg = dict(table.data)
     spec = load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
     kw: dict[str, Any] = {}
     if cfg.get("scenario"):
@@ -515,13 +519,8 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     if isinstance(kw.get("sensor"), str) and kw["sensor"].lower() == "none":
         kw["sensor"] = None  # TOML has no null: "none" means no depth camera
     if "start" in cfg:
-        st = tuple(float(v) for v in cfg["start"])
-        if len(st) != 3 or not all(math.isfinite(v) for v in st):
-            raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
-        kw["start"] = st
-    watchdog = cfg.get("watchdog_ms")
-    if watchdog is not None and (isinstance(watchdog, bool) or not isinstance(watchdog, int) or watchdog < 1):
-        raise SimError(f"sim backend config: watchdog_ms={watchdog!r}: expected a whole number of ms >= 1")
+        kw["start"] = table.vector("start", 3)
+    watchdog = table.integer("watchdog_ms", None, ge=1) if cfg.get("watchdog_ms") is not None else None
     return backend_from_chair(SimChair(spec, **kw), watchdog)
 
 
