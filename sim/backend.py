@@ -51,9 +51,9 @@ from sim.scene import Scene, SceneBodies, build_scene, load_scene
 from sim.world import World
 
 SONAR_MOUNTS = ("sonar_array_left", "sonar_array_right")
-# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, 90 = facing forward;
-# the URDF joint is 0 = forward, so joint angle = servo angle - 90
-SERVO_CENTRE_DEG = 90.0
+# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, the spec's
+# sonar_arrays.servo_centre_deg = facing forward; the URDF joint is 0 = forward
+# (spec.sonar_arrays.joint_angle converts)
 SONAR_NOISE_STD_M = 0.005  # before the SRF08's rounding to whole centimetres (its +-1 cm resolution)
 
 
@@ -410,16 +410,18 @@ class SimSonarArray(Device):
         model = chair.sonars[mount].model
         self.min_range_m, self.max_range_m = model.min_range_m, model.max_range_m
         self.field_of_view_rad = model.field_of_view_rad
+        self._arrays = chair.spec.sonar_arrays  # servo convention (centre angle) of the platform
 
     def set_servo_deg(self, angle_deg: float) -> None:
-        """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
+        """Servo angle in the hardware convention: 0..180 deg, ``spec.sonar_arrays.servo_centre_deg``
+        (90) = facing along the mount's x axis."""
         self._check_open()
         if not math.isfinite(angle_deg):
             raise SimError(f"{self.name}: servo angle must be finite, got {angle_deg!r}")
-        self.chair.robot.set_servo_deg(self.mount, angle_deg - SERVO_CENTRE_DEG)
+        self.chair.robot.set_servo_deg(self.mount, math.degrees(self._arrays.joint_angle(angle_deg)))
 
     def servo_deg(self) -> float:
-        return self.chair.robot.servo_deg(self.mount) + SERVO_CENTRE_DEG
+        return self._arrays.servo_deg(math.radians(self.chair.robot.servo_deg(self.mount)))
 
     def read(self) -> SonarArrayReading:
         self._check_open()

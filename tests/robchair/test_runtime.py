@@ -98,13 +98,17 @@ def test_sonar_arc_from_five_zone_fusion_lies_ahead_or_beside_as_the_servo_turns
     mount = spec.mounts["sonar_array_left"]
     res = fuse_array(0.5, 0.5, 0.5)
     assert res.zone == 3
-    ahead = sonar_obstacle_points(SonarArrayReading(0, (0.5, 0.5, 0.5), 90.0), mount)
+    ahead = sonar_obstacle_points(SonarArrayReading(0, (0.5, 0.5, 0.5), 90.0), mount, spec.sonar_arrays)
     a0, a1 = math.radians(res.alpha_deg), math.radians(res.alpha_deg + res.theta_deg)
     x_min = mount.xyz[0] + 0.5 * min(math.cos(a0), math.cos(a1))
     assert Corridor.from_spec(spec).distance_ahead(ahead) == pytest.approx(x_min - 0.58)
-    side = sonar_obstacle_points(SonarArrayReading(0, (0.5, 0.5, 0.5), 180.0), mount)  # facing left
+    side = sonar_obstacle_points(
+        SonarArrayReading(0, (0.5, 0.5, 0.5), 180.0), mount, spec.sonar_arrays
+    )  # facing left
     assert Corridor.from_spec(spec).distance_ahead(side) is None
-    assert sonar_obstacle_points(SonarArrayReading(0, (math.nan,) * 3, 90.0), mount).shape == (0, 2)
+    assert sonar_obstacle_points(
+        SonarArrayReading(0, (math.nan,) * 3, 90.0), mount, spec.sonar_arrays
+    ).shape == (0, 2)
 
 
 def test_perception_sees_a_wall_ahead_in_a_depth_frame_but_not_the_floor(spec) -> None:
