@@ -174,7 +174,9 @@ def _addresses(cfg: ConfigTable) -> tuple[int, ...]:
     return tuple(v)
 
 
-def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
+def _sonar_arrays(
+    bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float, spec: RobChairSpec
+) -> tuple[Any, ...]:
     from hw.sonar_array import RangerSonarArray, SonarFiringGroup
     from hw.srf08 import SRF08
 
@@ -188,7 +190,9 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
             SRF08(bus, a, name=f"{name}/sonar{i + 1}", clock=clock, max_range_m=max_range_m)
             for i, a in enumerate(addresses[3 * k : 3 * k + 3])
         ]
-        arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+        # no servo: the arrays face along their mounts (the servo's centre angle)
+        fixed = spec.sonar_arrays.servo_centre_deg
+        arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock, fixed_angle_deg=fixed))
     SonarFiringGroup(arrays, clock=clock)
     return tuple(arrays)
 
@@ -241,6 +245,7 @@ def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
                 DEFAULT_SONAR_ADDRESSES,
                 clock,
                 cfg.number("sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, gt=0),
+                spec,
             )
     except BaseException:
         emu.stop()
@@ -289,7 +294,7 @@ def make_real_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
             on_close.append(bus.close)
             addresses = _addresses(cfg)
             arrays = _sonar_arrays(
-                bus, addresses, clock, cfg.number("sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, gt=0)
+                bus, addresses, clock, cfg.number("sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, gt=0), spec
             )
         if "joystick_port" in cfg:
             from hw.joystick import SerialJoystick
