@@ -41,6 +41,7 @@ threaded run and a serial one give the same maps and decisions bit for bit.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections import deque
@@ -54,11 +55,10 @@ import numpy as np
 from hw.interfaces import DepthFrame, SonarArrayReading
 from robchair.frames import se3_planar, transform_points
 from robchair.kinematics import Pose2D
-from robchair.spec import RobChairSpec
+from robchair.spec import RobChairSpec, SonarArrays
 
 POSE_SOURCES = ("odometry", "matched", "ground-truth")
 SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
-SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
 NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
@@ -93,19 +93,29 @@ class Corridor:
         return max(0.0, float(xy[inside, 0].min()) - self.front_x)
 
 
-def sonar_obstacle_points(reading: SonarArrayReading, mount: Any, n_arc: int = 9) -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _zone_tables(outer_sonar_deg: float) -> Any:
+    from mapping.sonar import zone_tables
+
+    return zone_tables(outer_sonar_deg)
+
+
+def sonar_obstacle_points(
+    reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9
+) -> np.ndarray:
     """Points (N, 2) in ``base_link`` where the fused obstacle of one array reading may lie.
 
     Five-zone fusion (thesis 5.2) gives the distance ``d`` and the bearing interval holding the
-    obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative).
+    obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative). The
+    outer sonars' angle and the servo's centre come from ``arrays`` (``spec.sonar_arrays``).
     """
     from mapping.sonar import fuse_array
 
     r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-    res = fuse_array(r1, r2, r3)
+    res = fuse_array(r1, r2, r3, tables=_zone_tables(arrays.outer_sonar_deg))
     if not res.has_obstacle:
         return np.zeros((0, 2))
-    yaw0 = mount.rpy[2] + math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+    yaw0 = mount.rpy[2] + arrays.joint_angle(reading.servo_angle_deg)
     bearings = np.radians(np.linspace(res.alpha_deg, res.alpha_deg + res.theta_deg, n_arc)) + yaw0
     x0, y0 = mount.xyz[0], mount.xyz[1]
     return np.stack([x0 + res.distance_m * np.cos(bearings), y0 + res.distance_m * np.sin(bearings)], axis=1)
@@ -521,12 +531,13 @@ class Perception:
             self._sonar[name] = None
             return None
         ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-        fusion, pts = array_points(ranges)
-        arc = sonar_obstacle_points(reading, mount)
+        arrays = self.spec.sonar_arrays
+        fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
+        arc = sonar_obstacle_points(reading, mount, arrays)
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
-        joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        joint = arrays.joint_angle(reading.servo_angle_deg)
         insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
         if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)

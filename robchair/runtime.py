@@ -39,7 +39,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +48,7 @@ import numpy as np
 
 from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
+from robchair.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
 from robchair.errors import ConfigError, RobChairError
 from robchair.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.observers import Observer
@@ -101,33 +102,33 @@ class RuntimeConfig:
             per vertical interval) or ``"thesis"`` (accumulate only); see :class:`Perception`.
     """
 
-    rate_hz: float = 10.0
-    deadline_slack: float = 0.25
-    camera_every: int = 5
-    sonar_every: int = 1
+    rate_hz: float = field(default=10.0, metadata=bounds(gt=0))
+    deadline_slack: float = field(default=0.25, metadata=bounds(ge=0))
+    camera_every: int = field(default=5, metadata=bounds(ge=0))
+    sonar_every: int = field(default=1, metadata=bounds(ge=0))
     stop_on_driver_fault: bool = True
     map_kind: str = "probabilistic"
 
     def __post_init__(self) -> None:
+        check_dataclass(self, "runtime")
         if self.map_kind not in MAP_KINDS:
             raise ConfigError(f"runtime.map_kind = {self.map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
-        if not (isinstance(self.rate_hz, int | float) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ConfigError(f"runtime.rate_hz = {self.rate_hz!r}: expected a finite number > 0")
-        if not (math.isfinite(self.deadline_slack) and self.deadline_slack >= 0):
-            raise ConfigError(f"runtime.deadline_slack = {self.deadline_slack!r}: expected >= 0")
-        for name in ("camera_every", "sonar_every"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ConfigError(f"runtime.{name} = {v!r}: expected a whole number >= 0")
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "[runtime]") -> RuntimeConfig:
-        """From a TOML table; an unknown key is one error naming it and the allowed keys."""
-        allowed = list(cls.__dataclass_fields__)
-        unknown = set(data) - set(allowed)
-        if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
-        return cls(**data)
+    def from_dict(
+        cls,
+        data: Mapping[str, Any] | ConfigTable,
+        source: ConfigSource | None = None,
+        where: str = "runtime",
+        **overrides: Any,
+    ) -> RuntimeConfig:
+        """From a TOML table (``where`` is its path, e.g. ``"runtime"``); ``overrides`` replace keys.
+
+        Raises:
+            ConfigError: an unknown key, a wrong type or a value out of range
+                (``<file>:<line>: runtime.<key> = <value>: expected <what>``).
+        """
+        return load_dataclass(cls, data, source, where, **overrides)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ from hw.interfaces import (
     PIDConfig,
     SonarArrayReading,
 )
+from robchair.config import ConfigSource, ConfigTable
 from robchair.frames import quat_from_yaw
 from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec, load_spec
@@ -50,9 +51,9 @@ from sim.scene import Scene, SceneBodies, build_scene, load_scene
 from sim.world import World
 
 SONAR_MOUNTS = ("sonar_array_left", "sonar_array_right")
-# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, 90 = facing forward;
-# the URDF joint is 0 = forward, so joint angle = servo angle - 90
-SERVO_CENTRE_DEG = 90.0
+# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, the spec's
+# sonar_arrays.servo_centre_deg = facing forward; the URDF joint is 0 = forward
+# (spec.sonar_arrays.joint_angle converts)
 SONAR_NOISE_STD_M = 0.005  # before the SRF08's rounding to whole centimetres (its +-1 cm resolution)
 
 
@@ -409,16 +410,18 @@ class SimSonarArray(Device):
         model = chair.sonars[mount].model
         self.min_range_m, self.max_range_m = model.min_range_m, model.max_range_m
         self.field_of_view_rad = model.field_of_view_rad
+        self._arrays = chair.spec.sonar_arrays  # servo convention (centre angle) of the platform
 
     def set_servo_deg(self, angle_deg: float) -> None:
-        """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
+        """Servo angle in the hardware convention: 0..180 deg, ``spec.sonar_arrays.servo_centre_deg``
+        (90) = facing along the mount's x axis."""
         self._check_open()
         if not math.isfinite(angle_deg):
             raise SimError(f"{self.name}: servo angle must be finite, got {angle_deg!r}")
-        self.chair.robot.set_servo_deg(self.mount, angle_deg - SERVO_CENTRE_DEG)
+        self.chair.robot.set_servo_deg(self.mount, math.degrees(self._arrays.joint_angle(angle_deg)))
 
     def servo_deg(self) -> float:
-        return self.chair.robot.servo_deg(self.mount) + SERVO_CENTRE_DEG
+        return self._arrays.servo_deg(math.radians(self.chair.robot.servo_deg(self.mount)))
 
     def read(self) -> SonarArrayReading:
         self._check_open()
@@ -478,7 +481,7 @@ _CONFIG_KEYS = {
 }
 
 
-def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
+def make_sim_backend(config: Mapping[str, Any] | ConfigTable | None = None) -> SimBackend:
     """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of :mod:`robchair.backends`).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
@@ -487,16 +490,19 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
     ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
-    (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
+    (path of a platform TOML). An unknown key or a bad ``start`` / ``watchdog_ms`` raises
+    :class:`sim.errors.SimError` (or the error class of a :class:`robchair.config.ConfigTable`'s source,
+    whose file and line the message then names), in the :mod:`robchair.config` dialect.
 
     The returned backend has the underlying :class:`SimChair` as ``backend.chair`` (for ground truth).
     """
-    cfg = dict(config or {})
-    unknown = set(cfg) - _CONFIG_KEYS
-    if unknown:
-        raise SimError(
-            f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}"
-        )
+    table = (
+        config
+        if isinstance(config, ConfigTable)
+        else ConfigTable(dict(config or {}), ConfigSource(error=SimError), "sim")
+    )
+    table.keys(_CONFIG_KEYS)
+    cfg = dict(table.data)
     spec = load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
     kw: dict[str, Any] = {}
     if cfg.get("scenario"):
@@ -515,13 +521,8 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     if isinstance(kw.get("sensor"), str) and kw["sensor"].lower() == "none":
         kw["sensor"] = None  # TOML has no null: "none" means no depth camera
     if "start" in cfg:
-        st = tuple(float(v) for v in cfg["start"])
-        if len(st) != 3 or not all(math.isfinite(v) for v in st):
-            raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
-        kw["start"] = st
-    watchdog = cfg.get("watchdog_ms")
-    if watchdog is not None and (isinstance(watchdog, bool) or not isinstance(watchdog, int) or watchdog < 1):
-        raise SimError(f"sim backend config: watchdog_ms={watchdog!r}: expected a whole number of ms >= 1")
+        kw["start"] = table.vector("start", 3)
+    watchdog = table.integer("watchdog_ms", None, ge=1) if cfg.get("watchdog_ms") is not None else None
     return backend_from_chair(SimChair(spec, **kw), watchdog)
 
 

@@ -217,8 +217,7 @@ class RunRecorder(Observer):
         return self.bag.counts
 
     def episode_start(self, runtime: Runtime) -> None:
-        from mapping.sonar import OUTER_SONAR_DEG
-
+        outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
         stamp = max(runtime.t0_ns, 1)
         statics: list[tuple[str, str, np.ndarray]] = []
         if getattr(runtime.backend, "laser_scanner", None) is not None:
@@ -230,7 +229,7 @@ class RunRecorder(Observer):
                     continue
                 statics.append((BASE_LINK, frame_id, runtime.perception.t_base_sensor(frame_id)))
         for name in runtime.sonar_names:
-            for k, yaw_deg in enumerate((OUTER_SONAR_DEG, 0.0, -OUTER_SONAR_DEG), 1):
+            for k, yaw_deg in enumerate((outer_deg, 0.0, -outer_deg), 1):
                 statics.append(
                     (name, sonar_frame(name, k), se3_rpy((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(yaw_deg))))
                 )
@@ -238,8 +237,6 @@ class RunRecorder(Observer):
             self.bag.tf(stamp, statics, static=True)
 
     def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
-        from robchair.perception import SERVO_CENTRE_DEG
-
         bag = self.bag
         stamp = cycle.stamp_ns
         p = cycle.pose
@@ -258,7 +255,7 @@ class RunRecorder(Observer):
                 bag.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
             mount = runtime.spec.mounts.get(name)
             if mount is not None:
-                joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+                joint = runtime.spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
                 bag.tf(reading.stamp_ns, [(BASE_LINK, name, mount.transform(joint))])
         scan = runtime.last_scan
         if scan is not None and scan is not self._last_scan:
