@@ -124,7 +124,7 @@ def render_scene(
 
     from sim.backend import SimChair
 
-    start = tuple(float(c) for c in scenario.start)
+    start = (float(scenario.start[0]), float(scenario.start[1]), float(scenario.start[2]))
     route = np.array([start[:2], *scenario.route.waypoints], dtype=float)
     driven = None if path is None or len(path) == 0 else np.asarray(path, dtype=float)
     pose = start
