@@ -188,6 +188,7 @@ def test_readme_python_examples_run(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)
 @pytest.mark.parametrize("cmd", sorted(c for c in VARIANT if c != MAIN_JOB))
 def test_readme_heavy_command_runs_as_written(cmd: str, tmp_path: Path) -> None:
     _prepare(tmp_path)
@@ -197,6 +198,7 @@ def test_readme_heavy_command_runs_as_written(cmd: str, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)
 def test_readme_two_commands_work_on_a_fresh_copy_and_on_a_second_run(tmp_path: Path) -> None:
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
     clone = tmp_path / "robchair"
