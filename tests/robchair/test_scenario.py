@@ -304,6 +304,7 @@ def test_sim_and_emulated_bags_of_the_same_sensors_have_the_same_topics_types_an
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # about 20 s simulated; minutes of wall time on a loaded machine
 def test_default_cli_run_drives_through_the_runtime_with_safety_on(tmp_path: Path, monkeypatch) -> None:
     from robchair import runtime
     from robchair.cli import main
