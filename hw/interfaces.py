@@ -78,7 +78,11 @@ class PIDConfig:
 
 @dataclass(frozen=True)
 class RangeReading:
-    """One ultrasonic range reading. ``range_m`` is NaN when there was no echo."""
+    """One ultrasonic range reading (REP-117 values, as ``sensor_msgs/Range``).
+
+    ``range_m``: metres; ``+inf`` when nothing echoed within ``max_range_m``; NaN when the reading is
+    invalid (an echo under ``min_range_m``, or a failed sonar in an array).
+    """
 
     stamp_ns: int
     range_m: float
@@ -153,11 +157,24 @@ class Device:
 
 @runtime_checkable
 class Clock(Protocol):
-    """Time source: simulated time in sim, monotonic time on hardware."""
+    """Time source: simulated time in sim, monotonic time on hardware (:mod:`hw.clock`).
 
-    def now_ns(self) -> int: ...
+    Every stamp in these interfaces is an integer number of nanoseconds of the backend's clock; only
+    differences between stamps of one clock mean anything (the epoch is the clock's own).
+    """
 
-    def sleep_until_ns(self, t_ns: int) -> None: ...
+    def now_ns(self) -> int:
+        """The current time, ns; never decreases. Does not raise."""
+        ...
+
+    def sleep_until_ns(self, t_ns: int) -> None:
+        """Block until :meth:`now_ns` >= ``t_ns`` (returns at once if it already is).
+
+        A simulated clock advances the simulation to ``t_ns`` instead of waiting; a manual clock jumps.
+        Does not raise for a time in the past; the simulator's clock raises its own error class when
+        the physics fails while advancing.
+        """
+        ...
 
 
 class LifecycleState(enum.Enum):
@@ -271,65 +288,185 @@ class MotorControllerLifecycle(MotorController, Protocol):
 
 @runtime_checkable
 class Ranger(Protocol):
-    """One range sensor (SRF08, SRF04)."""
+    """One ultrasonic range sensor (SRF08 on I2C, SRF04 on trigger/echo pins).
+
+    Units: metres and radians in :class:`RangeReading` (REP-117: ``+inf`` = no echo within range,
+    NaN = invalid); ``stamp_ns`` is the time of the ping on the backend's :class:`Clock`.
+    """
 
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Connect and configure (e.g. the SRF08 range register).
 
-    def close(self) -> None: ...
+        Raises:
+            DeviceIOError: The bus or pins cannot be opened, or a transfer fails after the retries.
+            DeviceTimeoutError: The device does not finish a ranging left over from before.
+            CommandError: The configuration is invalid (address, gain, range).
+        """
+        ...
 
-    def read(self) -> RangeReading: ...
+    def close(self) -> None:
+        """Release the bus or pins (idempotent; a shared bus stays open). Does not raise."""
+        ...
+
+    def read(self) -> RangeReading:
+        """Fire one ranging and return it; blocks for the ranging (up to 65 ms for an SRF08).
+
+        Callers keep the firing interval the sensor needs (65 ms for an SRF08 and any sonar whose beam
+        overlaps it; :class:`hw.sonar_array.SonarFiringGroup`).
+
+        Raises:
+            DeviceClosedError: Not open.
+            DeviceTimeoutError: The ranging does not finish (device absent or hung).
+            DeviceIOError: A bus transfer fails after the retries.
+            ProtocolError: The device answers something impossible (e.g. a negative echo width).
+        """
+        ...
 
 
 @runtime_checkable
 class Servo(Protocol):
+    """The hobby servo that pans a sonar array; angles in degrees, 0..180 with 90 = straight ahead.
+
+    (Degrees, not radians, because the servo boards speak degrees; REP-103 angles are derived from
+    them by the array's mount, ``assets/robchair.toml``.)
+    """
+
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Connect to the servo board or PWM daemon.
 
-    def close(self) -> None: ...
+        Raises:
+            HardwareError: The board or daemon cannot be reached (a serial or pigpio failure).
+        """
+        ...
 
-    def set_angle_deg(self, angle_deg: float) -> None: ...
+    def close(self) -> None:
+        """Release the board (idempotent). Does not raise."""
+        ...
 
-    def angle_deg(self) -> float: ...
+    def set_angle_deg(self, angle_deg: float) -> None:
+        """Command an angle, degrees; returns once the board has acknowledged it (not once reached).
+
+        Raises:
+            DeviceClosedError: Not open.
+            CommandError: The angle is not finite, or outside the limits with ``out_of_range="refuse"``
+                (with ``"clamp"`` it is clamped to them).
+            DeviceFaultError: The board refused the angle.
+            DeviceTimeoutError: The board did not acknowledge in time.
+            HardwareError: The board acknowledged a different angle.
+        """
+        ...
+
+    def angle_deg(self) -> float:
+        """The last commanded (acknowledged) angle, degrees. Does not raise."""
+        ...
 
 
 @runtime_checkable
 class SonarArray(Protocol):
-    """Three sonars, the outer ones at +-30 deg from the middle one, on a servo."""
+    """Three sonars, the outer ones at +-30 deg from the middle one, on a servo.
+
+    Units: ranges in metres (REP-117: ``+inf`` = no echo, NaN = invalid or a failed sonar), the servo
+    angle in degrees (90 = straight ahead), ``stamp_ns`` the first ping of the reading's cycle.
+    """
 
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Open the three sonars and the servo (all or none).
 
-    def close(self) -> None: ...
+        Raises:
+            HardwareError: Any of them fails to open (its error; the others are closed again).
+        """
+        ...
 
-    def read(self) -> SonarArrayReading: ...
+    def close(self) -> None:
+        """Close the sonars and the servo (idempotent; a failure closing one is logged). Does not raise."""
+        ...
 
-    def set_servo_deg(self, angle_deg: float) -> None: ...
+    def read(self) -> SonarArrayReading:
+        """The three ranges of one firing cycle; blocks for it (195 ms for the chair's SRF08 arrays).
+
+        A failing sonar reads NaN and is counted; the others go on, so one dead sonar does not raise.
+
+        Raises:
+            DeviceClosedError: Not open.
+        """
+        ...
+
+    def set_servo_deg(self, angle_deg: float) -> None:
+        """Turn the array, degrees (see :class:`Servo`).
+
+        Raises:
+            DeviceClosedError: Not open.
+            CommandError: The array has no servo, or the angle is not finite or outside the limits.
+            HardwareError: The servo's own errors (see :meth:`Servo.set_angle_deg`).
+        """
+        ...
 
 
 @runtime_checkable
 class DepthCamera(Protocol):
+    """A depth camera (the Kinect v2): organised point clouds in metres (see :class:`DepthFrame`)."""
+
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Start the camera.
 
-    def close(self) -> None: ...
+        Raises:
+            HardwareError: The camera cannot be started.
+        """
+        ...
 
-    def read(self) -> DepthFrame: ...
+    def close(self) -> None:
+        """Stop the camera (idempotent). Does not raise."""
+        ...
+
+    def read(self) -> DepthFrame:
+        """The newest frame: points (H, W, 3) in metres in ``frame_id`` (x forward, y left, z up), NaN
+        where a pixel has no return; ``stamp_ns`` is the exposure time on the backend's clock.
+
+        Raises:
+            DeviceClosedError: Not open.
+            DeviceTimeoutError: A camera driver gets no frame in time (the simulated camera renders
+                synchronously and does not time out).
+        """
+        ...
 
 
 @runtime_checkable
 class Joystick(Protocol):
+    """The chair's joystick (an Arduino on a serial line): normalised axes, see :class:`JoystickReading`."""
+
     name: str
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Open the serial line.
 
-    def close(self) -> None: ...
+        Raises:
+            DeviceIOError: The port cannot be opened.
+        """
+        ...
 
-    def read(self) -> JoystickReading: ...
+    def close(self) -> None:
+        """Close the line (idempotent). Does not raise."""
+        ...
+
+    def read(self) -> JoystickReading:
+        """The latest axes in [-1, 1] (dead zone applied) and the dead-man button.
+
+        A reading older than the joystick's staleness limit reads as centred with the dead-man button
+        released, so a silent joystick never keeps the chair moving.
+
+        Raises:
+            DeviceClosedError: Not open.
+            DeviceIOError: The serial line fails.
+        """
+        ...
 
 
 @dataclass

@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 
 from hw.clock import MonotonicClock
-from hw.errors import CommandError
+from hw.errors import CommandError, DeviceIOError
 from hw.interfaces import Clock, Device, JoystickReading
 from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
 
@@ -123,9 +123,14 @@ class SerialJoystick(Device):
         """Newest valid sample as a command; zero with dead-man released when stale or released."""
         self._check_open()
         for _ in range(self.max_lines_per_read):
-            if self.transport.in_waiting <= 0:
-                break
-            raw = self.transport.readline()
+            try:
+                if self.transport.in_waiting <= 0:
+                    break
+                raw = self.transport.readline()
+            except OSError as exc:  # pyserial's SerialException is an OSError
+                raise DeviceIOError(
+                    getattr(exc, "errno", None), f"{self.name}: serial line failed: {exc}"
+                ) from exc
             if not raw:
                 break
             sample = parse_line(raw)

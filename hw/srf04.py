@@ -3,9 +3,17 @@
 Timing (Devantech SRF04 technical documentation): a 10 us high pulse on the trigger input starts a
 ranging; the SRF04 sends its burst and raises the echo line, and lowers it when the echo returns, so
 the echo pulse width is the flight time: ``range_cm = width_us / 58``. With nothing in range the
-echo line drops anyway after about 36 ms. Echo widths of ``no_echo_width_s`` (30 ms, i.e. beyond
-5 m, well past the rated 3 m) or more are therefore read as "no echo" (NaN). No pulse at all means a
-disconnected sensor and raises :class:`hw.errors.DeviceTimeoutError`.
+echo line drops anyway after about 36 ms. Readings follow REP-117 (``sensor_msgs/Range``):
+
+* an echo beyond the rated :data:`MAX_RANGE_M` (3 m, a pulse over 17.4 ms), and the no-echo pulse
+  (``no_echo_width_s`` = 30 ms or longer), read ``+inf``: no return within range. The SRF04's range is
+  only rated to 3 m, so a 3.1-5.2 m value would be an echo the sensor does not promise to see again;
+* an echo under the rated :data:`MIN_RANGE_M` (3 cm, a pulse under 174 us) reads NaN: invalid. Such a
+  pulse is the transducer's ring-down or electrical crosstalk as often as a touching object, and the
+  sensor cannot tell them apart; REP-117's ``-inf`` ("too close") would claim a detection, and the
+  sonar fusion (:mod:`mapping.sonar`) refuses negative ranges.
+
+No pulse at all means a disconnected sensor and raises :class:`hw.errors.DeviceTimeoutError`.
 
 The SRF04 sits behind a small pin interface, :class:`EchoPins`, with two implementations:
 
@@ -100,7 +108,13 @@ class SRF04(Device):
         self._is_open = False
 
     def read(self) -> RangeReading:
-        """Trigger, time the echo, convert: NaN when nothing is in range."""
+        """Trigger, time the echo, convert: ``+inf`` beyond the range or without an echo, NaN under it.
+
+        Raises:
+            DeviceClosedError: The device is not open.
+            DeviceTimeoutError: No echo pulse within ``timeout_s`` (sensor silent).
+            ProtocolError: The pin interface reported a negative or non-finite width.
+        """
         self._check_open()
         if self._last_trigger_ns is not None:
             self._clock.sleep_until_ns(self._last_trigger_ns + round(self.min_cycle_s * 1e9))
@@ -115,7 +129,11 @@ class SRF04(Device):
             )
         if not (math.isfinite(width) and width >= 0.0):
             raise ProtocolError(f"{self.name}: echo width {width!r} s is not a finite value >= 0")
-        range_m = math.nan if width >= self.no_echo_width_s else width * 1e6 / US_PER_CM / 100.0
+        range_m = width * 1e6 / US_PER_CM / 100.0
+        if width >= self.no_echo_width_s or range_m > MAX_RANGE_M:
+            range_m = math.inf
+        elif range_m < MIN_RANGE_M:
+            range_m = math.nan
         return RangeReading(
             stamp_ns=stamp,
             range_m=range_m,

@@ -11,6 +11,17 @@ Protocol facts (Devantech SRF08 technical specification):
 * Register 1 (write) is the maximum analogue gain 0..31; register 2 (write) is the range register,
   ``range = reg * 43 mm + 43 mm`` (255 = 11.008 m, 24 = 1.075 m). Both reset to defaults at power-up.
   Shortening the range shortens the listen time; we model it as ``65 ms * (reg + 1) / 256``.
+* Timing and gain. At the power-up settings the datasheet says to fire each SRF08 every 65 ms or
+  slower; a ranging started sooner "may pick up a distant echo returning from the previous ping", and
+  firing faster needs a lower maximum gain (register 1; the gain ramps from 94 to the register's
+  :data:`ANALOGUE_GAIN` over the first ~390 mm of a ranging). The datasheet gives no interval that is
+  safe at a lower gain, so this driver keeps the gain the device has (31 = 1025 after power-up unless
+  ``gain`` is passed) and :data:`ECHO_WINDOW_S` = 65 ms is the firing interval every caller keeps:
+  a sonar is fired at most every 65 ms, and no sonar whose beam overlaps it within 65 ms of its ping
+  (:class:`hw.sonar_array.SonarFiringGroup`, which fires one sonar of each array per 65 ms slot: six
+  sonars in 3 x 65 = 195 ms). The range register only shortens the wait for the result.
+* Readings (REP-117): a ranging with no echo (result 0) is ``+inf``; a result under the 3 cm minimum
+  is an echo inside the transducer's ring-down and reads NaN (invalid).
 * Address change: write 0xA0, 0xAA, 0xA5 and then the new 8-bit address to register 0, as four
   separate transfers, with only that one sonar on the bus: :func:`change_address` (guarded).
 
@@ -48,6 +59,12 @@ ADDRESS_SEQUENCE = (0xA0, 0xAA, 0xA5)
 BUSY = 0xFF
 DEFAULT_RANGE_REGISTER = 255
 FULL_RANGING_TIME_S = 0.065
+ECHO_WINDOW_S = 0.065  # datasheet: fire every 65 ms or slower (at the power-up gain)
+#: Maximum analogue gain for each gain-register value 0..31 (datasheet table; 31 is the power-up value).
+ANALOGUE_GAIN = (
+    94, 97, 100, 103, 107, 110, 114, 118, 123, 128, 133, 139, 145, 152, 159, 168,
+    177, 187, 199, 212, 227, 245, 265, 288, 317, 352, 395, 450, 524, 626, 777, 1025,
+)  # fmt: skip
 MIN_RANGE_M = 0.03  # SPEC table 5.1: 3 cm
 RATED_MAX_RANGE_M = 6.0  # SPEC table 5.1 / datasheet: detects objects up to about 6 m
 FIELD_OF_VIEW_RAD = math.radians(60.0)  # SPEC table 5.1: ~60 deg (the measured model is in mapping.sonar)
@@ -234,12 +251,30 @@ class SRF08(Device):
         return value
 
     def read(self) -> RangeReading:
-        """One ranging in centimetres: NaN when no echo (result 0)."""
+        """One ranging in centimetres (see :meth:`collect` for the values)."""
         stamp = self.start_ranging(CMD_RANGE_CM)
+        return self.collect(stamp)
+
+    def collect(self, stamp_ns: int) -> RangeReading:
+        """Wait for the ranging started at ``stamp_ns`` (:meth:`start_ranging`, in centimetres) and read it.
+
+        ``range_m`` is ``+inf`` without an echo (result 0: nothing within the range setting, REP-117)
+        and NaN for a result under :data:`MIN_RANGE_M` (an echo inside the ring-down: invalid).
+
+        Raises:
+            DeviceTimeoutError: The ranging does not finish within ``timeout_s``.
+            DeviceIOError: A transfer fails after the retries, or the echo reads 0xFFFF.
+        """
         value = self.read_range_cm()
+        if value == 0:
+            range_m = math.inf
+        elif value / 100.0 < MIN_RANGE_M:
+            range_m = math.nan
+        else:
+            range_m = value / 100.0
         return RangeReading(
-            stamp_ns=stamp,
-            range_m=math.nan if value == 0 else value / 100.0,
+            stamp_ns=stamp_ns,
+            range_m=range_m,
             min_range_m=MIN_RANGE_M,
             max_range_m=min(self.max_range_m, RATED_MAX_RANGE_M),
             field_of_view_rad=FIELD_OF_VIEW_RAD,

@@ -63,156 +63,23 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mapping.errors import MappingError
+from mapping.evidence import EvidenceIntervals, EvidenceParams, EvidenceStats
 from mapping.grid import GridSpec
-from mapping.vhv import InsertStats, Method, Structures, VHVMap, as_points
+from mapping.vhv import Method, Structures, VHVMap, as_points
+
+__all__ = ["EvidenceIntervals", "EvidenceParams", "EvidenceStats", "MapKind", "ProbabilisticVHV", "make_map"]
 
 #: Map kinds of :func:`make_map`.
 MapKind = Literal["probabilistic", "thesis"]
 
 # Heights farther than this many lattice steps from 0 cannot be stored (int32 bounds).
 _LATTICE_LIMIT = float(2**30)
-
-
-def _logit(p: float) -> float:
-    return math.log(p / (1.0 - p))
-
-
-@dataclass(frozen=True)
-class EvidenceParams:
-    """Parameters of the evidence update (OctoMap's defaults for the probabilities).
-
-    Args:
-        prob_hit: probability of occupation after one hit on an unknown interval (0.5 < p < 1).
-        prob_miss: probability after one pass of free space (0 < p < 0.5).
-        clamp_min: lower clamping bound of the probability (keeps free space revisable).
-        clamp_max: upper clamping bound (keeps a moving obstacle clearable within a few frames).
-        occupied_threshold: an interval with ``p >= occupied_threshold`` is occupied.
-        free_threshold: an interval with ``p < free_threshold`` is free (between both: unknown).
-        height_resolution: lattice step of interval bounds along the kept axis, metres.
-        surface_half_thickness: half thickness of the slab a structure's hit covers, metres; None =
-            half the cell size.
-        surface_margin: how much each per-cell run of free space is shrunk at both ends (near-surface
-            rule), metres; None = one cell size.
-        gap_fill: free runs of one cell separated by at most this much are joined before the shrink,
-            metres. Neighbouring fans leave holes of a centimetre or two where the cloud's sampling
-            left a cell without points; a surface is thicker than that, and a surface the frame hits is
-            cut out of the free space anyway.
-        max_table_bytes: memory for the per-frame (cell, height bin) bit table; beyond it the free bins
-            grow coarser (whole multiples of ``height_resolution``).
-
-    Raises:
-        MappingError: a value out of its range.
-    """
-
-    prob_hit: float = 0.7
-    prob_miss: float = 0.4
-    clamp_min: float = 0.1192
-    clamp_max: float = 0.971
-    occupied_threshold: float = 0.5
-    free_threshold: float = 0.5
-    height_resolution: float = 0.01
-    surface_half_thickness: float | None = None
-    surface_margin: float | None = None
-    gap_fill: float = 0.02
-    max_table_bytes: int = 64 << 20
-
-    def __post_init__(self) -> None:
-        def prob(name: str, lo: float, hi: float) -> None:
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and lo < v < hi):
-                raise MappingError(f"EvidenceParams.{name}={v!r}: expected a probability in ({lo}, {hi})")
-
-        prob("prob_hit", 0.5, 1.0)
-        prob("prob_miss", 0.0, 0.5)
-        prob("clamp_min", 0.0, 1.0)
-        prob("clamp_max", 0.0, 1.0)
-        prob("occupied_threshold", 0.0, 1.0)
-        prob("free_threshold", 0.0, 1.0)
-        if not self.clamp_min < self.clamp_max:
-            raise MappingError(
-                f"EvidenceParams clamp_min={self.clamp_min!r} >= clamp_max={self.clamp_max!r}: "
-                "expected min < max"
-            )
-        if self.free_threshold > self.occupied_threshold:
-            raise MappingError(
-                f"EvidenceParams free_threshold={self.free_threshold!r} > occupied_threshold="
-                f"{self.occupied_threshold!r}: expected free <= occupied"
-            )
-        r = self.height_resolution
-        if not (isinstance(r, int | float) and math.isfinite(r) and r > 0):
-            raise MappingError(f"EvidenceParams.height_resolution={r!r}: expected metres > 0")
-        for name in ("surface_half_thickness", "surface_margin", "gap_fill"):
-            v = getattr(self, name)
-            if v is not None and not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise MappingError(f"EvidenceParams.{name}={v!r}: expected metres >= 0 or None")
-        if int(self.max_table_bytes) < 1 << 16:
-            raise MappingError(f"EvidenceParams.max_table_bytes={self.max_table_bytes!r}: expected >= 65536")
-
-    @property
-    def log_odds(self) -> dict[str, float]:
-        """The parameters as log-odds: hit, miss, min, max, occupied, free."""
-        return {
-            "hit": _logit(self.prob_hit),
-            "miss": _logit(self.prob_miss),
-            "min": _logit(self.clamp_min),
-            "max": _logit(self.clamp_max),
-            "occupied": _logit(self.occupied_threshold),
-            "free": _logit(self.free_threshold),
-        }
-
-
-@dataclass(frozen=True)
-class EvidenceStats(InsertStats):
-    """What one insertion did: :class:`mapping.vhv.InsertStats` plus the evidence it produced.
-
-    Attributes:
-        free_intervals: free intervals of the frame after merging (per cell, disjoint).
-        occupied_slabs: occupied slabs of the frame (per cell, disjoint).
-        fan_passages: (structure, cell) passages the fans marked.
-        cells_updated: cells whose intervals were rewritten.
-        intervals: intervals stored in the map after the frame.
-        truncated_points: points beyond ``max_range`` (free space up to the range, no hit).
-    """
-
-    free_intervals: int = 0
-    occupied_slabs: int = 0
-    fan_passages: int = 0
-    cells_updated: int = 0
-    intervals: int = 0
-    truncated_points: int = 0
-
-
-@dataclass(frozen=True, eq=False)
-class EvidenceIntervals:
-    """Every stored interval as a structure of arrays, sorted by cell then bottom.
-
-    Attributes:
-        i, j: cell indices (int32).
-        bottom, top: interval bounds along the kept axis, metres (float64); ``[bottom, top)``.
-        log_odds: clamped log-odds of occupation (float32).
-        probability: ``1 / (1 + exp(-log_odds))`` (float64).
-        occupied: ``probability >= occupied_threshold``.
-        free: ``probability < free_threshold``.
-    """
-
-    i: NDArray[np.int32]
-    j: NDArray[np.int32]
-    bottom: NDArray[np.float64]
-    top: NDArray[np.float64]
-    log_odds: NDArray[np.float32]
-    probability: NDArray[np.float64] = field(repr=False)
-    occupied: NDArray[np.bool_] = field(repr=False)
-    free: NDArray[np.bool_] = field(repr=False)
-
-    def __len__(self) -> int:
-        return int(self.i.shape[0])
 
 
 def _structures_from(
@@ -261,7 +128,7 @@ class ProbabilisticVHV:
 
     def __init__(self, spec: GridSpec, tolerance: float = 0.05, params: EvidenceParams | None = None) -> None:
         # VHVMap validates spec and tolerance with the project's messages.
-        self._occ_base = VHVMap(spec, tolerance)
+        VHVMap(spec, tolerance)
         self.spec = spec
         self.tolerance = float(tolerance)
         self.params = params if params is not None else EvidenceParams()
@@ -339,13 +206,72 @@ class ProbabilisticVHV:
                 raise MappingError("insert max_range needs a sensor_origin (the range is measured from it)")
             from mapping import _evidence_kernels as E
 
+            # Build first: when every structure (hence every point) lies within the range and no point
+            # fell outside the grid, nothing needs cutting and the pass over the points is saved.
+            built = self._build(pts, method)
+            if built[4] == 0 and self._within(built[0], built[1], built[2], origin, mr):
+                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
             n_trunc = int(E.count_beyond(pts, *origin, mr))
             if n_trunc:
                 kept = np.empty_like(pts)
                 truncated = np.empty((n_trunc, 3), np.float64)
                 E.split_beyond(pts, *origin, mr, kept, truncated)
                 pts = kept
+            elif built is not None:
+                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
         return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
+
+    def _build(self, pts: NDArray[np.floating], method: str) -> tuple[Any, ...]:
+        """The frame's VHV structures: (key, bottom, top, n_nonfinite, n_outside, path)."""
+        from mapping.vhv import _build_compiled, _build_numpy
+
+        if method not in ("auto", "bins", "sort", "numpy"):
+            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
+        if method == "numpy":
+            with np.errstate(over="ignore"):
+                return (*_build_numpy(pts, self.spec, self.tolerance), "numpy")
+        return tuple(_build_compiled(pts, self.spec, self.tolerance, method))
+
+    def _within(
+        self,
+        key: NDArray[np.int64],
+        bot: NDArray[np.float64],
+        top: NDArray[np.float64],
+        origin: tuple[float, float, float],
+        max_range: float,
+    ) -> bool:
+        """True when the box of the structures' cells and heights lies within ``max_range`` of origin."""
+        if key.shape[0] == 0:
+            return True
+        ny, cs = self.spec.shape[1], self.spec.cell_size
+        (ou, ov) = self.spec.origin
+        i, j = key // ny, key % ny
+        su, sv, sh = (float(c) for c in self.spec.to_grid_frame(np.asarray(origin)))
+        du = max(abs((int(i.min()) + ou) * cs - su), abs((int(i.max()) + ou + 1) * cs - su))
+        dv = max(abs((int(j.min()) + ov) * cs - sv), abs((int(j.max()) + ov + 1) * cs - sv))
+        dh = max(abs(float(bot.min()) - sh), abs(float(top.max()) - sh))
+        return math.sqrt(du * du + dv * dv + dh * dh) <= max_range
+
+    def _insert_with_free(
+        self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
+    ) -> EvidenceStats:
+        """``insert`` plus free-only targets (already at the range's end)."""
+        t0 = time.perf_counter()
+        stats_origin = self._check_origin(origin)
+        pts = as_points(points)
+        n_in = int(pts.shape[0])
+        from mapping import _evidence_kernels as E
+
+        assert stats_origin is not None
+        n_trunc = int(E.count_beyond(pts, *stats_origin, max_range)) if math.isfinite(max_range) else 0
+        targets = free_targets
+        if n_trunc:
+            kept = np.empty_like(pts)
+            truncated = np.empty((n_trunc, 3), np.float64)
+            E.split_beyond(pts, *stats_origin, max_range, kept, truncated)
+            pts = kept
+            targets = np.concatenate([truncated, free_targets])
+        return self._counted(pts, n_in, targets, stats_origin, "auto", t0, n_trunc)
 
     def _counted(
         self,
@@ -356,8 +282,9 @@ class ProbabilisticVHV:
         method: str,
         t0: float,
         n_free_only: int,
+        built: tuple[Any, ...] | None = None,
     ) -> EvidenceStats:
-        stats = self._insert(pts, free_only, origin, method)
+        stats = self._insert(pts, free_only, origin, method, built)
         n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - (n_free_only if n_in else 0)
         self.frames += 1
         self.points_inserted += n_ins
@@ -382,7 +309,11 @@ class ProbabilisticVHV:
         )
 
     def insert_frame(
-        self, points_world: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None
+        self,
+        points_world: ArrayLike,
+        sensor_origin: ArrayLike,
+        max_range: float | None = None,
+        no_return_ends: ArrayLike | None = None,
     ) -> EvidenceStats:
         """One depth frame, for a perception stage: ``insert`` with a required sensor origin.
 
@@ -390,10 +321,30 @@ class ProbabilisticVHV:
             points_world: ``(N, 3)`` / ``(H, W, 3)`` world xyz, metres, NaN for no return.
             sensor_origin: world xyz of the sensor's optical centre, metres.
             max_range: metres; farther points clear up to this range and give no hit.
+            no_return_ends: optional ``(M, 3)`` world points: for pixels that returned nothing, where
+                their ray stops being known free (e.g. the pixel's ray at the camera's maximum depth:
+                ``T_world_cam @ (ray_with_unit_depth * max_depth)``). A NaN carries no direction, so
+                without them nothing clears behind a walker seen against the sky or beyond the range.
+                Use them only where a no-return means "nothing within range": a depth camera also
+                misses black or specular surfaces and surfaces seen at grazing incidence.
+
+        Raises:
+            MappingError: no sensor origin, or ends of the wrong shape.
         """
         if sensor_origin is None:
             raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
-        return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+        if no_return_ends is None:
+            return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+        ends = np.asarray(no_return_ends, dtype=np.float64)
+        if ends.ndim != 2 or ends.shape[1] != 3:
+            raise MappingError(f"insert_frame no_return_ends: expected (M, 3), got shape {ends.shape}")
+        ends = ends[np.isfinite(ends).all(axis=1)]
+        o = self._check_origin(sensor_origin)
+        assert o is not None
+        mr = math.inf if max_range is None else float(max_range)
+        if not (mr > 0 and not math.isnan(mr)):
+            raise MappingError(f"insert_frame max_range={max_range!r}: expected a number of metres > 0")
+        return self._insert_with_free(points_world, o, mr, ends)
 
     def insert_free(self, targets: ArrayLike, sensor_origin: ArrayLike) -> EvidenceStats:
         """Free evidence only: space from the sensor up to (not into) the cells of ``targets`` is free.
@@ -434,7 +385,13 @@ class ProbabilisticVHV:
         Raises:
             MappingError: malformed pose or range.
         """
-        from mapping.sonar import OUTER_SONAR_DEG, cone_points, half_apertures_deg, sonar_intervals_deg
+        from mapping.sonar import (
+            OUTER_SONAR_DEG,
+            beam_points,
+            cone_points,
+            half_apertures_deg,
+            sonar_intervals_deg,
+        )
 
         t0 = time.perf_counter()
         t = np.asarray(t_world_array, dtype=np.float64)
@@ -449,14 +406,14 @@ class ProbabilisticVHV:
         if fusion.has_obstacle and fusion.theta_deg > 0.0:
             d = float(fusion.distance_m)
             pts = cone_points(d, fusion.theta_deg, fusion.alpha_deg, ppc) @ rot.T + pos
-            beam = _solid_beam(d, fusion.alpha_deg, fusion.theta_deg, fusion.theta_deg / 2.0) @ rot.T + pos
+            beam = beam_points(d, fusion.alpha_deg, fusion.theta_deg, fusion.theta_deg / 2.0) @ rot.T + pos
             return self._counted(pts, int(pts.shape[0]), beam, origin, "auto", t0, 0)
         d_cm = min(max_range_m * 100.0, 100.0)  # the detection model's domain
         iv = sonar_intervals_deg(d_cm, OUTER_SONAR_DEG)
         lo, hi = float(iv[:, 0].min()), float(iv[:, 1].max())
         left, right = half_apertures_deg(d_cm)
         half_elev = float(np.asarray(left + right)) / 2.0
-        beam = _solid_beam(max_range_m, lo, hi - lo, half_elev) @ rot.T + pos
+        beam = beam_points(max_range_m, lo, hi - lo, half_elev) @ rot.T + pos
         return self._counted(np.empty((0, 3), np.float64), 0, beam, origin, "auto", t0, int(beam.shape[0]))
 
     # ------------------------------------------------------------------ core
@@ -474,8 +431,9 @@ class ProbabilisticVHV:
         free_only: NDArray[np.float64] | None,
         origin: tuple[float, float, float] | None,
         method: str,
+        built: tuple[Any, ...] | None = None,
     ) -> dict[str, Any]:
-        ev = self._evidence(pts, free_only, origin, method)
+        ev = self._evidence(pts, free_only, origin, method, built)
         ncells = 0
         if ev["okey"].shape[0] or ev["fkey"].shape[0]:
             ncells = self._update(ev["okey"], ev["olo"], ev["ohi"], ev["fkey"], ev["flo"], ev["fhi"])
@@ -489,20 +447,14 @@ class ProbabilisticVHV:
         free_only: NDArray[np.float64] | None,
         origin: tuple[float, float, float] | None,
         method: str,
+        built: tuple[Any, ...] | None = None,
     ) -> dict[str, Any]:
         """One frame's occupied slabs and merged free intervals (lattice units), without touching the map."""
         from mapping import _evidence_kernels as E
         from mapping.vhv import _build_compiled, _build_numpy
 
         spec, tol = self.spec, self.tolerance
-        if method not in ("auto", "bins", "sort", "numpy"):
-            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
-        if method == "numpy":
-            with np.errstate(over="ignore"):
-                key, bot, top, n_nf, n_out = _build_numpy(pts, spec, tol)
-            used = "numpy"
-        else:
-            key, bot, top, n_nf, n_out, used = _build_compiled(pts, spec, tol, method)
+        key, bot, top, n_nf, n_out, used = built if built is not None else self._build(pts, method)
         r = self._r
         lim = _LATTICE_LIMIT * r * 0.5
         ok = (bot > -lim) & (top < lim)
@@ -833,19 +785,6 @@ class ProbabilisticVHV:
             f"ProbabilisticVHV(cells={self.spec.shape}, cell_size={self.spec.cell_size}, "
             f"tolerance={self.tolerance}, intervals={self._n_intervals}, frames={self.frames})"
         )
-
-
-def _solid_beam(
-    range_m: float, alpha_deg: float, theta_deg: float, half_elev_deg: float
-) -> NDArray[np.float64]:
-    """Points at ``range_m`` (array frame) filling bearings ``[alpha, alpha + theta]`` and elevations
-    ``[-half_elev, +half_elev]`` on a 1-degree lattice (both ends included)."""
-    nb = max(2, math.ceil(theta_deg) + 1)
-    ne = max(2, math.ceil(2.0 * half_elev_deg) + 1)
-    b = np.radians(np.linspace(alpha_deg, alpha_deg + theta_deg, nb))[:, None]
-    e = np.radians(np.linspace(-half_elev_deg, half_elev_deg, ne))[None, :]
-    xyz = np.stack([np.cos(e) * np.cos(b), np.cos(e) * np.sin(b), np.sin(e) * np.ones_like(b)], axis=-1)
-    return np.asarray(range_m * xyz.reshape(-1, 3), dtype=np.float64)
 
 
 def _check_band(band: tuple[float, float]) -> tuple[float, float]:

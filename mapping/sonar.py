@@ -527,3 +527,21 @@ def array_points(
     r1, r2, r3 = (float(v) for v in ranges_m)
     res = fuse_array(r1, r2, r3, threshold_m, tables)
     return res, fusion_points(res, ppc)
+
+
+def beam_points(range_m: float, alpha_deg: float, theta_deg: float, half_elev_deg: float) -> FloatArray:
+    """Points at ``range_m`` filling a beam's cross-section: bearings ``[alpha, alpha + theta]`` and
+    elevations ``[-half_elev, +half_elev]`` on a 1-degree lattice, both ends included (array frame, m).
+
+    The free space in front of a reading is the solid beam; the Fig. 5.7 rings of :func:`cone_points`
+    (kept as printed for the occupied points) leave the beam's axis unsampled when the aperture is wide.
+
+    Returns:
+        ``(N, 3)`` float64 points at distance ``range_m`` from the origin.
+    """
+    nb = max(2, math.ceil(theta_deg) + 1)
+    ne = max(2, math.ceil(2.0 * half_elev_deg) + 1)
+    b = np.radians(np.linspace(alpha_deg, alpha_deg + theta_deg, nb))[:, None]
+    e = np.radians(np.linspace(-half_elev_deg, half_elev_deg, ne))[None, :]
+    xyz = np.stack([np.cos(e) * np.cos(b), np.cos(e) * np.sin(b), np.sin(e) * np.ones_like(b)], axis=-1)
+    return np.asarray(range_m * xyz.reshape(-1, 3), dtype=np.float64)

@@ -61,9 +61,10 @@ BACKENDS: dict[str, str] = {
 WATCHDOG_PERIODS = 2.5
 SONAR_ARRAY_NAMES = ("sonar_array_left", "sonar_array_right")
 DEFAULT_SONAR_ADDRESSES = (0x70, 0x71, 0x72, 0x73, 0x74, 0x75)
-# Sonars are read one after the other (their beams overlap); with 6 sonars at the default 11 m range
-# setting (65 ms each) a cycle would take 390 ms. Safety looks at obstacles within a few metres, so
-# the range register is set for 2 m: (46 x 43 mm), 11.9 ms per ranging, 71 ms for all six.
+# The two arrays fire in step, one sonar of each per 65 ms slot (the SRF08 datasheet's interval at the
+# power-up gain; hw.sonar_array.SonarFiringGroup): all six readings every 195 ms. Safety looks at
+# obstacles within a few metres, so the range register is set for 2 m (46 x 43 mm): each result is
+# ready 11.9 ms after its ping, but the next ping of an array still waits for the 65 ms echo window.
 DEFAULT_SONAR_MAX_RANGE_M = 2.0
 
 _EMULATED_KEYS = {
@@ -78,7 +79,7 @@ _REAL_KEYS = {
 
 @dataclass
 class ManagedBackend(Backend):
-    """A Backend that also owns helpers to stop after the devices close (emulators, buses)."""
+    """A Backend that also owns what must stop after the devices close (emulators, buses)."""
 
     on_close: list[Callable[[], None]] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)
@@ -166,7 +167,7 @@ def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
 
 
 def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
-    from hw.sonar_array import RangerSonarArray
+    from hw.sonar_array import RangerSonarArray, SonarFiringGroup
     from hw.srf08 import SRF08
 
     if len(addresses) != 6:
@@ -180,6 +181,7 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
             for i, a in enumerate(addresses[3 * k : 3 * k + 3])
         ]
         arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+    SonarFiringGroup(arrays, clock=clock)
     return tuple(arrays)
 
 
@@ -188,6 +190,7 @@ def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
     from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
+    from hw.roboteq.settings import RoboteqProtections
 
     where = "emulated"
     _check_keys(cfg, _EMULATED_KEYS, where)
@@ -210,6 +213,9 @@ def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
             watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
             encoder_ppr=int(spec.encoder_ppr),
             max_rpm=int(spec.max_motor_rpm),
+            gear_ratio=float(spec.gear_ratio),
+            encoder_on=spec.encoder_on,
+            protections=RoboteqProtections.from_spec(spec),
             pid=design_pid_configs(spec),
             clock=clock,
             release_on_open=bool(cfg.get("release_stop", False)),
@@ -241,6 +247,7 @@ def make_real_backend(cfg: dict[str, Any]) -> Backend:
     """The Roboteq on a serial port and the SRF08 arrays on I2C (the ``real`` entry)."""
     from hw.clock import MonotonicClock
     from hw.roboteq.driver import RoboteqMDC2230
+    from hw.roboteq.settings import RoboteqProtections
 
     where = "real"
     _check_keys(cfg, _REAL_KEYS, where)
@@ -259,6 +266,9 @@ def make_real_backend(cfg: dict[str, Any]) -> Backend:
         watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
         encoder_ppr=int(spec.encoder_ppr),
         max_rpm=int(spec.max_motor_rpm),
+        gear_ratio=float(spec.gear_ratio),
+        encoder_on=spec.encoder_on,
+        protections=RoboteqProtections.from_spec(spec),
         pid=design_pid_configs(spec),
         clock=clock,
         release_on_open=bool(cfg.get("release_stop", False)),

@@ -25,6 +25,9 @@ COMMANDS = (
     "robchair.commands.run",
     "robchair.commands.hw",
     "robchair.commands.sweep",
+    "robchair.commands.view",
+    "robchair.commands.report",
+    "robchair.commands.nav_eval",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",

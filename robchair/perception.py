@@ -15,6 +15,18 @@ The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origi
 *layers* (e.g. the simulation's map placed with ground-truth poses) receive the same frames placed
 with their own pose source.
 
+Scan-to-map matching (REP-105). With a :class:`mapping.matching.ScanMatcher`, each depth frame placed
+by odometry in ``odom`` is registered against the *matched* map before it is inserted; the matcher keeps
+``map -> odom`` (a rejected match keeps the previous one, i.e. odometry, and is counted by reason) and
+the frame goes into the matched map at ``T_map_odom x T_odom_sensor``. ``pose`` chooses which map is
+the main one (``odometry``, ``matched`` or ``ground-truth``); the others are kept beside it in
+:attr:`Perception.pose_maps`, so a run can compare them.
+
+Zoom. With ``zoom_half_width``, a :class:`mapping.zoom.ZoomMap` square of that half-width around the
+chair (moving with it) is mapped ``zoom_factor`` times finer, fed by the same points in the same insert
+as the main map (it shares the main VHV map as its coarse level); the corridor distance of the safety
+layer also asks it (:meth:`Perception.zoom_distance_m`), at the fine resolution.
+
 Depth frames go through a small pipeline so that capturing and mapping overlap the rest of the loop:
 a camera offering ``submit_read()`` (the simulated Kinect) captures up to ``camera.max_inflight``
 frames ahead on background threads; frames are delivered in order, and their map insertion runs on one
@@ -39,6 +51,8 @@ from robchair.frames import se3_planar, transform_points
 from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec
 
+POSE_SOURCES = ("odometry", "matched", "ground-truth")
+SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
 SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 
@@ -126,6 +140,15 @@ class Perception:
         threaded: insert frames into the maps on a background thread.
         frames: extra sensor frames ``{frame_id: T_base_frame (4, 4)}`` beyond the spec's mounts.
         tolerance: merge tolerance of the default VHV maps, m.
+        matcher: a :class:`mapping.matching.ScanMatcher` to correct depth frames by scan-to-map matching
+            (None: no matching; ``pose="matched"`` makes a default one).
+        pose: the pose the main map is built with: ``"odometry"``, ``"matched"`` or ``"ground-truth"``.
+        ground_truth: ``() -> T_world_base`` (4, 4), the pose source of ``pose="ground-truth"``.
+        zoom_half_width: half-width, m, of the fine square around the chair (None: no zoom).
+        zoom_factor: refinement of the zoom (fine cell = grid cell / factor).
+
+    Raises:
+        ConfigError: an unknown ``pose``, or ``"ground-truth"`` without ``ground_truth``.
     """
 
     def __init__(
@@ -140,9 +163,20 @@ class Perception:
         threaded: bool = False,
         frames: dict[str, np.ndarray] | None = None,
         tolerance: float = 0.05,
+        matcher: Any = None,
+        pose: str = "odometry",
+        ground_truth: Callable[[], np.ndarray] | None = None,
+        zoom_half_width: float | None = None,
+        zoom_factor: int = 5,
     ) -> None:
         from mapping.grid import GridSpec
         from mapping.vhv import VHVMap
+        from robchair.errors import ConfigError
+
+        if pose not in POSE_SOURCES:
+            raise ConfigError(f"pose = {pose!r}: expected one of {', '.join(POSE_SOURCES)}")
+        if pose == "ground-truth" and ground_truth is None:
+            raise ConfigError("pose = 'ground-truth' needs a ground-truth pose source (a simulated chair)")
 
         self.spec = spec
         self.grid = grid if grid is not None else GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
@@ -150,6 +184,32 @@ class Perception:
         if isinstance(sonar_map, str):
             sonar_map = VHVMap(self.grid, tolerance)
         self.sonar_map: PointMap = sonar_map if sonar_map is not None else self.map
+        if matcher is None and pose == "matched":
+            from mapping.matching import ScanMatcher
+
+            matcher = ScanMatcher()
+        self.matcher = matcher
+        self.pose = pose
+        self.ground_truth = ground_truth
+        # the maps of each pose source; the main one is self.map
+        self.pose_maps: dict[str, PointMap] = {pose: self.map}
+        if matcher is not None and "matched" not in self.pose_maps:
+            self.pose_maps["matched"] = VHVMap(self.grid, tolerance)
+        if pose != "odometry":
+            self.pose_maps["odometry"] = VHVMap(self.grid, tolerance)
+        if matcher is not None and not hasattr(self.pose_maps["matched"], "structures"):
+            raise ConfigError(f"scan-to-map matching needs a VHV map; got {type(self.pose_maps['matched'])}")
+        self.match_ms: list[float] = []
+        self.zoom: Any = None
+        self.zoom_half_width = zoom_half_width
+        if zoom_half_width is not None:
+            from mapping.zoom import ZoomMap
+
+            if not (math.isfinite(zoom_half_width) and zoom_half_width > 0):
+                raise ConfigError(f"zoom_half_width = {zoom_half_width!r}: expected metres > 0")
+            self.zoom = ZoomMap(self.grid, tolerance, factor=zoom_factor)
+            if isinstance(self.map, VHVMap) and self.map.spec == self.grid:
+                self.zoom.coarse = self.map  # one insert feeds both levels
         self.band = (float(band[0]), float(band[1]) if band[1] is not None else float(spec.body.height))
         self.corridor = Corridor.from_spec(spec)
         self.camera_stride = int(camera_stride)
@@ -158,9 +218,16 @@ class Perception:
         self._frames.update(frames or {})
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="perception-map") if threaded else None
         self._pending: deque[Future[None]] = deque()
-        self._inflight: deque[tuple[Any, np.ndarray, list[np.ndarray], Pose2D]] = deque()
+        self._inflight: deque[tuple[Any, dict[str, np.ndarray], list[np.ndarray], Pose2D]] = deque()
         self._lock = threading.Lock()
         self._depth: tuple[float | None, Pose2D] | None = None  # (distance at capture, pose at capture)
+        self._zoom_depth: tuple[float | None, Pose2D] | None = None  # the same from the zoom's fine cells
+        # what the loop sees of the mapping thread's work: the state after frame k - SNAPSHOT_LAG when
+        # frame k is delivered, threaded or not (so both runs decide the same, bit for bit)
+        self._seq = 0
+        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D]] = {}
+        self._frame_futs: dict[int, Future[None]] = {}
+        self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
         self._servo: dict[str, float] = {}
         self.map_ms: list[float] = []
@@ -173,6 +240,8 @@ class Perception:
             "sonar_fusions_with_obstacle": 0,
             "sonar_points": 0,
             "laser_scans": 0,
+            "matches_accepted": 0,
+            "matches_rejected": 0,
         }
         self.last_depth_stamp_ns: int | None = None
 
@@ -203,7 +272,9 @@ class Perception:
         With a camera that captures in the background (``submit_read``), the frame delivered is the
         one taken ``camera.max_inflight`` calls earlier.
         """
-        t_world_base = se3_planar(pose.x, pose.y, pose.theta)
+        t_world_base = {"odometry": se3_planar(pose.x, pose.y, pose.theta)}
+        if self.ground_truth is not None and "ground-truth" in self.pose_maps:
+            t_world_base["ground-truth"] = np.asarray(self.ground_truth(), dtype=float)
         layer_poses = [layer.t_world_base() for layer in self.layers]
         submit = getattr(camera, "submit_read", None)
         depth = int(getattr(camera, "max_inflight", 0)) if submit is not None else 0
@@ -226,16 +297,55 @@ class Perception:
         band = sub[(sub[:, 2] >= z0) & (sub[:, 2] <= z1)]
         self._depth = (self.corridor.distance_ahead(band[:, :2]), pose)
         self.last_depth_stamp_ns = frame.stamp_ns
-        placed = [(self.map, t_world_base @ t_base_sensor, True)]
-        placed += [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
-        self._submit(self._insert_frame, frame, placed)
+        placed = [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
+        self._take_snapshot()
+        fut = self._submit(self._insert_frame, frame, t_world_base, t_base_sensor, placed, pose, self._seq)
+        if fut is not None:
+            self._frame_futs[self._seq] = fut
+        self._seq += 1
         return frame
 
-    def _insert_frame(self, frame: DepthFrame, placed: list[tuple[PointMap, np.ndarray, bool]]) -> None:
+    def _take_snapshot(self) -> None:
+        """Make the mapping state after frame ``seq - SNAPSHOT_LAG`` the one the loop sees."""
+        if self.matcher is None and self.zoom is None:
+            return
+        k = self._seq - SNAPSHOT_LAG
+        fut = self._frame_futs.pop(k, None)
+        if fut is not None:
+            fut.result()
+        snap = self._after_frame.pop(k, None)
+        if snap is not None:
+            self._t_map_odom, d, pose = snap
+            self._zoom_depth = (d, pose) if self.zoom is not None else None
+
+    def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
+                      placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D,
+                      seq: int) -> None:  # fmt: skip
         pts = np.asarray(frame.points).reshape(-1, 3)
-        for m, t, main in placed:
+        t_odom_sensor = t_world_base["odometry"] @ t_base_sensor
+        poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
+        if self.matcher is not None:
+            # the frame, placed by odometry in odom, is registered against the matched map first
+            res = self.matcher.match(
+                transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"]
+            )
+            poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor
+            with self._lock:
+                self.match_ms.append(res.ms)
+                self.stats["matches_accepted" if res.accepted else "matches_rejected"] += 1
+        main = [(self.zoom if self.zoom is not None and self.zoom.coarse is self.map else self.map,
+                 poses[self.pose], True)]  # fmt: skip
+        if self.zoom is not None:
+            t_main_base = poses[self.pose] @ np.linalg.inv(t_base_sensor)
+            self.zoom.follow(t_main_base[0, 3], t_main_base[1, 3], self.zoom_half_width)
+            if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
+                main.append((self.zoom, poses[self.pose], False))
+        others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
+        for m, t, is_main in main + others + placed:
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
-            if main and s is not None:
+            if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
+                s = s[0]
+            if is_main and s is not None:
                 with self._lock:
                     self.map_ms.append(float(getattr(s, "build_ms", math.nan)))
                     st = self.stats
@@ -243,29 +353,71 @@ class Perception:
                     st["points_in"] += int(getattr(s, "points_in", 0))
                     st["points_dropped_nonfinite"] += int(getattr(s, "points_dropped_nonfinite", 0))
                     st["points_outside_grid"] += int(getattr(s, "points_outside_grid", 0))
+        if self.matcher is not None or self.zoom is not None:
+            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
+            with self._lock:
+                self._after_frame[seq] = (t, d, pose)
 
-    def _submit(self, fn: Callable[..., None], *args: Any) -> None:
+    def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:
             fn(*args)
-            return
+            return None
         while self._pending and self._pending[0].done():
             self._pending.popleft().result()  # a mapping error surfaces here, in the loop
         while len(self._pending) >= 3:
             self._pending.popleft().result()
-        self._pending.append(self._pool.submit(fn, *args))
+        fut = self._pool.submit(fn, *args)
+        self._pending.append(fut)
+        return fut
 
     def depth_distance_m(self, pose: Pose2D) -> float | None:
         """Nearest depth point in the band inside the corridor ahead, from the front edge, m.
 
-        Measured at the pose of its frame; the forward travel since then is taken off.
+        Measured at the pose of its frame; the forward travel since then is taken off. With a zoom,
+        the nearer of this and :meth:`zoom_distance_m` (the map remembers what the camera no longer
+        sees, e.g. closer than its minimum range).
         """
-        if self._depth is None:
+        return _min_opt(_travelled(self._depth, pose), self.zoom_distance_m(pose))
+
+    def zoom_distance_m(self, pose: Pose2D) -> float | None:
+        """Nearest fine zoom cell in the band inside the corridor ahead, from the front edge, m.
+
+        Answered at the zoom's fine resolution (None: no zoom, or nothing ahead in it), measured
+        when the last frame was inserted; the forward travel since then is taken off.
+        """
+        return _travelled(self._zoom_depth, pose)
+
+    def _zoom_corridor(self, t_world_base: np.ndarray) -> float | None:
+        """Corridor distance of the zoom's fine cells whose structures overlap the band."""
+        fine = self.zoom.fine if self.zoom is not None else None
+        if fine is None:
             return None
-        d, p0 = self._depth
-        if d is None:
+        s = fine.structures()
+        z0, z1 = self.band
+        hit = (s.top >= z0) & (s.bottom <= z1)
+        if not hit.any():
             return None
-        fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
-        return max(0.0, d - max(0.0, fwd))
+        x, y = fine.spec.index_to_world(s.i[hit], s.j[hit])
+        rot = t_world_base[:2, :2]
+        xy = (np.column_stack([x, y]) - t_world_base[:2, 3]) @ rot  # world -> base_link
+        return self.corridor.distance_ahead(xy)
+
+    def _t_main_base(self, pose: Pose2D) -> np.ndarray:
+        """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
+        if self.pose == "ground-truth" and self.ground_truth is not None:
+            return np.asarray(self.ground_truth(), dtype=float)
+        t = se3_planar(pose.x, pose.y, pose.theta)
+        return self.t_map_odom @ t if self.pose == "matched" else t
+
+    @property
+    def t_map_odom(self) -> np.ndarray:
+        """(4, 4) ``map -> odom`` of the scan-to-map matching (identity without a matcher).
+
+        As the loop sees it: the matcher's transform after the frame delivered :data:`SNAPSHOT_LAG`
+        frames ago (the mapping thread may be further), the same threaded or not.
+        """
+        return np.array(self._t_map_odom)
 
     # --- sonars -----------------------------------------------------------------------------------
 
@@ -309,7 +461,7 @@ class Perception:
 
     def add_scan(self, frame_id: str, points: Any, pose: Pose2D) -> None:
         """Insert a laser scan: ``points`` (N, 3) in ``frame_id`` (NaN rows = no return), at ``pose``."""
-        t = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
+        t = self._t_main_base(pose) @ self.t_base_sensor(frame_id)
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         self._submit(lambda: self.map.insert(transform_points(t, p), sensor_origin=t[:3, 3]))
         self.stats["laser_scans"] += 1
@@ -338,3 +490,21 @@ class Perception:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
+
+
+def _travelled(measured: tuple[float | None, Pose2D] | None, pose: Pose2D) -> float | None:
+    """A corridor distance measured at pose ``p0``, less the forward travel from ``p0`` to ``pose``."""
+    if measured is None:
+        return None
+    d, p0 = measured
+    if d is None:
+        return None
+    fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
+    return max(0.0, d - max(0.0, fwd))
+
+
+def _min_opt(a: float | None, b: float | None) -> float | None:
+    """The smaller of two optional distances (None = no obstacle)."""
+    if a is None:
+        return b
+    return a if b is None else min(a, b)

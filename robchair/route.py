@@ -116,17 +116,17 @@ class PurePursuit:
 
     def _project(self, p: np.ndarray) -> float:
         """Arc length of the closest path point to ``p`` at or after the current progress."""
-        best_s, best_d = self._s, math.inf
-        for i in range(len(self._seg_len)):
-            a, b, ln = self._pts[i], self._pts[i + 1], self._seg_len[i]
-            if ln == 0 or self._cum[i + 1] < self._s:
-                continue
-            t = float(np.clip(np.dot(p - a, b - a) / ln**2, 0.0, 1.0))
-            s = max(self._cum[i] + t * ln, self._s)
-            d = float(np.hypot(*(p - self._point_at(s))))
-            if d < best_d - 1e-12:
-                best_s, best_d = s, d
-        return best_s
+        a, b, ln = self._pts[:-1], self._pts[1:], self._seg_len
+        ab = b - a
+        ok = (ln > 0) & (self._cum[1:] >= self._s)
+        if not ok.any():
+            return self._s
+        safe = np.where(ln > 0, ln, 1.0)
+        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / safe**2, 0.0, 1.0)
+        s = np.maximum(self._cum[:-1] + t * ln, self._s)
+        on = a + ((s - self._cum[:-1]) / safe)[:, None] * ab  # the point at arc length s on segment i
+        d = np.where(ok, np.hypot(*(p - on).T), np.inf)
+        return float(s[int(np.argmin(d))])
 
     def cross_track_error(self, pose: Pose2D) -> float:
         """Distance (m) from ``pose`` to the path at the current progress."""

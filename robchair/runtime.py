@@ -139,6 +139,7 @@ class CycleResult:
         stops: stop events that began in this cycle.
         done: the command source has finished, or a driver fault ended the run.
         fault: text of a driver fault, if any.
+        motor_state: the motor controller's reading at the start of the cycle (None if it failed).
     """
 
     k: int
@@ -150,6 +151,7 @@ class CycleResult:
     stops: tuple[StopRecord, ...]
     done: bool
     fault: str | None = None
+    motor_state: MotorState | None = None
 
 
 @dataclass
@@ -490,7 +492,7 @@ class Runtime:
             if self.config.stop_on_driver_fault:
                 log.error("run ended by a driver fault: %s", self._fault)
                 done = True
-        cycle = CycleResult(k, now, pose, command, decision, intervened, new_stops, done, self._fault)
+        cycle = CycleResult(k, now, pose, command, decision, intervened, new_stops, done, self._fault, state)
         self._stage = "observer"
         for ob in self.observers:
             ob.after_cycle(self, cycle)
@@ -583,6 +585,7 @@ class Runtime:
     def _write(self, decision: SafetyDecision, cycle_start_ns: int, dt: float) -> SafetyDecision:
         """Check the watchdog gap, the deadline and freshness *now*, then write the wheel speeds."""
         now = self.backend.clock.now_ns()
+        wants_motion = decision.v != 0.0 or decision.w != 0.0
         if self._fault is None:
             wd = self.watchdog_ms
             if wd is not None and self._last_motion_ns is not None and now - self._last_motion_ns > wd * 1e6:
@@ -593,7 +596,7 @@ class Runtime:
                     f"no speed command for {gap_ms:.0f} ms > controller watchdog {wd} ms: the controller "
                     "stopped the motors",
                 )  # fmt: skip
-            if self.safety_enabled and (decision.v != 0.0 or decision.w != 0.0):
+            if self.safety_enabled and wants_motion:
                 late = now - (
                     cycle_start_ns + self.period_ns + round(self.period_ns * self.config.deadline_slack)
                 )
@@ -638,12 +641,31 @@ class Runtime:
         ]
         p = self.perception
         res.maps["odometry"] = p.map
+        for name, m in getattr(p, "pose_maps", {}).items():  # odometry, matched, ground truth
+            res.maps[name.replace("-", "_")] = m
         if p.sonar_map is not p.map:
             res.maps["sonar"] = p.sonar_map
         ms = np.asarray(p.map_ms) if p.map_ms else np.array([np.nan])
         res.extra["frames"] = dict(p.stats)
         res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
         res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        zoom = getattr(p, "zoom", None)
+        if zoom is not None and zoom.fine is not None:
+            res.maps["zoom"] = zoom.fine
+            res.extra["zoom"] = {"region_m": list(zoom.region), "cell_size_m": zoom.fine_cell_size,
+                                 "structures": zoom.fine.n_structures}  # fmt: skip
+        matcher = getattr(p, "matcher", None)
+        if matcher is not None:
+            mm = np.asarray(p.match_ms) if p.match_ms else np.array([np.nan])
+            res.extra["matching"] = {
+                "pose": p.pose,
+                "frames": len(p.match_ms),
+                "accepted": p.stats["matches_accepted"],
+                "rejected": dict(sorted(matcher.rejections.items())),
+                "ms_per_frame_median": float(np.median(mm)) if p.match_ms else None,
+                "ms_per_frame_p90": float(np.percentile(mm, 90)) if p.match_ms else None,
+                "t_map_odom_final": [float(v) for v in _planar(p.t_map_odom)],
+            }
         poses = np.asarray(res.poses, dtype=np.float64).reshape(-1, 4)
         res.paths["odometry"] = poses[:, 1:]
         trips = getattr(self.backend.motors, "watchdog_trips", None)
@@ -656,16 +678,23 @@ def run_to_dir(backend: Backend, source: CommandSource | None, duration_s: float
                safety: SafetyLayer | None = None, start_pose: Pose2D | None = None,
                safety_enabled: bool = True, perception: Perception | None = None,
                observers: Sequence[Observer] = (), bag_storage: str = "mcap") -> RunResult:  # fmt: skip
-    """Open the backend, run, close it, and (with ``out_dir``) write ``bag/``, ``metrics.json`` and
-    ``odometry.csv``. The output folder is written all-or-nothing (:mod:`robchair.outdir`)."""
+    """Open the backend, run, close it, and (with ``out_dir``) write ``bag/``, ``metrics.json``,
+    ``timeseries.csv`` and ``odometry.csv``. The output folder is written all-or-nothing
+    (:mod:`robchair.outdir`). Motor-controller diagnostics are polled at 1 Hz where the controller has
+    them."""
     from robchair.outdir import staged_output_dir
 
     def go(stage: Path | None) -> RunResult:
-        obs = list(observers)
-        if stage is not None:
-            from robchair.observers.recorder import RunRecorder
+        from robchair.observers.diagnostics import DiagnosticsObserver
 
-            obs.insert(0, RunRecorder(stage / "bag", storage=bag_storage))
+        obs = list(observers)
+        if stage is not None:  # a recorded run: bag, time series and the controller's diagnostics
+            from robchair.observers.recorder import RunRecorder
+            from robchair.observers.timeseries import TimeseriesWriter
+
+            recorder = RunRecorder(stage / "bag", storage=bag_storage)
+            obs[:0] = [recorder, TimeseriesWriter(stage / "timeseries.csv")]
+            obs.append(DiagnosticsObserver(recorder=recorder))
         rt = Runtime(backend, source, spec=spec, config=config, safety=safety, perception=perception,
                      observers=obs, start_pose=start_pose, safety_enabled=safety_enabled)  # fmt: skip
         return rt.run(duration_s)
@@ -694,6 +723,11 @@ def _has_servo(array: Any) -> bool:
     if flag is not None:
         return bool(flag)
     return getattr(array, "servo", None) is not None and hasattr(array, "set_servo_deg")
+
+
+def _planar(t: np.ndarray) -> tuple[float, float, float]:
+    """(x, y, yaw) of a planar (4, 4) transform."""
+    return float(t[0, 3]), float(t[1, 3]), math.atan2(float(t[1, 0]), float(t[0, 0]))
 
 
 def _min_or(a: float | None, b: float | None) -> float | None:

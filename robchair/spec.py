@@ -180,6 +180,12 @@ class RobChairSpec:
     sonar_arrays: SonarArrays
     source: str = field(default="", compare=False)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle / deep-copy support: ``mounts`` is a read-only ``mappingproxy``, which cannot be pickled."""
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        values["mounts"] = dict(self.mounts)
+        return (_spec_from_fields, (values,))
+
     @property
     def wheel_radius(self) -> float:
         return self.drive.wheel_radius
@@ -238,6 +244,10 @@ class RobChairSpec:
 
 
 # --------------------------------------------------------------------------------------------- loading
+
+
+def _spec_from_fields(values: dict[str, Any]) -> RobChairSpec:
+    return RobChairSpec(**{**values, "mounts": MappingProxyType(values["mounts"])})
 
 
 def load_spec(path: Path | str | None = None) -> RobChairSpec:

@@ -1,17 +1,22 @@
 """The simulated chair behind the hardware interfaces (DESIGN.md section 3): same Protocols as the drivers.
 
 :class:`SimChair` bundles a :class:`sim.world.World`, the scene, the :class:`sim.robot.SimRobot` and the
-simulated sensors (S2's :mod:`sim.kinect` and :mod:`sim.sonar`). The devices below implement
+simulated sensors (:mod:`sim.kinect` and :mod:`sim.sonar`). The devices below implement
 :mod:`hw.interfaces` over it, so the runtime cannot tell it from the real chair:
 
 * :class:`SimClock` - simulated time; ``sleep_until_ns`` *advances the physics* to that time (the
-  runtime's loop therefore drives the simulation exactly as it waits for the real chair).
+  runtime's loop therefore drives the simulation exactly as it waits for the real chair), serving
+  the motor controller's serial watchdog on the way.
 * :class:`SimMotorController` - closed-loop speed mode over the plant + PID motors, encoder counters,
-  emergency stop (``!EX``: set points forced to 0 until ``!MG``).
-* :class:`SimDepthCamera` - the simulated Kinect at ``kinect_link``'s current world pose.
+  emergency stop (``!EX``: set points forced to 0 until ``!MG``), serial watchdog (``^RWD``).
+* :class:`SimDepthCamera` - the simulated Kinect at ``kinect_link``'s current world pose, with
+  background capture (``submit_read``).
 * :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
 
-:func:`make_sim_backend` builds all of it from a small config mapping (what :mod:`robchair.backends` passes).
+Powers only a simulation has are domain-named methods of :class:`SimChair`: ``ground_truth_pose``,
+``ground_truth_transform``, ``contacts`` and ``teleport``.
+
+:func:`make_sim_backend` builds all of it from a config mapping (what :mod:`robchair.backends` passes).
 """
 
 from __future__ import annotations
@@ -224,7 +229,7 @@ class SimChair:
 
 
 def _make_sonars(chair: SimChair, rng: np.random.Generator, noise: bool) -> dict[str, Any]:
-    """One simulated SRF08 three-sonar array per sonar mount (S2's :mod:`sim.sonar`), sharing the mirror."""
+    """One simulated SRF08 three-sonar array per sonar mount (:mod:`sim.sonar`), sharing the mirror."""
     from sim.sonar import SonarArraySim
 
     out = {}

@@ -4,9 +4,13 @@ Motors. PyBullet's joint motors are ideal: a velocity target is reached in one s
 motors are not: Appendix B measured a second-order open-loop step response (t_p ~ 0.4 s, 10-12 %
 overshoot) with the chair on the floor, i.e. with the chair's inertia included. So each wheel runs
 through :class:`robchair.control.DiscretePlant` (the identified plant, exact ZOH discretisation, unit
-DC gain: command RPM in, motor-shaft RPM out) at the controller rate, and in closed-loop speed mode a
-:class:`robchair.control.DiscretePID` (gains by the pole-placement design of SPEC 5) in front of it,
-measuring the wheel's actual joint speed like the Roboteq measures its encoder. The plant's output
+DC gain: command RPM in, motor-shaft RPM out), and in closed-loop speed mode a
+:class:`robchair.control.DiscretePID` (gains by the pole-placement design of SPEC 5, derivative on the
+measurement) in front of it: the same classes the Roboteq emulator runs, at the same controller rate
+(:data:`robchair.control.CONTROLLER_RATE_HZ`, 1 kHz), independent of the physics rate. Each physics
+step runs the controller ticks that fall inside it (4 or 5 at 240 Hz physics); the first measures the
+wheel's joint speed like the Roboteq measures its encoder, the others add the plant's change since then
+(the wheel follows the plant exactly, see below), so no tick reuses a stale measurement. The plant's output
 speed is applied as the wheel joint's velocity target with a high force limit, so the wheel follows
 the identified dynamics exactly and PyBullet supplies only the contact with the floor (the alternative,
 applying torque, would need a motor model the thesis does not give).
@@ -51,13 +55,19 @@ class WheelMotor:
     output_rpm: float = 0.0
     closed_loop: bool = True
 
-    def update(self, measured_rpm: float) -> float:
-        """One controller period: returns the shaft speed (RPM) the plant produces."""
-        if self.closed_loop and self.pid is not None:
-            self.command_rpm = float(self.pid.update(self.setpoint_rpm, measured_rpm))
-        else:
-            self.command_rpm = self.setpoint_rpm
-        self.output_rpm = float(self.plant.step(self.command_rpm))
+    def update(self, measured_rpm: float, ticks: int = 1) -> float:
+        """Run ``ticks`` controller periods; returns the shaft speed (RPM) the plant produces.
+
+        The first tick's PID sees ``measured_rpm``; later ticks see it plus the plant's change since.
+        """
+        start = self.output_rpm
+        for _ in range(ticks):
+            if self.closed_loop and self.pid is not None:
+                measured = measured_rpm + (self.output_rpm - start)
+                self.command_rpm = float(self.pid.update(self.setpoint_rpm, measured))
+            else:
+                self.command_rpm = self.setpoint_rpm
+            self.output_rpm = float(self.plant.step(self.command_rpm))
         return self.output_rpm
 
     def reset(self) -> None:
@@ -97,7 +107,8 @@ class SimRobot:
         world: The physics world.
         spec: Platform spec.
         start: Initial (x, y, yaw) of ``base_link`` on the floor.
-        motor_rate_hz: Rate of the motor controller (plant + PID); must divide the physics rate.
+        motor_rate_hz: Rate of the motor controller (plant + PID), Hz; default
+            :data:`robchair.control.CONTROLLER_RATE_HZ` (the Roboteq's 1 kHz, as the emulator runs it).
         closed_loop: Closed-loop speed mode (PID) or open loop (the command goes straight to the plant).
         wheel_radius_scale: True tyre radii relative to the spec (see :func:`sim.urdf.build_urdf`); the
             encoders and everything downstream keep assuming the spec's radius.
@@ -116,11 +127,13 @@ class SimRobot:
 
         self.world, self.spec, self.client = world, spec, world.client
         self.drive = DiffDrive(spec)
-        rate = motor_rate_hz or world.physics_hz
-        if world.physics_hz % rate:
-            raise SimError(f"motor_rate_hz={rate} must divide the physics rate {world.physics_hz}")
+        from robchair.control import CONTROLLER_RATE_HZ
+
+        rate = motor_rate_hz or int(CONTROLLER_RATE_HZ)
+        if not (isinstance(rate, int) and rate > 0):
+            raise SimError(f"motor_rate_hz={rate!r}: expected a whole number of Hz > 0")
+        self.motor_rate_hz = rate
         self.motor_dt = 1.0 / rate
-        self._steps_per_motor = world.physics_hz // rate
         q = frames.quat_from_yaw(start[2])
         self.wheel_radius_scale = wheel_radius_scale
         self.body = p.loadURDF(
@@ -137,7 +150,7 @@ class SimRobot:
             self.joints[info[1].decode()] = i
             self.links[info[12].decode()] = i
         self.wheel_ids = tuple(self.joints[j] for j in WHEEL_JOINTS)
-        apply_contact_dynamics(self.client, self.body, spec)
+        apply_contact_dynamics(self.client, self.body, spec, floor=world.plane)
         # the base's PyBullet frame is its inertial frame; keep the offset to report base_link itself
         dyn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)
         self._inertial_inv = p.invertTransform(dyn[3], dyn[4])
@@ -193,9 +206,12 @@ class SimRobot:
         )
 
     def _pre_step(self) -> None:
-        if self._step_count % self._steps_per_motor == 0:
+        # controller ticks k at k / motor_rate_hz that fall in [n, n + 1) / physics_hz (integer arithmetic)
+        n, rate, hz = self._step_count, self.motor_rate_hz, self.world.physics_hz
+        ticks = (n + 1) * rate // hz - n * rate // hz
+        if ticks:
             ml, mr = self.wheel_speed_rpm()
-            self._apply_wheel_targets(self.left.update(ml), self.right.update(mr))
+            self._apply_wheel_targets(self.left.update(ml, ticks), self.right.update(mr, ticks))
         self._step_count += 1
 
     def encoder_counts(self) -> tuple[int, int]:

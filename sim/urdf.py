@@ -11,6 +11,17 @@ of the caster's radius fixed at its contact point (swivel axis minus the trail) 
 rolling and spinning friction (set by :func:`apply_contact_dynamics`): it can only push up, like an
 ideal swivel caster. The body's centre of mass (spec ``body.com_xyz``) sits just ahead of the driven axle,
 so by the lever rule the driven wheels carry most of the weight; a test checks the contact forces.
+
+Driven wheels: Bullet's cylinder-plane contacts flicker between the two rim edges and make the chair
+yaw (2 deg over 3 m of straight driving), so each driven wheel touches the floor as a sphere of the
+tyre's radius (one stable contact point on the tyre's centre line). A sphere is 2 r wide, though, and
+would make the chair 0.92 m wide against the spec's 0.64 m. So contacts are split by collision filter
+(:func:`apply_contact_dynamics`): the wheel spheres touch only the floor, and ``base_link`` carries a
+*tyre guard* per wheel, a cylinder of the tyre's radius and width on the wheel's axle, that touches
+everything but the floor. The caster spheres get the same split (a sphere of 0.10 m at y = 0.25 m
+would reach 0.35 m, outside the footprint): a caster guard cylinder of the caster's radius and width,
+facing straight ahead, meets the scene. The chair's collision footprint is then the spec's: 0.64 m
+wide (tyre outer faces), 0.84 m long (rear of the tyres / chassis to the footrest), casters inside it.
 """
 
 from __future__ import annotations
@@ -45,6 +56,14 @@ def _inertial(mass: float, xyz: tuple[float, float, float], ixx: float, iyy: flo
     return (
         f'<inertial><origin xyz="{_f(*xyz)}" rpy="0 0 0"/><mass value="{mass:.6g}"/>'
         f'<inertia ixx="{ixx:.6g}" ixy="0" ixz="0" iyy="{iyy:.6g}" iyz="0" izz="{izz:.6g}"/></inertial>'
+    )
+
+
+def _tyre_guard(xyz: tuple[float, float, float], radius: float, width: float) -> str:
+    """Collision cylinder (axis y) of one tyre on ``base_link``: the tyre's volume against the scene."""
+    return (
+        f'<collision><origin xyz="{_f(*xyz)}" rpy="{math.pi / 2:.9f} 0 0"/>'
+        f'<geometry><cylinder radius="{radius:.9g}" length="{width:.6g}"/></geometry></collision>'
     )
 
 
@@ -96,6 +115,15 @@ def build_urdf(spec: RobChairSpec, wheel_radius_scale: tuple[float, float] = (1.
         _geom_box(
             (mast_x, 0.0, (BACKREST_TOP + mast_top) / 2), (0.04, 0.04, mast_top - BACKREST_TOP), "frame"
         ),
+        *(
+            _tyre_guard(
+                (d.wheel_x, sign * d.wheel_separation / 2, d.wheel_radius * scale),
+                d.wheel_radius * scale,
+                d.wheel_width,
+            )
+            for sign, scale in ((1.0, wheel_radius_scale[0]), (-1.0, wheel_radius_scale[1]))
+        ),
+        *(_tyre_guard((c.x - c.trail, c.y, c.radius), c.radius, c.width) for c in spec.casters),
         "</link>",
     ]
     # driven wheels: continuous joints about +y, so a positive wheel speed drives the chair forward
@@ -109,8 +137,8 @@ def build_urdf(spec: RobChairSpec, wheel_radius_scale: tuple[float, float] = (1.
             f'<origin xyz="0 0 0" rpy="{math.pi / 2:.9f} 0 0"/>'
             f'<geometry><cylinder radius="{radius:.9g}" length="{d.wheel_width:.6g}"/></geometry>'
         )
-        # collision as a sphere of the wheel's radius: one stable contact point on the tyre's centre line
-        # (Bullet's cylinder-plane contacts flicker between the rim edges and make the chair yaw)
+        # floor contact as a sphere of the wheel's radius: one stable contact point on the tyre's centre
+        # line; it touches only the floor (the tyre guard on base_link meets the scene, see the docstring)
         gc = f'<origin xyz="0 0 0" rpy="0 0 0"/><geometry><sphere radius="{radius:.9g}"/></geometry>'
         parts += [
             f'<link name="{side}_wheel">',
@@ -181,8 +209,21 @@ def write_urdf(
     return path
 
 
-def apply_contact_dynamics(client: int, body: int, spec: RobChairSpec) -> None:
-    """Friction per link: grippy driven wheels, frictionless caster spheres (they may only push up)."""
+def apply_contact_dynamics(client: int, body: int, spec: RobChairSpec, floor: int | None = None) -> None:
+    """Friction per link and the floor/scene split of the chair's contacts.
+
+    Grippy driven wheels, frictionless caster spheres (they may only push up). With ``floor`` (the
+    floor plane's body id) the contacts are split by collision filter: the driven wheels' spheres
+    and the casters' spheres collide with the floor only (group and mask 0 - PyBullet ORs the two
+    group tests - plus an enabled pair with the floor); ``base_link`` (chassis, backrest, mast, tyre
+    and caster guards) collides with everything but the floor (a disabled pair).
+
+    Args:
+        client: PyBullet client id.
+        body: The chair's body id (from the URDF of :func:`build_urdf`).
+        spec: The platform spec (caster names).
+        floor: Body id of the floor plane; None leaves the collision filters alone.
+    """
     import pybullet as p
 
     names = {
@@ -208,3 +249,9 @@ def apply_contact_dynamics(client: int, body: int, spec: RobChairSpec) -> None:
             physicsClientId=client,
         )
     p.changeDynamics(body, -1, lateralFriction=0.5, physicsClientId=client)
+    if floor is not None:
+        # an explicit pair filter overrides the group/mask test in PyBullet's filter callback
+        p.setCollisionFilterPair(body, floor, -1, -1, 0, physicsClientId=client)
+        for link in ("left_wheel", "right_wheel", *(c.name for c in spec.casters)):
+            p.setCollisionFilterGroupMask(body, names[link], 0, 0, physicsClientId=client)
+            p.setCollisionFilterPair(body, floor, names[link], -1, 1, physicsClientId=client)

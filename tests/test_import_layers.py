@@ -30,6 +30,11 @@ APPLICATION = (
     "robchair.commands",
     "robchair.outdir",
     "robchair.sweep",
+    "robchair.navigation",
+    "robchair.envs",
+    "robchair.report",
+    "robchair.run_folder",
+    "robchair.viz",
 )
 MAPPING_FORBIDDEN_THIRD_PARTY = ("pybullet", "serial", "smbus2")
 

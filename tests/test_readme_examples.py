@@ -32,6 +32,7 @@ MAIN_JOB = (
 )
 TEST_SUITE = "python3.11 -m venv .venv && .venv/bin/pip install -q -e '.[dev]' && .venv/bin/python -m pytest"
 SWEEP = "robchair sweep examples/sweeps/margin_and_seed.toml"
+NAV_EVAL = "robchair nav-eval --env RobChair/NavigationRooms-v1"
 BENCH = "robchair bench mapping | sim | table52 | env | laser | sweep | zoom"
 
 # run exactly as written in the default test run (fast enough)
@@ -56,6 +57,12 @@ VARIANT: dict[str, str | None] = {
         f"robchair bench {b} --help" for b in ("mapping", "sim", "table52", "env", "laser", "sweep", "zoom")
     ),
     SWEEP: None,
+    f"{NAV_EVAL} --episodes 100 --policy baseline --policy random": (
+        f"{NAV_EVAL} --episodes 1 --policy baseline --policy random"
+    ),
+    f"{NAV_EVAL} --episodes 100 --policy baseline --ray --out runs/eval-rooms": (
+        f"{NAV_EVAL} --episodes 1 --policy baseline --ray --num-cpus 1 --out runs/eval-rooms"
+    ),
     f"{SWEEP} --out runs/sweep-margin": None,
     f"{SWEEP} --out runs/sweep-margin --resume": None,
     f"{SWEEP} --num-cpus 1": None,
@@ -69,20 +76,21 @@ EXEMPT = {
     "robchair run --backend real --config chair.toml": "needs the real chair (Roboteq and sonars)",
     "robchair hw check --port /dev/ttyACM0 --i2c 1": "needs a real Roboteq on /dev/ttyACM0 and an I2C bus",
     "robchair hw check --laser /dev/ttyACM1": "needs a real Hokuyo on /dev/ttyACM1",
+    "robchair nav-eval --env RobChair/Navigation-v1 --policy MODULE:CALLABLE": "a placeholder policy",
     f"{SWEEP} --address auto --out /shared/runs/sweep-margin": "needs a running Ray cluster",
     f"{SWEEP} --address ray://HEAD:10001 --out /shared/runs/sweep-margin": "needs a Ray cluster's client",
 }
 
 
 def readme_blocks(lang: str) -> list[str]:
-    """The README's fenced code blocks of one language, in order."""
-    return re.findall(rf"^```{lang}\n(.*?)^```", README.read_text(), flags=re.S | re.M)
+    """The README's fenced code blocks of one language (a regex alternative: ``sh|bash``), in order."""
+    return re.findall(rf"^```(?:{lang})\n(.*?)^```", README.read_text(), flags=re.S | re.M)
 
 
 def shell_commands() -> list[str]:
     """Every command line of the README's ``sh`` blocks, without comments."""
     cmds = []
-    for block in readme_blocks("sh"):
+    for block in readme_blocks("sh|bash"):
         for line in block.splitlines():
             line = re.sub(r"(^|\s+)#(\s.*|$)", "", line).strip()
             if line:

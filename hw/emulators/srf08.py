@@ -28,6 +28,16 @@ for several echoes; NaN/inf = nothing), e.g. the simulator's sonar cones or a sc
 when the ranging starts. Echoes beyond the range setting (``(reg * 43 + 43) mm``) are not heard;
 missing echoes read 0, as on the device.
 
+Echoes of earlier pings (datasheet: "the second ranging may pick up a distant echo returning from the
+previous ping"; fire every 65 ms or slower at the power-up gain). Every ping stays audible for
+:data:`ECHO_WINDOW_S` (65 ms) to the devices of its acoustic group (``groups``; by default all devices
+share one space, as the two arrays of a chair do). A ranging started inside that window also hears the
+earlier ping's echoes: an echo of range r from a ping ``dt`` earlier arrives ``2 r / c - dt`` after the
+new ping, so it reads as ``r - c dt / 2`` when that is above the device's blind zone and shorter than its
+own first echo. Pings within the same instant (one slot of both arrays) read each other's echoes of the
+same object at the object's range, which is what a bistatic echo gives. The emulator models this at
+every gain: the datasheet gives no interval that is safe at a lower gain.
+
 Fault injection: :meth:`SRF08Bus.inject_io_error` (one device answers every transfer with
 ``OSError(5, EIO)``, for N transfers or until cleared), :meth:`SRF08Bus.stick` (the device keeps
 reporting one value whatever is in front of it). Not emulated: ANN mode (0x53-0x55) and the gain's
@@ -50,6 +60,10 @@ from hw.interfaces import Clock
 SPEED_OF_SOUND_M_S = 343.0
 #: Ranging time at the default range register (255), seconds.
 FULL_RANGING_TIME_S = 0.065
+#: How long the echoes of one ping stay audible, seconds (the datasheet's 65 ms firing interval).
+ECHO_WINDOW_S = 0.065
+#: Echoes closer than this are lost in the transducer's ring-down (SPEC table 5.1: 3 cm minimum).
+BLIND_ZONE_M = 0.03
 #: 7-bit addresses an SRF08 can take (8-bit 0xE0..0xFE).
 SRF08_ADDRESSES = range(0x70, 0x80)
 
@@ -90,6 +104,7 @@ class EmulatedSRF08:
     io_errors_left: int = 0  # < 0: forever
     stuck_value: int | None = None
     rangings: int = 0
+    stale: list[float] = field(default_factory=list)  # echoes of earlier pings this ranging hears
 
 
 class SRF08Bus:
@@ -100,6 +115,8 @@ class SRF08Bus:
         ranges: ``ranges(address, stamp_ns)`` -> range(s) in metres; NaN or inf = no echo.
         addresses: 7-bit addresses of the devices present initially.
         busy_mode: default :class:`BusyMode` of the devices.
+        groups: sets of addresses that hear each other's pings (e.g. one per array when the arrays are
+            acoustically apart); None: every device hears every other.
     """
 
     def __init__(
@@ -108,9 +125,13 @@ class SRF08Bus:
         ranges: RangesFn,
         addresses: Sequence[int] = (0x70,),
         busy_mode: BusyMode = BusyMode.FF,
+        groups: Sequence[Sequence[int]] | None = None,
     ) -> None:
         self.clock = clock
         self.ranges = ranges
+        self.groups = None if groups is None else [frozenset(g) for g in groups]
+        self.pings: list[tuple[int, int, list[float]]] = []  # (stamp_ns, address, ranges) of recent pings
+        self.stale_echoes = 0  # rangings that read an earlier ping's echo
         self.devices: dict[int, EmulatedSRF08] = {}
         self.closed = False
         self.transfers = 0
@@ -175,6 +196,10 @@ class SRF08Bus:
         dev.pending = None
         limit = max_range_m(dev.range_register)
         heard = sorted(r for r in ranges if math.isfinite(r) and 0.0 < r <= limit)
+        ghosts = [r for r in dev.stale if r <= limit and (not heard or r < heard[0])]
+        if ghosts:
+            self.stale_echoes += 1
+            heard = sorted([*heard, *ghosts])
         values = [self._encode(command, r) for r in heard[:17]]
         if dev.stuck_value is not None:
             values = [dev.stuck_value]
@@ -198,8 +223,28 @@ class SRF08Bus:
         except TypeError:  # a single range (float, numpy scalar)
             ranges = [float(sample)]  # type: ignore[arg-type]
         dev.pending = (command, ranges)
+        dev.stale = self._stale_echoes(dev.address, now)
+        self.pings = [p for p in self.pings if now - p[0] < round(ECHO_WINDOW_S * 1e9)]
+        self.pings.append((now, dev.address, ranges))
         dev.busy_until_ns = now + round(ranging_time_s(dev.range_register) * 1e9)
         dev.rangings += 1
+
+    def _hears(self, a: int, b: int) -> bool:
+        return self.groups is None or any(a in g and b in g for g in self.groups)
+
+    def _stale_echoes(self, address: int, now: int) -> list[float]:
+        """Ranges at which echoes of earlier pings in the window arrive after a ping at ``now``."""
+        out = []
+        for stamp, other, ranges in self.pings:
+            dt = (now - stamp) / 1e9
+            if not (0.0 <= dt < ECHO_WINDOW_S and self._hears(address, other)):
+                continue
+            for r in ranges:
+                if math.isfinite(r) and r > 0.0 and (dt > 0.0 or other != address):
+                    ghost = r - SPEED_OF_SOUND_M_S * dt / 2.0
+                    if ghost >= BLIND_ZONE_M:
+                        out.append(ghost)
+        return out
 
     def _command(self, dev: EmulatedSRF08, value: int) -> None:
         if value in (0x50, 0x51, 0x52):

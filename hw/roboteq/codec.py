@@ -64,9 +64,6 @@ CONFIG_RANGE: dict[str, tuple[int, int]] = {
     "ALIM": (10, 3000),
     "CLERD": (0, 3),
 }
-# ^KP/^KI/^KD register range per firmware major version: 0..255 on 1.x, 0..2,000,000,000 on 2.x
-# (not 2**31 - 1: the manual's maximum is 2,000,000,000).
-GAIN_RANGE: dict[int, tuple[int, int]] = {1: (0, 255), 2: (0, 2_000_000_000)}
 FLAG_WORD_MAX = 0xFFFF
 LINE_ENDS = (b"\r", b"_")
 

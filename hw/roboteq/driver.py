@@ -608,20 +608,20 @@ class RoboteqMDC2230(Device):
     def firmware_gains(self, cfg: PIDConfig) -> tuple[int, int, int]:
         """The ``^KP/^KI/^KD`` integers for ``cfg`` on this controller's firmware.
 
-        The multiplier is the control module's (:data:`robchair.control.FIRMWARE_MULTIPLIER`: x10
-        on 1.x, x1,000,000 on 2.x); the range is the manual's (:data:`hw.roboteq.codec.GAIN_RANGE`:
+        The multiplier is the control module's (:data:`hw.roboteq.gains.FIRMWARE_MULTIPLIER`: x10
+        on 1.x, x1,000,000 on 2.x); the range is the manual's (:data:`hw.roboteq.FIRMWARE_RANGE`:
         0..255 on 1.x, 0..2,000,000,000 on 2.x). CommandError if a gain does not fit.
         """
-        from robchair.control import FIRMWARE_MULTIPLIER
+        from hw.roboteq.gains import FIRMWARE_MULTIPLIER, FIRMWARE_RANGE
 
         if self.firmware is None:
             raise DeviceClosedError(f"{self.name}: firmware unknown until configure() has probed ?FID")
         major = self.firmware.major
-        if major not in FIRMWARE_MULTIPLIER or major not in codec.GAIN_RANGE:
+        if major not in FIRMWARE_MULTIPLIER or major not in FIRMWARE_RANGE:
             raise CommandError(
                 f"firmware {self.firmware.text!r}: no known gain encoding for major version {major}"
             )
-        mult, (lo, hi) = FIRMWARE_MULTIPLIER[major], codec.GAIN_RANGE[major]
+        mult, (lo, hi) = FIRMWARE_MULTIPLIER[major], FIRMWARE_RANGE[major]
         out = []
         for label, g in (("kp", cfg.kp), ("ki", cfg.ki), ("kd", cfg.kd)):
             q = round(g * mult) if math.isfinite(g) else None

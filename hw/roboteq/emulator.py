@@ -55,6 +55,7 @@ from hw.clock import ManualClock, MonotonicClock
 from hw.errors import HardwareError, ProtocolError
 from hw.interfaces import Clock, MotorFaults
 from hw.roboteq import codec
+from hw.roboteq.gains import FIRMWARE_RANGE, gains_from_roboteq
 
 log = logging.getLogger(__name__)
 
@@ -126,10 +127,11 @@ def _plant_and_default_gains(
     t_r: float, t_p: float, M_p: float, firmware_major: int
 ) -> tuple[Any, tuple[int, int, int]]:
     """Identified plant and the firmware gains of the SPEC 5 design (cached: the design is slow)."""
+    from hw.roboteq.gains import roboteq_gains
     from robchair import control as c
 
     plant = c.identify_from_step_metrics(t_r, t_p, M_p).plant
-    fw = c.roboteq_gains(c.design_pid(plant), firmware_major)
+    fw = roboteq_gains(c.design_pid(plant), firmware_major)
     return plant, (fw.kp, fw.ki, fw.kd)
 
 
@@ -225,7 +227,7 @@ class RoboteqEmulator:
 
     def _rebuild_pid(self, ch: _Channel) -> None:
         g_p, g_i, g_d = ch.gains_fw
-        kp, ki, kd = self._control.gains_from_roboteq(g_p, g_i, g_d, firmware_major=self.firmware.major)
+        kp, ki, kd = gains_from_roboteq(g_p, g_i, g_d, firmware_major=self.firmware.major)
         mx = float(ch.config["MXRPM"])
         integral = ch.pid.integral if ch.pid is not None else 0.0
         ch.pid = self._control.DiscretePID(kp, ki, kd, self.dt, u_min=-mx, u_max=mx)
@@ -715,7 +717,7 @@ class RoboteqEmulator:
             return "+"
         cc, value = args
         ch = self._ch(cc)
-        gain_range = codec.GAIN_RANGE[self.firmware.major]
+        gain_range = FIRMWARE_RANGE[self.firmware.major]
         lo, hi = codec.CONFIG_RANGE.get(name, gain_range)
         if name == "MMOD":
             lo, hi = 0, 1  # open loop and closed-loop speed are what this emulator models

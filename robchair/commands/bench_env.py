@@ -4,9 +4,14 @@ Configurations, all measured in the same run with the same seed and the same ran
 
 * ``physics only``: the baseline every configuration stands on - one agent period of the chair's
   physics and motor plants + PIDs (240 Hz / ``agent_hz`` steps) in the same scene, no sensor, no map;
-* ``Navigation-v0``: the registered default, a Kinect v2 decimated 4x (128x106 rays) mapped every step;
-* ``Navigation-v0, full Kinect``: the same at the Kinect v2's full 512x424 (decimation 1);
-* ``NavigationSonar-v0``: the two three-sonar arrays instead of the Kinect.
+* ``light (Navigation-v1)``: six sonars mapped every step, the light observation;
+* ``Kinect (NavigationKinect-v1)``: the light observation plus a Kinect v2 decimated 4x (128x106 rays);
+* ``dynamic (NavigationDynamic-v1)``: the light observation on random floors with two walkers (a new
+  floor, and so a new PyBullet scene, at every reset);
+* ``Navigation-v0``: the earlier default (decimated Kinect only, nominal chair);
+* ``light, 2 Async workers`` and ``Kinect, 2 Async workers``: the same ids in a
+  :class:`gymnasium.vector.AsyncVectorEnv` of two worker processes; steps/s counts the agent steps of
+  both workers, and the last column gives the speed-up over one env of the same id.
 
 Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup and
 one warm-up episode excluded; episodes that end are reset inside the timed loop, as a training loop
@@ -27,13 +32,12 @@ DEFAULT_OUT = "out/bench_env.json"
 
 CONFIGS: tuple[dict[str, Any], ...] = (
     {"name": "physics only", "physics_only": True},
+    {"name": "light (Navigation-v1)", "id": "RobChair/Navigation-v1", "kwargs": {}},
+    {"name": "Kinect (NavigationKinect-v1)", "id": "RobChair/NavigationKinect-v1", "kwargs": {}},
+    {"name": "dynamic (NavigationDynamic-v1)", "id": "RobChair/NavigationDynamic-v1", "kwargs": {}},
     {"name": "Navigation-v0", "id": "RobChair/Navigation-v0", "kwargs": {}},
-    {
-        "name": "Navigation-v0, full Kinect",
-        "id": "RobChair/Navigation-v0",
-        "kwargs": {"kinect_decimation": 1},
-    },
-    {"name": "NavigationSonar-v0", "id": "RobChair/NavigationSonar-v0", "kwargs": {}},
+    {"name": "light, 2 Async workers", "id": "RobChair/Navigation-v1", "kwargs": {}, "workers": 2},
+    {"name": "Kinect, 2 Async workers", "id": "RobChair/NavigationKinect-v1", "kwargs": {}, "workers": 2},
 )
 
 
@@ -89,13 +93,38 @@ def _env_run(env: Any, steps: int, seed: int) -> float:
     return time.perf_counter() - t0
 
 
+def _vec_run(envs: Any, steps: int, seed: int) -> float:
+    """Seconds for ``steps`` vector steps (every worker one agent step each; finished ones autoreset)."""
+    envs.reset(seed=seed)
+    envs.action_space.seed(seed)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        envs.step(envs.action_space.sample())
+    return time.perf_counter() - t0
+
+
 def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict[str, Any]:
     """Steps per second of one configuration: every run and the median."""
     import statistics
 
+    workers = int(config.get("workers", 1))
     if config.get("physics_only"):
         _physics_only(5, seed)  # warm-up
         secs = [_physics_only(steps, seed + k) for k in range(repeats)]
+    elif workers > 1:
+        import gymnasium
+
+        import sim.envs
+
+        envs = gymnasium.make_vec(
+            config["id"], num_envs=workers, vectorization_mode="async", **config["kwargs"]
+        )
+        try:
+            _vec_run(envs, 5, seed)  # warm-up in every worker
+            secs = [_vec_run(envs, steps, seed + k) for k in range(repeats)]
+        finally:
+            envs.close()
+        secs = [sec / workers for sec in secs]  # seconds per agent step of all workers together
     else:
         import gymnasium
 
@@ -125,14 +154,23 @@ def _run(args: argparse.Namespace) -> int:
     load1 = os.getloadavg()
     base = rows[0]["median_steps_per_s"]
     print(f"robchair bench env: {args.steps} agent steps at {AGENT_HZ} Hz per run, median of {args.repeats}")
-    head = f"{'configuration':28s} {'steps/s':>9s} {'RTF':>6s} {'vs physics only':>16s}"
+    head = f"{'configuration':32s} {'steps/s':>9s} {'RTF':>6s} {'vs physics only':>16s} {'vs one env':>12s}"
     print(head)
     print("-" * len(head))
-    for r in rows:
+    single = {
+        c["id"]: r["median_steps_per_s"]
+        for c, r in zip(CONFIGS, rows, strict=True)
+        if "id" in c and "workers" not in c
+    }
+    for c, r in zip(CONFIGS, rows, strict=True):
         m = r["median_steps_per_s"]
         r["real_time_factor"] = m / AGENT_HZ
         r["ratio_to_physics_only"] = m / base
-        print(f"{r['config']:28s} {m:9.1f} {m / AGENT_HZ:6.2f} {m / base:16.3f}")
+        line = f"{r['config']:32s} {m:9.1f} {m / AGENT_HZ:6.2f} {m / base:16.3f}"
+        if "workers" in c and c["id"] in single:
+            r["speedup_vs_one_env"] = m / single[c["id"]]
+            line += f" {r['speedup_vs_one_env']:12.2f}"
+        print(line)
     print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

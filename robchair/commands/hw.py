@@ -77,7 +77,11 @@ def hw_check(motors: Any, bus: Any = None, out: TextIO | None = None, clock: Any
             try:
                 with SRF08(bus, addr, clock=clock) as s:
                     r = s.read()
-                rng = "no echo" if r.range_m != r.range_m else f"{r.range_m:.2f} m"
+                rng = (
+                    "no echo"
+                    if r.range_m == float("inf")
+                    else ("invalid (under 3 cm)" if r.range_m != r.range_m else f"{r.range_m:.2f} m")
+                )
                 print(f"sonar 0x{addr:02X}: revision {rev}, range {rng}", file=out)
             except HardwareError as exc:
                 print(f"sonar 0x{addr:02X}: FAILED: {exc}", file=out)

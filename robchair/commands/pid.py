@@ -10,6 +10,18 @@ step metrics and the rise-time residual; writes into ``--out`` (default out/pid)
 (like the thesis's Figure 9.3: reference, open loop, closed loop), ``root_locus_<motor>.png`` per motor and
 ``pid.json`` with every number. Like the thesis, the design uses the delay-free second-order plant; with
 ``--trace`` the fitted dead time is reported together with the phase margin it leaves.
+
+A trace is converted to seconds and RPM from its declared units (``--time-unit``, ``--command-unit``,
+``--speed-unit``) and refused, with one line naming the column, when it cannot be a speed step in those
+units: implausible time steps, a command beyond the controller's full scale, a speed column that rises
+like cumulative encoder counts, goes beyond any motor speed, looks like counts per sample, or does not
+respond. The fit quality is R^2 and the RMS residual relative to the step.
+
+Warnings (errors under ``--strict``): the firmware's gain quantisation moves a closed-loop pole by more
+than 10 %; a fitted dead time leaves less than 45 deg of phase margin.
+
+The Roboteq gain equivalence holds for firmware 1.x and 2.0 only: from 2.1 the speed loop drives a
+current loop, which the identified voltage-to-speed plant does not describe (SPEC erratum 8).
 """
 
 from __future__ import annotations
@@ -17,10 +29,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 DEFAULT_OUT = Path("out/pid")
+MAX_POLE_SHIFT = 0.10
+"""Largest relative move of a closed-loop pole by the firmware's gain quantisation that passes."""
+MIN_PHASE_MARGIN_DEG = 45.0
+"""Smallest phase margin, with the fitted dead time, that passes."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -36,6 +53,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     src.add_argument("--mp", type=float, help="measured overshoot fraction, e.g. 0.1 for 10 %%")
     src.add_argument("--trace", type=Path, help="CSV step trace with columns time,command,speed")
     src.add_argument("--no-delay", action="store_true", help="with --trace: do not fit a dead time")
+    src.add_argument("--time-unit", choices=("s", "ms", "us"), default="s", help="trace time unit (s)")
+    src.add_argument(
+        "--command-unit",
+        choices=("rpm", "power", "percent", "fraction"),
+        default="rpm",
+        help="trace command unit: RPM-equivalent (default), Roboteq power +-1000, percent, fraction",
+    )
+    src.add_argument(
+        "--speed-unit",
+        choices=("rpm", "rad/s", "counts/s", "counts/sample", "counts"),
+        default=None,
+        help="trace speed unit (default RPM, checked for signs of encoder counts; declare rpm to skip that)",
+    )
     src.add_argument(
         "--spec", type=Path, default=None, help="platform spec TOML (default assets/robchair.toml)"
     )
@@ -44,13 +74,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     d.add_argument("--omega-w", type=float, default=3.3, help="their natural frequency, rad/s (3.3)")
     d.add_argument("--p", type=float, default=None, help="extra real pole at -p (default 10 xi_w omega_w)")
     d.add_argument("--firmware", type=int, choices=(1, 2), default=1, help="Roboteq firmware major version")
-    d.add_argument("--scale", type=float, default=1.0, help="Roboteq units scale (see control.roboteq_gains)")
+    d.add_argument("--scale", type=float, default=1.0, help="Roboteq units scale (see hw.roboteq.gains)")
     d.add_argument(
         "--rate",
         type=float,
         action="append",
         default=[],
         help="also check the sampled loop at this rate, Hz (repeatable; 1000 Hz is always checked)",
+    )
+    d.add_argument(
+        "--derivative-on-error",
+        action="store_true",
+        help="derivative on the error (kicks on set-point steps) instead of on the measurement",
+    )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="fail (exit 2) on a warning: quantisation pole shift > 10 %%, phase margin < 45 deg",
     )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/pid)")
     p.add_argument("--no-plots", action="store_true", help="only print and write pid.json")
@@ -83,12 +123,20 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
+    from hw.roboteq.gains import GAIN_EQUIVALENCE_NOTE, roboteq_gains
     from robchair import control as rc
 
     motors: list[dict[str, Any]] = []
     if args.trace is not None:
+        from robchair.spec import load_spec
+
+        spec = load_spec(args.spec)
+        units = rc.TraceUnits(args.time_unit, args.command_unit, args.speed_unit)
         t, u, y, dropped = rc.read_step_trace(args.trace)
-        fit = rc.identify_from_trace(t, u, y, fit_delay=not args.no_delay)
+        counts_per_rev = spec.counts_per_wheel_rev / spec.gear_ratio
+        fit, (t, u, y) = rc.fit_step_trace(
+            t, u, y, units, spec.max_motor_rpm, counts_per_rev, fit_delay=not args.no_delay
+        )
         motors.append(
             {
                 "name": args.trace.stem,
@@ -118,21 +166,38 @@ def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
                 }
             )
 
+    dom = not args.derivative_on_error
     for m in motors:
-        m["design"] = rc.design_pid(m["plant"], xi_w=args.xi_w, omega_w=args.omega_w, p=args.p)
-        m["roboteq"] = rc.roboteq_gains(m["design"], args.firmware, scale=args.scale)
+        m["design"] = rc.design_pid(
+            m["plant"], xi_w=args.xi_w, omega_w=args.omega_w, p=args.p, derivative_on_measurement=dom
+        )
+        m["roboteq"] = roboteq_gains(m["design"], args.firmware, scale=args.scale)
         m["rates"] = sorted({rc.CONTROLLER_RATE_HZ, *args.rate}, reverse=True)
         kq = m["roboteq"].effective
         m["sampled"] = {r: rc.sampled_loop(m["plant"], kq[0], kq[1], kq[2], 1.0 / r) for r in m["rates"]}
+        m["warnings"] = _warnings(m)
         print(_report(m, args.firmware))
+    print(f"note: {GAIN_EQUIVALENCE_NOTE}")
+    warnings = [f"{m['name']}: {w}" for m in motors for w in m["warnings"]]
+    if warnings and args.strict:
+        raise rc.ControlError(f"--strict: {len(warnings)} warning(s), first: {warnings[0]}")
+    for w in warnings:
+        print(f"robchair pid: warning: {w}", file=sys.stderr)
 
     with out_dir.stage() as out:
-        summary = {"controller_rate_hz": rc.CONTROLLER_RATE_HZ, "motors": [_to_json(m) for m in motors]}
+        summary = {
+            "controller_rate_hz": rc.CONTROLLER_RATE_HZ,
+            "derivative_on_measurement": dom,
+            "gain_equivalence": GAIN_EQUIVALENCE_NOTE,
+            "motors": [_to_json(m) for m in motors],
+        }
         (out / "pid.json").write_text(json.dumps(summary, indent=2) + "\n")
         if not args.no_plots:
-            _plot_steps(motors, out / "step_responses.png")
+            from robchair.commands.pid_plots import plot_root_locus, plot_steps
+
+            plot_steps(motors, out / "step_responses.png")
             for m in motors:
-                _plot_root_locus(m, out / f"root_locus_{_slug(m['name'])}.png")
+                plot_root_locus(m, out / f"root_locus_{_slug(m['name'])}.png")
     print(f"wrote {args.out}/ (pid.json{'' if args.no_plots else ', step_responses.png, root_locus_*.png'})")
     return 0
 
@@ -157,8 +222,11 @@ def _report(m: dict[str, Any], firmware: int) -> str:
     if fit is not None:
         lines.append(
             f"  trace fit: {fit.n_samples} samples after the step, {m['rows_dropped']} rows dropped, "
-            f"step {fit.u_step:.6g} at t = {fit.t_step:.6g} s, dead time {fit.delay * 1e3:.2f} ms, "
-            f"RMS residual {fit.rms_residual:.4g}"
+            f"step {fit.u_step:.6g} RPM at t = {fit.t_step:.6g} s, dead time {fit.delay * 1e3:.2f} ms"
+        )
+        lines.append(
+            f"  fit quality: R^2 = {fit.r_squared:.4f}, RMS residual {fit.rms_residual:.4g} RPM"
+            f" = {100 * fit.relative_residual:.2f} % of the step"
         )
     lines.append(f"  plant:   {pl}")
     ident = m.get("ident")
@@ -209,17 +277,46 @@ def _report(m: dict[str, Any], firmware: int) -> str:
             f"({'stable' if sl.stable else 'UNSTABLE'}), dominant equivalent poles {_fmt_poles(dominant)}"
         )
     if fit is not None and fit.delay > 0:
-        # the design uses the delay-free plant (as the thesis does); a dead time only costs phase
-        pm_delay = mg.phase_margin_deg - math.degrees(mg.gain_crossover * fit.delay)
         lines.append(
-            f"  the design ignores the fitted dead time; with it the phase margin is {pm_delay:.2f} deg"
+            "  the design ignores the fitted dead time; with it the phase margin is "
+            f"{_phase_margin_with_delay(m):.2f} deg"
         )
-    for label, sm in (("closed loop", d.closed_loop), ("open loop", d.open_loop)):
+    where = "measurement" if d.derivative_on_measurement else "error"
+    for label, sm in ((f"closed loop (D on {where})", d.closed_loop), ("open loop", d.open_loop)):
         lines.append(
             f"  {label}: rise {sm.rise_time:.4f} s (10-90 %), settling {sm.settling_time:.4f} s (2 %), "
             f"overshoot {sm.overshoot_pct:.2f} %, peak {sm.peak:.4f} at {sm.peak_time:.4f} s"
         )
     return "\n".join(lines)
+
+
+def _phase_margin_with_delay(m: dict[str, Any]) -> float:
+    """Phase margin of the loop with the fitted dead time, deg (a delay costs omega_gc T of phase and
+    leaves |L| as it is, so this is exact for the delay-free design's gain crossover)."""
+    mg, fit = m["design"].margins, m.get("fit")
+    delay = fit.delay if fit is not None else 0.0
+    return float(mg.phase_margin_deg - math.degrees(mg.gain_crossover * delay))
+
+
+def _warnings(m: dict[str, Any]) -> list[str]:
+    """What makes the design unsafe to load as it stands (errors under --strict)."""
+    out = []
+    rq = m["roboteq"]
+    if rq.max_pole_shift > MAX_POLE_SHIFT:
+        out.append(
+            f"firmware {rq.firmware_major}.x gain quantisation (KP {rq.kp}, KI {rq.ki}, KD {rq.kd}) moves a "
+            f"closed-loop pole by {100 * rq.max_pole_shift:.0f} % (limit {100 * MAX_POLE_SHIFT:.0f} %), "
+            f"to {_fmt_poles(rq.quantised.achieved_poles)}; use firmware 2.x or change omega_w / p"
+        )
+    fit = m.get("fit")
+    if fit is not None and fit.delay > 0:
+        pm = _phase_margin_with_delay(m)
+        if not pm >= MIN_PHASE_MARGIN_DEG:
+            out.append(
+                f"the fitted dead time of {fit.delay * 1e3:.1f} ms leaves a phase margin of {pm:.1f} deg "
+                f"(limit {MIN_PHASE_MARGIN_DEG:g} deg); lower omega_w / p"
+            )
+    return out
 
 
 def _slug(name: str) -> str:
@@ -262,6 +359,7 @@ def _to_json(m: dict[str, Any]) -> dict[str, Any]:
             }
             for r in m["rates"]
         ],
+        "warnings": m["warnings"],
         "margins": _finite_or_none(asdict(d.margins)),
         "closed_loop": _finite_or_none(asdict(d.closed_loop)),
         "open_loop": _finite_or_none(asdict(d.open_loop)),
@@ -286,6 +384,9 @@ def _to_json(m: dict[str, Any]) -> dict[str, Any]:
             "u_step": fit.u_step,
             "y_initial": fit.y_initial,
             "rms_residual": fit.rms_residual,
+            "r_squared": fit.r_squared,
+            "relative_residual": fit.relative_residual,
+            "phase_margin_with_delay_deg": _phase_margin_with_delay(m),
             "n_samples": fit.n_samples,
             "rows_dropped": m["rows_dropped"],
         }
@@ -295,150 +396,3 @@ def _to_json(m: dict[str, Any]) -> dict[str, Any]:
 def _finite_or_none(d: dict[str, Any]) -> dict[str, Any]:
     """JSON has no inf/NaN: write them as null (inf gain margin = no phase crossover)."""
     return {k: (v if not (isinstance(v, float) and not math.isfinite(v)) else None) for k, v in d.items()}
-
-
-# ---------------------------------------------------------------------------------------------- plots
-
-
-def _plot_steps(motors: list[dict[str, Any]], path: Path) -> None:
-    import control as ct
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from robchair.control import CONTROLLER_RATE_HZ, DiscretePID, DiscretePlant
-
-    fig, axes = plt.subplots(1, len(motors), figsize=(6.0 * len(motors), 4.2), squeeze=False)
-    for ax, m in zip(axes[0], motors):
-        d, rq, amp = m["design"], m["roboteq"], m["step_rpm"]
-        t_end = max(
-            3.0, 1.2 * d.closed_loop.settling_time if math.isfinite(d.closed_loop.settling_time) else 3.0
-        )
-        t = np.linspace(0.0, t_end, 3001)
-        y_open = np.asarray(ct.step_response(m["plant"].tf(), T=t).outputs).ravel() * amp
-        y_closed = np.asarray(ct.step_response(d.closed_loop_tf(), T=t).outputs).ravel() * amp
-        # the sampled loop the simulator runs, with the Roboteq-quantised gains
-        dt = 1.0 / CONTROLLER_RATE_HZ
-        kp_q, ki_q, kd_q = rq.effective
-        pid = DiscretePID(kp_q, ki_q, kd_q, dt=dt)
-        plant = DiscretePlant(m["plant"], dt)
-        n = round(t_end / dt)
-        y_q = np.empty(n + 1)
-        y_q[0] = 0.0
-        for k in range(n):
-            y_q[k + 1] = plant.step(pid.update(amp, plant.output))
-        ax.plot([-0.1 * t_end, 0, 0, t_end], [0, 0, amp, amp], color="tab:blue", label="reference")
-        fit = m.get("fit")
-        if fit is not None and fit.delay > 0:
-            # show the fitted model as it was fitted: with its dead time
-            y_open = np.interp(t - fit.delay, t, y_open, left=0.0)
-            ax.plot(t, y_open, color="tab:red", label=f"open loop (fit, dead time {fit.delay * 1e3:.1f} ms)")
-        else:
-            ax.plot(t, y_open, color="tab:red", label="open loop (plant)")
-        ax.plot(t, y_closed, color="tab:green", label="closed loop (PID design)")
-        ax.plot(
-            dt * np.arange(n + 1),
-            y_q,
-            color="black",
-            linestyle="--",
-            linewidth=0.9,
-            label=f"closed loop, Roboteq {rq.firmware_major}.x gains @ {CONTROLLER_RATE_HZ:g} Hz",
-        )
-        if fit is not None and m.get("trace") is not None:
-            tt, _u, yy = m["trace"]
-            ax.plot(
-                tt - fit.t_step,
-                (yy - fit.y_initial) * amp / abs(fit.u_step),
-                ".",
-                color="tab:red",
-                markersize=2,
-                alpha=0.4,
-                label="measured trace",
-            )
-        ax.set_title(f"{m['name']}: Kp={d.kp:.3f} Ki={d.ki:.3f} Kd={d.kd:.3f}")
-        ax.set_xlabel("time (s)")
-        ax.set_ylabel("motor speed (RPM)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def root_locus(design: Any, gains: Any) -> Any:
-    """Closed-loop poles of 1 + k C(s) G(s) = 0 for each k in ``gains`` (array (len(gains), 3))."""
-    import numpy as np
-
-    pl = design.plant
-    den = np.array([1.0, pl.a1, pl.a0, 0.0])
-    num = pl.b0 * np.array([0.0, design.kd, design.kp, design.ki])
-    return np.array([np.sort_complex(np.roots(den + k * num)) for k in gains])
-
-
-def _plot_root_locus(m: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    d = m["design"]
-    gains = np.concatenate([[0.0], np.logspace(-4, 3, 1500)])
-    locus = root_locus(d, gains)
-    pl = d.plant
-    ol_poles = np.roots([1.0, pl.a1, pl.a0, 0.0])
-    zeros = np.roots([d.kd, d.kp, d.ki]) if d.kd != 0 else np.roots([d.kp, d.ki])
-    fig, ax = plt.subplots(figsize=(6.4, 5.0))
-    ax.plot(
-        locus.real.ravel(),
-        locus.imag.ravel(),
-        ".",
-        markersize=1.5,
-        color="tab:blue",
-        label="locus, k = 1e-4..1e3",
-    )
-    ax.plot(ol_poles.real, ol_poles.imag, "x", color="black", markersize=9, label="open-loop poles")
-    ax.plot(zeros.real, zeros.imag, "o", mfc="none", color="black", markersize=8, label="PID zeros")
-    ax.plot(
-        d.designed_poles.real,
-        d.designed_poles.imag,
-        "s",
-        mfc="none",
-        color="tab:green",
-        markersize=10,
-        label="designed poles (k = 1)",
-    )
-    ax.plot(
-        d.achieved_poles.real,
-        d.achieved_poles.imag,
-        "+",
-        color="tab:green",
-        markersize=10,
-        label="achieved (python-control)",
-    )
-    q = m["roboteq"].quantised.achieved_poles
-    ax.plot(
-        q.real,
-        q.imag,
-        "d",
-        mfc="none",
-        color="tab:orange",
-        markersize=7,
-        label=f"Roboteq {m['roboteq'].firmware_major}.x quantised",
-    )
-    ax.axvline(0.0, color="grey", linewidth=0.8)
-    ax.axhline(0.0, color="grey", linewidth=0.8)
-    lo = min(float(np.min(d.designed_poles.real)), float(np.min(ol_poles.real))) * 1.4
-    ax.set_xlim(lo, max(2.0, -0.1 * lo))
-    span = max(10.0, float(np.max(np.abs(ol_poles.imag))) * 1.5)
-    ax.set_ylim(-span, span)
-    ax.set_xlabel("real (1/s)")
-    ax.set_ylabel("imaginary (rad/s)")
-    ax.set_title(f"{m['name']}: root locus of 1 + k C(s) G(s)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -7,7 +7,10 @@ and the ground-truth-pose map see the same frames, and writes into the run's met
 
 * ``route.distance_travelled_m`` (ground truth), ``odometry_drift`` (final / max position error, final
   heading error, error per metre travelled);
-* ``map.odometry_map_vs_scene`` and ``map.ground_truth_pose_map_vs_scene``: precision and recall of
+* with scan-to-map matching, ``odometry_drift.matched`` (the same errors for the matched pose,
+  ``T_map_odom x`` odometry) and ``paths["matched"]``;
+* ``map.odometry_map_vs_scene``, ``map.matched_map_vs_scene`` and ``map.ground_truth_pose_map_vs_scene``:
+  precision and recall of
   the 2D occupancy in the chair's height band against the static scene rasterised
   (:func:`sim.truth.scene_occupancy`), with one cell of tolerance both ways;
 * ``collisions``: distinct contact events between the chair and scene bodies (a body that starts
@@ -48,7 +51,7 @@ class GroundTruthEvaluation(Observer):
     def __init__(self, chair: Any, scene: Any, ground_truth_map: bool = True) -> None:
         self.chair, self.scene = chair, scene
         self.ground_truth_map = ground_truth_map
-        self.paths: dict[str, list[Any]] = {"t": [], "odometry": [], "ground_truth": []}
+        self.paths: dict[str, list[Any]] = {"t": [], "odometry": [], "ground_truth": [], "matched": []}
         self.gt_map: Any = None
         self.collisions = 0
         self.contact_events: list[tuple[float, str]] = []
@@ -59,6 +62,9 @@ class GroundTruthEvaluation(Observer):
             from mapping.vhv import VHVMap
 
             p = runtime.perception
+            if "ground-truth" in getattr(p, "pose_maps", {}):  # the run's own map is placed so already
+                self.gt_map = p.pose_maps["ground-truth"]
+                return
             self.gt_map = VHVMap(p.grid, getattr(p.map, "tolerance", 0.05))
             p.add_layer("ground_truth", self.gt_map, self.chair.ground_truth_transform)
 
@@ -67,6 +73,11 @@ class GroundTruthEvaluation(Observer):
         self.paths["t"].append(cycle.stamp_ns)
         self.paths["odometry"].append((cycle.pose.x, cycle.pose.y, cycle.pose.theta))
         self.paths["ground_truth"].append((gt.x, gt.y, gt.theta))
+        if getattr(runtime.perception, "matcher", None) is not None:
+            from robchair.frames import se3_planar
+
+            t = runtime.perception.t_map_odom @ se3_planar(cycle.pose.x, cycle.pose.y, cycle.pose.theta)
+            self.paths["matched"].append((t[0, 3], t[1, 3], float(np.arctan2(t[1, 0], t[0, 0]))))
         touching = self.chair.contacts()
         for name in sorted(touching - self._touching):
             self.collisions += 1
@@ -78,23 +89,20 @@ class GroundTruthEvaluation(Observer):
 
     def episode_end(self, runtime: Runtime, result: RunResult) -> None:
         paths = self.arrays()
+        if not len(paths["matched"]):
+            del paths["matched"]
         result.paths.update(paths)
-        od, gp = paths["odometry"], paths["ground_truth"]
-        if len(od):
-            err = np.hypot(od[:, 0] - gp[:, 0], od[:, 1] - gp[:, 1])
-            heading = np.abs([wrap_angle(a - b) for a, b in zip(od[:, 2], gp[:, 2])])
-            travelled = float(np.sum(np.hypot(*np.diff(gp[:, :2], axis=0).T))) if len(gp) > 1 else 0.0
-        else:
-            err = heading = np.zeros(1)
-            travelled = 0.0
+        gp = paths["ground_truth"]
+        travelled = float(np.sum(np.hypot(*np.diff(gp[:, :2], axis=0).T))) if len(gp) > 1 else 0.0
+        drift = _drift(paths["odometry"], gp, travelled)
+        if "matched" in paths:
+            drift["matched"] = _drift(paths["matched"], gp, travelled)
+            m = result.extra.get("matching") or {}
+            drift["matched"]["matching_ms_per_frame_median"] = m.get("ms_per_frame_median")
+            drift["matched"]["rejections"] = m.get("rejected")
         extra: dict[str, Any] = {
             "route": {"distance_travelled_m": travelled},
-            "odometry_drift": {
-                "final_position_error_m": float(err[-1]),
-                "max_position_error_m": float(err.max()),
-                "final_heading_error_rad": float(heading[-1]),
-                "position_error_per_metre": float(err[-1] / travelled) if travelled > 0 else None,
-            },
+            "odometry_drift": drift,
             "collisions": self.collisions,
             "contact_events": [{"t_s": t, "body": n} for t, n in self.contact_events],
         }
@@ -114,7 +122,10 @@ class GroundTruthEvaluation(Observer):
         p = runtime.perception
         grid = p.grid
         truth = scene_occupancy(self.scene, grid, p.band)
-        occ = {"odometry": p.occupancy_2d()}
+        maps = getattr(p, "pose_maps", {"odometry": p.map})
+        occ = {"odometry": p.occupancy_2d(maps["odometry"])}
+        if "matched" in maps:
+            occ["matched"] = p.occupancy_2d(maps["matched"])
         if self.gt_map is not None:
             occ["ground_truth"] = p.occupancy_2d(self.gt_map)
         out: dict[str, Any] = {
@@ -126,13 +137,33 @@ class GroundTruthEvaluation(Observer):
             "ground_truth_pose_map_vs_scene": (
                 precision_recall(occ["ground_truth"], truth) if "ground_truth" in occ else None
             ),
+            "matched_map_vs_scene": precision_recall(occ["matched"], truth) if "matched" in occ else None,
             "iou_odometry_vs_ground_truth_pose": None,
+            "iou_matched_vs_ground_truth_pose": None,
             "notes": "occupancy = a structure overlapping the band; precision/recall with one-cell tolerance "
             "against the static scene rasterised from its meshes (moving people are not in the scene truth; "
             "recall counts every static surface, seen or not, so it measures coverage)",
         }
         if "ground_truth" in occ:
-            union = int(np.sum(occ["odometry"] | occ["ground_truth"]))
-            inter = int(np.sum(occ["odometry"] & occ["ground_truth"]))
-            out["iou_odometry_vs_ground_truth_pose"] = inter / union if union else None
+            for name in ("odometry", "matched"):
+                if name in occ:
+                    union = int(np.sum(occ[name] | occ["ground_truth"]))
+                    inter = int(np.sum(occ[name] & occ["ground_truth"]))
+                    out[f"iou_{name}_vs_ground_truth_pose"] = inter / union if union else None
         return out
+
+
+def _drift(path: np.ndarray, truth: np.ndarray, travelled: float) -> dict[str, Any]:
+    """Final / max position error, final heading error and error per metre of a pose path (N, 3)."""
+    if len(path):
+        err = np.hypot(path[:, 0] - truth[:, 0], path[:, 1] - truth[:, 1])
+        heading = np.abs([wrap_angle(a - b) for a, b in zip(path[:, 2], truth[:, 2])])
+    else:
+        err = heading = np.zeros(1)
+    return {
+        "final_position_error_m": float(err[-1]),
+        "max_position_error_m": float(err.max()),
+        "final_heading_error_rad": float(heading[-1]),
+        "max_heading_error_rad": float(np.max(heading)),
+        "position_error_per_metre": float(err[-1] / travelled) if travelled > 0 else None,
+    }

@@ -7,7 +7,9 @@ as MCAP by default (ROS 2's default storage since Iron) or sqlite3. Topics and f
 topic                                  type                             frame
 =====================================  ===============================  ==================================
 ``/odom``                              nav_msgs/Odometry                ``odom`` -> ``base_link``
-``/tf``                                tf2_msgs/TFMessage               ``odom`` -> ``base_link`` each cycle;
+``/tf``                                tf2_msgs/TFMessage               ``map`` -> ``odom`` (scan-to-map
+                                                                        matching, else identity), ``odom`` ->
+                                                                        ``base_link`` each cycle;
                                                                         ``base_link`` -> ``<array>`` with
                                                                         the servo angle at each reading
 ``/tf_static``                         tf2_msgs/TFMessage               ``base_link`` -> camera frame;
@@ -31,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robchair.errors import ConfigError
-from robchair.frames import BASE_LINK, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
+from robchair.frames import BASE_LINK, MAP, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
 from robchair.observers import Observer
 
 if TYPE_CHECKING:
@@ -242,7 +244,10 @@ class RunRecorder(Observer):
         stamp = cycle.stamp_ns
         p = cycle.pose
         bag.odometry("/odom", stamp, ODOM, BASE_LINK, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w)
-        bag.tf(stamp, [(ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
+        # REP-105: map -> odom is the localisation's part (identity without scan-to-map matching), so every
+        # backend's bag has the same tree
+        t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
+        bag.tf(stamp, [(MAP, ODOM, t_map_odom), (ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
         arrays = dict(zip(runtime.sonar_names, runtime.backend.sonar_arrays))
         for name, reading in runtime.last_sonars:
             arr = arrays.get(name)

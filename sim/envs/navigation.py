@@ -20,15 +20,16 @@ Usage::
     picture = env.render()  # (H, W, 3) uint8 top-down map
     env.close()
 
-Pure pieces (tested by hand): :func:`navigation_reward`, :func:`goal_in_robot_frame`,
-:func:`egocentric_patch`, :class:`FreeSpace`.
+Pure pieces (tested by hand) live in :mod:`sim.envs.rewards` (:func:`navigation_reward`) and
+:mod:`sim.envs.geometry` (:func:`goal_in_robot_frame`, :func:`egocentric_patch`, :class:`FreeSpace`);
+they are re-exported here.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, SupportsFloat
 
@@ -36,17 +37,30 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+from gymnasium.utils import EzPickle
+from gymnasium.vector import AutoresetMode
 
 from mapping.grid import GridSpec
-from robchair.kinematics import DiffDrive, Odometry, Pose2D, wrap_angle
+from robchair.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.spec import RobChairSpec, load_spec
-from sim.errors import SimError
-from sim.scene import Scene, ground_truth_points, load_scene
+from sim.envs.errors import NavigationEnvError
+from sim.envs.geometry import (
+    PATCH_BEHIND,
+    PATCH_CELL,
+    PATCH_SHAPE,
+    FreeSpace,
+    decimated_depth_noise,
+    egocentric_patch,
+    egocentric_values,
+    goal_in_robot_frame,
+    patch_cell_centres,
+    planar_transform,
+)
+from sim.envs.randomization import DomainRandomization, EpisodeDynamics
+from sim.envs.rewards import RewardWeights, navigation_reward, reward_terms
+from sim.scene import Scene, load_scene
 
 AGENT_HZ = 10
-PATCH_SHAPE = (64, 64)
-PATCH_CELL = 0.10  # m
-PATCH_BEHIND = 1.6  # m of the patch behind base_link (the Kinect looks forward)
 OCC_Z_MIN = 0.10  # m: above the floor's depth noise, like the runner's occupancy band
 MAP_MARGIN = 1.0  # m around the scene's bounds
 SETTLE_STEPS = 12  # physics steps with zero command after placing the chair
@@ -57,240 +71,13 @@ SENSORS = ("kinect2", "kinect1")
 POSE_SOURCES = ("ground_truth", "odometry")
 MAP_MEMORIES = ("episode", "frame")
 SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the command limits
-
-
-class NavigationEnvError(SimError, ValueError):
-    """An argument of the navigation environment (or of its reset options / actions) is invalid."""
-
-
-# --------------------------------------------------------------------------------------------
-# rewards and geometry (pure functions)
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RewardWeights:
-    """Weights of the navigation reward.
-
-    Attributes:
-        progress: Reward per metre the goal distance shrank during the step.
-        collision: Penalty when the chair touched a scene body during the step.
-        time: Cost of every step.
-        success: Bonus when the goal is reached.
-    """
-
-    progress: float = 1.0
-    collision: float = 10.0
-    time: float = 0.01
-    success: float = 10.0
-
-
-def reward_terms(
-    prev_distance: float,
-    distance: float,
-    collided: bool,
-    reached: bool,
-    weights: RewardWeights = RewardWeights(),
-) -> dict[str, float]:
-    """The reward's parts: ``progress``, ``collision``, ``time``, ``success`` (their sum is the reward)."""
-    return {
-        "progress": weights.progress * (prev_distance - distance),
-        "collision": -weights.collision if collided else 0.0,
-        "time": -weights.time,
-        "success": weights.success if reached else 0.0,
-    }
-
-
-def navigation_reward(
-    prev_distance: float,
-    distance: float,
-    collided: bool,
-    reached: bool,
-    weights: RewardWeights = RewardWeights(),
-) -> float:
-    """Reward of one step: progress toward the goal, minus collision and time costs, plus success.
-
-    ``progress * (prev_distance - distance) - time - collision * collided + success * reached``.
-
-    Args:
-        prev_distance: Goal distance before the step, m.
-        distance: Goal distance after the step, m.
-        collided: The chair touched a scene body during the step.
-        reached: The goal is reached after the step.
-        weights: The weights.
-    """
-    return float(sum(reward_terms(prev_distance, distance, collided, reached, weights).values()))
-
-
-def goal_in_robot_frame(pose: Pose2D, goal: tuple[float, float]) -> tuple[float, float]:
-    """Distance (m) and bearing (rad, (-pi, pi], counter-clockwise from the robot's x axis) of the goal."""
-    dx, dy = goal[0] - pose.x, goal[1] - pose.y
-    return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - pose.theta)
-
-
-def patch_cell_centres(
-    shape: tuple[int, int], cell: float, behind: float
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Robot-frame (x, y) of every patch cell centre: row ``i`` runs forward, column ``j`` to the left.
-
-    Row 0 starts ``behind`` metres behind base_link; the columns are centred on the robot's x axis.
-    """
-    h, w = shape
-    fx = -behind + (np.arange(h) + 0.5) * cell
-    ly = (np.arange(w) + 0.5 - w / 2) * cell
-    x, y = np.meshgrid(fx, ly, indexing="ij")
-    return x, y
-
-
-def egocentric_patch(
-    occupancy: npt.NDArray[np.bool_],
-    grid: GridSpec,
-    pose: Pose2D,
-    shape: tuple[int, int] = PATCH_SHAPE,
-    cell: float = PATCH_CELL,
-    behind: float = PATCH_BEHIND,
-) -> npt.NDArray[np.uint8]:
-    """Crop the world-frame occupancy grid into the robot's frame (nearest cell, outside the grid = 0).
-
-    Args:
-        occupancy: ``(nx, ny)`` bool grid of ``grid``.
-        grid: The grid's spec (axis z).
-        pose: The robot's pose.
-        shape: Patch size ``(rows forward, columns lateral)``.
-        cell: Patch cell size, m.
-        behind: Metres of the patch behind base_link.
-
-    Returns:
-        ``shape`` uint8 array, 1 = occupied; ``[i, j]`` is the cell at robot-frame
-        ``x = -behind + (i + 0.5) cell``, ``y = (j + 0.5 - shape[1] / 2) cell``.
-    """
-    x, y = patch_cell_centres(shape, cell, behind)
-    c, s = math.cos(pose.theta), math.sin(pose.theta)
-    i, j = grid.world_to_index(pose.x + c * x - s * y, pose.y + s * x + c * y)
-    inside = grid.contains_index(i, j)
-    out = np.zeros(shape, dtype=np.uint8)
-    out[inside] = occupancy[i[inside], j[inside]]
-    return out
-
-
-def decimated_depth_noise(points: Any, model: Any, rng: np.random.Generator) -> npt.NDArray[np.float64]:
-    """Axial depth noise and quantisation for a clean organized cloud from a reduced-resolution Kinect.
-
-    Each valid pixel's depth ``z`` (its x coordinate, REP-103 camera frame) moves along its own ray by
-    ``N(0, sigma_z(z, theta)^2)`` with the model's axial noise
-    (:func:`sim.kinect.fankhauser2015_axial_sigma_m` for the v2,
-    :func:`sim.kinect.nguyen2012_axial_sigma_m` for the v1), ``theta`` the angle between
-    the ray and the surface normal estimated from the cloud itself (0 where undefined), then is
-    rounded like the device's output. Lateral noise (1.6 px of the full 512x424 image for the v2, i.e.
-    under half a pixel once decimated 4x) is left out. NaN pixels stay NaN.
-
-    Args:
-        points: ``(H, W, 3)`` clean cloud in the camera frame.
-        model: The :class:`sim.kinect.KinectModel` (noise model and quantisation).
-        rng: Generator; draws one standard normal per pixel.
-    """
-    from sim.kinect import (
-        fankhauser2015_axial_sigma_m,
-        nguyen2012_axial_sigma_m,
-        organized_normals,
-        quantize_depth,
-    )
-
-    p = np.asarray(points, dtype=np.float64)
-    z = p[..., 0]
-    normals = organized_normals(p)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_t = np.abs(np.einsum("...k,...k->...", normals, p)) / np.linalg.norm(p, axis=-1)
-    theta = np.where(np.isfinite(cos_t), np.arccos(np.clip(cos_t, 0.0, 1.0)), 0.0)
-    axial = (
-        fankhauser2015_axial_sigma_m if model.noise_model == "fankhauser2015" else nguyen2012_axial_sigma_m
-    )
-    noise = rng.standard_normal(z.shape)
-    with np.errstate(invalid="ignore"):
-        zn = quantize_depth(z + axial(np.where(np.isfinite(z), z, 1.0), theta) * noise, model.quantization)
-        return p * (zn / z)[..., None]
-
-
-def planar_transform(pose: Pose2D) -> npt.NDArray[np.float64]:
-    """4x4 world <- base_link for a pose on the floor."""
-    t = np.eye(4)
-    c, s = math.cos(pose.theta), math.sin(pose.theta)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:2, 3] = (pose.x, pose.y)
-    return t
-
-
-@dataclass(frozen=True)
-class FreeSpace:
-    """Where the chair may start and where goals may lie, from the scene's ground truth.
-
-    Attributes:
-        grid: The raster's grid (axis z).
-        occupied: ``(nx, ny)`` cells holding scene surface in the chair's height band.
-        clearance: ``(nx, ny)`` lower bound of the distance (m) from each cell centre to scene surface.
-        region: ``(nx, ny)`` one connected region inside the scene's bounds where the chair fits through.
-    """
-
-    grid: GridSpec
-    occupied: npt.NDArray[np.bool_]
-    clearance: npt.NDArray[np.float64]
-    region: npt.NDArray[np.bool_]
-
-    @classmethod
-    def from_scene(
-        cls,
-        scene: Scene,
-        grid: GridSpec,
-        band: tuple[float, float],
-        pass_radius: float,
-        anchor: tuple[float, float] | None = None,
-    ) -> FreeSpace:
-        """Rasterise the static objects' surfaces in ``band`` and find the free region.
-
-        Args:
-            scene: The scene (moving people are left out).
-            grid: Raster grid; its cells outside the scene's bounds never belong to the region.
-            band: Height band (z_min, z_max) in metres.
-            pass_radius: Clearance (m) a cell needs to connect the region (half the chair's width).
-            anchor: A point (x, y) the region must contain; None takes the largest region.
-
-        Raises:
-            NavigationEnvError: No free region (or the anchor is not in one).
-        """
-        from scipy import ndimage
-
-        cs = grid.cell_size
-        # a fixed generator: the raster is part of the scene, not of an episode
-        pts = ground_truth_points(scene, spacing=cs / 2, rng=np.random.default_rng(0))
-        sel = (pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])
-        i, j = grid.world_to_index(pts[sel, 0], pts[sel, 1])
-        ok = grid.contains_index(i, j)
-        occupied = np.zeros(grid.shape, dtype=bool)
-        occupied[i[ok], j[ok]] = True
-        # distance between cell centres, less half a diagonal: the surface may lie anywhere in its cell
-        clearance = ndimage.distance_transform_edt(~occupied) * cs - cs * math.sqrt(0.5)
-        x0, y0, x1, y1 = scene.bounds_xy()
-        ii, jj = np.meshgrid(np.arange(grid.shape[0]), np.arange(grid.shape[1]), indexing="ij")
-        u, v = grid.index_to_world(ii, jj)
-        in_bounds = (u >= x0) & (u <= x1) & (v >= y0) & (v <= y1)
-        passable = (clearance >= pass_radius) & in_bounds
-        labels, n = ndimage.label(passable)
-        if n == 0:
-            raise NavigationEnvError(f"scene {scene.name!r}: no free space wide enough for the chair")
-        if anchor is not None:
-            ai, aj = grid.world_to_index(anchor[0], anchor[1])
-            if not bool(grid.contains_index(ai, aj)) or labels[ai, aj] == 0:
-                raise NavigationEnvError(f"scene {scene.name!r}: the point {anchor} is not in free space")
-            chosen = int(labels[ai, aj])
-        else:
-            chosen = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
-        return cls(grid, occupied, clearance, labels == chosen)
-
-    def candidates(self, min_clearance: float) -> npt.NDArray[np.float64]:
-        """(K, 2) world (x, y) of the region's cell centres with at least ``min_clearance`` metres."""
-        i, j = np.nonzero(self.region & (self.clearance >= min_clearance))
-        u, v = self.grid.index_to_world(i, j)
-        return np.stack([u, v], axis=1)
+ACTION_TYPES = ("continuous", "discrete")
+#: Discrete actions as normalised (v, w) (times ``max_speed`` m/s and ``max_yaw_rate`` rad/s):
+#: 0 stop, 1 forward slow, 2 forward fast, 3 turn left on the spot, 4 turn right on the spot.
+DISCRETE_ACTIONS = ((0.0, 0.0), (0.3, 0.0), (0.7, 0.0), (0.0, 0.5), (0.0, -0.5))
+ROOM_SPLITS = ("train", "eval")
+ELEVATION_MAX = 2.5  # m, top of the elevation observation's box
+LASER_ACCURACY_SIGMAS = 3.0  # the datasheet's +- accuracy is this many standard deviations (sim.laser)
 
 
 # --------------------------------------------------------------------------------------------
@@ -321,7 +108,7 @@ def _pose_arg(value: Any, n: int, name: str) -> tuple[float, ...]:
     return t
 
 
-class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
+class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], EzPickle):
     """Drive the simulated RobChair to a goal without touching anything, seeing only its own sensors.
 
     ## Description
@@ -343,7 +130,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     ``w * max_yaw_rate`` rad/s yaw rate (counter-clockwise), both by default the kinematic limits of
     :class:`robchair.kinematics.DiffDrive` (0.62 m/s, 2.14 rad/s); the pair is then scaled down
     uniformly so no motor exceeds its maximum RPM. Actions outside the box are clipped; non-finite
-    actions raise :class:`NavigationEnvError`.
+    actions raise :class:`NavigationEnvError`. With ``action_type="discrete"``: ``Discrete(5)``, the
+    normalised pairs of :data:`DISCRETE_ACTIONS` (0 stop, 1 forward at 0.3, 2 forward at 0.7, 3 turn
+    left on the spot at 0.5, 4 turn right at 0.5; times ``max_speed`` and ``max_yaw_rate``).
 
     ## Observation Space
 
@@ -355,6 +144,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     | goal      | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m), bearing (rad), robot frame    |
     | velocity  | Box(-1.5 x limits, 1.5 x limits)      | measured (v m/s, w rad/s) from the wheel speeds  |
     | sonar     | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max      |
+    | depth     | Box(0, max range, (H, W)) (option)    | the Kinect's depth (m) along its axis, 0 = none  |
+    | elevation | Box(0, 2.5, patch_shape) (option)     | egocentric highest structure per cell (m)        |
 
     The occupancy patch (default 64x64 cells of 10 cm) has row ``i`` forward (row 0 is 1.6 m behind
     ``base_link``) and column ``j`` to the left (centred), see :func:`egocentric_patch`. A cell is
@@ -376,7 +167,19 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     the start is a free-space cell where the chair can turn on the spot, with a uniform heading; the
     goal is a free cell at a straight-line distance in ``goal_distance`` from the start, in the same
     connected region. Both come from ``self.np_random``, as does the seed of every sensor's noise.
-    ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes them for one episode.
+    ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes them for one episode; a start
+    where the chair's collision footprint overlaps a scene object, a goal closer to an obstacle than
+    half the chair's width, or a goal no passage wide enough for the chair joins to the start makes
+    ``reset`` raise :class:`NavigationEnvError` naming the point and the obstacle.
+
+    ## Domain randomisation
+
+    Each episode draws its own chair from ``self.np_random`` (after start and goal), uniformly within
+    the ranges of ``randomization`` (:class:`sim.envs.randomization.DomainRandomization`; defaults):
+    tyre radii relative to the spec (0.995-1.005 per wheel; the odometry keeps the spec's radius),
+    floor friction (0.6-1.0), payload (the person, 50-120 kg), each motor plant's ``omega_n`` and
+    ``xi`` (x 0.95-1.05), the sensors' noise (x 0.8-1.2) and the command latency (0-50 ms).
+    ``randomization=False`` gives the nominal chair. ``info["dynamics"]`` holds the episode's draw.
 
     ## Episode End
 
@@ -385,6 +188,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
        an overlap with a walking person (who passes through the chair in the physics, see
        :meth:`_touching_people`) (``info["collision"]``, names in ``info["contacts"]``).
     3. Truncation: ``max_episode_steps`` (300 for the registered ids).
+
+    Contacts are collected over every physics sub-step of the agent step, so a contact that is over
+    by the end of the step still ends the episode and is named. A ``step`` after termination raises
+    :class:`NavigationEnvError` (and pays nothing): call ``reset``. ``metadata["autoreset_mode"]`` is
+    ``NEXT_STEP``. The environment pickles and deep-copies (``gymnasium.utils.EzPickle``: the copy is
+    a new environment built from the same arguments, before its first ``reset``).
 
     ## Arguments
 
@@ -396,11 +205,21 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
     ``goal`` ((x, y) or None), ``goal_distance`` ((min, max) m), ``goal_tolerance`` (m),
     ``pose_source``, ``map_memory``, ``patch_shape``, ``patch_cell``, ``patch_behind``, ``max_speed``,
     ``max_yaw_rate``, ``reward_weights`` (:class:`RewardWeights`), ``spec`` (platform spec or TOML
-    path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``). ``render()`` returns a top-down
+    path), ``camera_backend`` (``"raycast"`` or ``"pybullet"``), ``randomization`` (True, False or a
+    :class:`sim.envs.randomization.DomainRandomization`), ``action_type`` (``"continuous"`` or
+    ``"discrete"``), ``depth_image`` / ``elevation_map`` (add those observations), ``scene="rooms"``
+    or ``rooms`` (a :class:`sim.rooms.FloorConfig`: a new random floor every episode, drawn from
+    ``np_random`` among the ``room_seeds`` split, ``"train"`` or ``"eval"``; ``reset`` option
+    ``room_seed`` picks one; ``walkers`` people walk on it). ``render()`` returns a top-down
     picture of the episode's map, the scene, the path, the chair and the goal.
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": AGENT_HZ}  # noqa: RUF012
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": ["rgb_array"],
+        "render_fps": AGENT_HZ,
+        # vector envs reset a finished sub-env on the step after it ended (a step after the end raises)
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
@@ -410,6 +229,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         sensor: str | None = "kinect2",
         kinect_decimation: int = 4,
         sonars: bool = False,
+        laser: bool = False,
         noise: bool = True,
         agent_hz: int = AGENT_HZ,
         start: tuple[float, float, float] | None = None,
@@ -426,8 +246,48 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         reward_weights: RewardWeights | None = None,
         spec: RobChairSpec | str | Path | None = None,
         camera_backend: str = "raycast",
+        randomization: DomainRandomization | bool = True,
+        action_type: str = "continuous",
+        rooms: Any = None,
+        room_seeds: str = "train",
+        walkers: int = 0,
+        depth_image: bool = False,
+        elevation_map: bool = False,
     ) -> None:
         from sim.world import PHYSICS_HZ
+
+        EzPickle.__init__(
+            self,
+            render_mode,
+            scene=scene,
+            sensor=sensor,
+            kinect_decimation=kinect_decimation,
+            sonars=sonars,
+            laser=laser,
+            noise=noise,
+            agent_hz=agent_hz,
+            start=start,
+            goal=goal,
+            goal_distance=goal_distance,
+            goal_tolerance=goal_tolerance,
+            pose_source=pose_source,
+            map_memory=map_memory,
+            patch_shape=patch_shape,
+            patch_cell=patch_cell,
+            patch_behind=patch_behind,
+            max_speed=max_speed,
+            max_yaw_rate=max_yaw_rate,
+            reward_weights=reward_weights,
+            spec=spec,
+            camera_backend=camera_backend,
+            randomization=randomization,
+            action_type=action_type,
+            rooms=rooms,
+            room_seeds=room_seeds,
+            walkers=walkers,
+            depth_image=depth_image,
+            elevation_map=elevation_map,
+        )
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise NavigationEnvError(
@@ -436,8 +296,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self.render_mode = render_mode
         if sensor is not None and sensor not in SENSORS:
             raise NavigationEnvError(f"sensor={sensor!r}: expected one of {SENSORS} or None")
-        if sensor is None and not sonars:
-            raise NavigationEnvError("sensor=None and sonars=False: the chair would see nothing")
+        if sensor is None and not sonars and not laser:
+            raise NavigationEnvError("sensor=None, sonars=False and laser=False: the chair would see nothing")
         if (
             isinstance(kinect_decimation, bool)
             or not isinstance(kinect_decimation, int)
@@ -471,12 +331,54 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             raise NavigationEnvError(f"patch_shape={patch_shape!r}: expected two positive integers")
         if camera_backend not in ("raycast", "pybullet"):
             raise NavigationEnvError(f"camera_backend={camera_backend!r}: expected 'raycast' or 'pybullet'")
+        if lo <= goal_tolerance:
+            raise NavigationEnvError(
+                f"goal_distance={goal_distance!r}: the minimum must exceed goal_tolerance={goal_tolerance!r} "
+                "(an episode would succeed before its first step)"
+            )
+        if randomization is True:
+            randomization = DomainRandomization()
+        elif randomization is False:
+            randomization = DomainRandomization.off()
+        elif not isinstance(randomization, DomainRandomization):
+            raise NavigationEnvError(
+                f"randomization={randomization!r}: expected True, False or a DomainRandomization"
+            )
+        if randomization.command_latency_s[1] >= 1.0 / agent_hz:
+            raise NavigationEnvError(
+                f"randomization.command_latency_s={randomization.command_latency_s!r}: the latency must "
+                f"stay below one agent period ({1.0 / agent_hz} s)"
+            )
+        self.randomization = randomization
+        if action_type not in ACTION_TYPES:
+            raise NavigationEnvError(f"action_type={action_type!r}: expected one of {ACTION_TYPES}")
+        if room_seeds not in ROOM_SPLITS:
+            raise NavigationEnvError(f"room_seeds={room_seeds!r}: expected one of {ROOM_SPLITS}")
+        if depth_image and sensor is None:
+            raise NavigationEnvError("depth_image=True needs a Kinect (sensor='kinect2' or 'kinect1')")
+        self.action_type = action_type
+        self.depth_image, self.elevation_map = bool(depth_image), bool(elevation_map)
+        from sim import rooms as _rooms
+
+        self.rooms_config: Any = None
+        self.room_seed: int | None = None
+        if rooms is not None or scene == "rooms":
+            if isinstance(walkers, bool) or not isinstance(walkers, int) or walkers < 0:
+                raise NavigationEnvError(f"walkers={walkers!r}: expected a non-negative integer")
+            cfg = rooms if rooms is not None else _rooms.FloorConfig(walkers=walkers)
+            if not isinstance(cfg, _rooms.FloorConfig):
+                raise NavigationEnvError(f"rooms={rooms!r}: expected a sim.rooms.FloorConfig or None")
+            self.rooms_config = cfg
+            self._room_range = _rooms.TRAIN_SEEDS if room_seeds == "train" else _rooms.EVAL_SEEDS
+            self.room_seed = self._room_range[0]
+            scene = _rooms.generate_floor(self.room_seed, cfg).scene
 
         self.metadata = {**self.metadata, "render_fps": agent_hz}
         self.spec_robot = spec if isinstance(spec, RobChairSpec) else load_spec(spec)
         self.drive = DiffDrive(self.spec_robot)
         self.scene = _load_scene_arg(scene)
         self.sensor, self.sonars_on, self.noise = sensor, bool(sonars), bool(noise)
+        self.laser_on = bool(laser)
         self.agent_hz = agent_hz
         self.substeps = PHYSICS_HZ // agent_hz
         self.goal_distance = (lo, hi)
@@ -495,6 +397,30 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self.fixed_goal = _pose_arg(goal, 2, "goal") if goal is not None else None
         self.band = (OCC_Z_MIN, float(self.spec_robot.body.height))
 
+        from sim.backend import robot_radius
+
+        self.robot_radius = robot_radius(self.spec_robot)
+        self._decimation, self._camera_backend = kinect_decimation, camera_backend
+        self._setup_scene()
+        self._define_spaces()
+        self._map: Any = None
+        self._occ: npt.NDArray[np.bool_] | None = None
+        self._sensor_rng = np.random.default_rng(0)
+        self._path: list[tuple[float, float]] = []
+        self.start_pose = Pose2D()
+        self.goal = (0.0, 0.0)
+        self._prev_distance = 0.0
+        self._odom = Odometry(self.spec_robot)
+        self._sonar_ranges = np.zeros(6, dtype=np.float32)
+        self.dynamics = EpisodeDynamics()
+        self._ended = False
+        self._counts0 = (0, 0)
+        self._latency_steps = 0
+
+    # ---- construction ------------------------------------------------------------------------
+
+    def _setup_scene(self) -> None:
+        """Grid, free space and the simulated chair for ``self.scene``."""
         x0, y0, x1, y1 = self.scene.bounds_xy()
         cs = self.patch_cell
         nx = math.ceil((x1 - x0 + 2 * MAP_MARGIN) / cs)
@@ -502,9 +428,6 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self.grid = GridSpec(
             cell_size=cs, size_x=nx * cs, size_y=ny * cs, centre=((x0 + x1) / 2, (y0 + y1) / 2)
         )
-        from sim.backend import robot_radius
-
-        self.robot_radius = robot_radius(self.spec_robot)
         anchor = self.fixed_start[:2] if self.fixed_start is not None else None
         self.free_space = FreeSpace.from_scene(
             self.scene,
@@ -519,19 +442,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
                 f"scene {self.scene.name!r}: no free cell where the chair can turn on the spot"
             )
 
-        self._build_chair(kinect_decimation, camera_backend)
-        self._define_spaces()
-        self._map: Any = None
-        self._occ: npt.NDArray[np.bool_] | None = None
-        self._sensor_rng = np.random.default_rng(0)
-        self._path: list[tuple[float, float]] = []
-        self.start_pose = Pose2D()
-        self.goal = (0.0, 0.0)
-        self._prev_distance = 0.0
-        self._odom = Odometry(self.spec_robot)
-        self._sonar_ranges = np.zeros(6, dtype=np.float32)
-
-    # ---- construction ------------------------------------------------------------------------
+        self._build_chair(self._decimation, self._camera_backend)
 
     def _build_chair(self, decimation: int, camera_backend: str) -> None:
         import pybullet as p
@@ -559,6 +470,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             seed=0,
             camera_backend=camera_backend,
             noise=self.noise,
+            tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
         )
         self.client = self._chair.world.client
         self.robot = self._chair.robot
@@ -578,13 +490,35 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if self._chair.kinect is not None:
             self._t_base_cam = self._t_base_cam @ self._chair.kinect.output_pose(np.eye(4))
         self._scene_bodies = frozenset(self._chair.bodies.ids.values())
+        self._body_names = {v: k for k, v in self._chair.bodies.ids.items()}
+        self._nominal_plants = (self.robot.left.plant.plant, self.robot.right.plant.plant)
+        self._base_mass = float(dyn[0])
+        self._base_inertia = tuple(float(v) for v in dyn[2])
+        self._sonar_noise = {m: float(a.noise_std_m) for m, a in self._chair.sonars.items()}
+        self._laser: Any = None
+        if self.laser_on:
+            from sim.laser import LaserSim
+
+            self._laser = LaserSim(
+                self.client,
+                mirror=self._chair.mirror,
+                exclude_bodies=(self.robot.body,),  # used when no other sensor made the mirror
+                noise=self.noise,
+                accuracy_sigmas=LASER_ACCURACY_SIGMAS,
+            )
+            self._laser_ranges = np.zeros(self._laser.model.n_beams, dtype=np.float32)
         self._people = tuple(body for body, _ in self._chair.bodies.moving)
         self._closed = False
 
     def _define_spaces(self) -> None:
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        x0, y0, x1, y1 = self.grid.extent
+        if self.action_type == "discrete":
+            self.action_space = spaces.Discrete(len(DISCRETE_ACTIONS))  # type: ignore[assignment]
+        else:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        x0, x1, y0, y1 = self.grid.extent
         self.max_goal_obs = float(math.hypot(x1 - x0, y1 - y0))
+        if self.rooms_config is not None:  # one box for every floor the generator can draw
+            self.max_goal_obs = float(self.rooms_config.max_extent)
         vmax = SPEED_OBS_FACTOR * self.drive.max_speed
         wmax = SPEED_OBS_FACTOR * self.drive.max_yaw_rate
         self._vel_high = np.array([vmax, wmax], np.float32)
@@ -600,6 +534,17 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if self.sonars_on:
             self.sonar_max_range = float(max(a.model.max_range_m for a in self._chair.sonars.values()))
             obs["sonar"] = spaces.Box(0.0, self.sonar_max_range, shape=(6,), dtype=np.float32)
+        if self._laser is not None:
+            lm = self._laser.model
+            obs["laser"] = spaces.Box(0.0, lm.range_max, shape=(lm.n_beams,), dtype=np.float32)
+        if self.depth_image:
+            m = self._chair.kinect.model
+            self._depth_shape = (int(m.height), int(m.width))
+            self._depth_max = float(m.max_range_m)
+            self._depth = np.zeros(self._depth_shape, dtype=np.float32)
+            obs["depth"] = spaces.Box(0.0, self._depth_max, shape=self._depth_shape, dtype=np.float32)
+        if self.elevation_map:
+            obs["elevation"] = spaces.Box(0.0, ELEVATION_MAX, shape=self.patch_shape, dtype=np.float32)
         self.observation_space = spaces.Dict(obs)  # type: ignore[assignment]
 
     # ---- episode -----------------------------------------------------------------------------
@@ -634,7 +579,45 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             i, j = self.grid.world_to_index(xy[0], xy[1])
             if not bool(self.grid.contains_index(i, j)):
                 raise NavigationEnvError(f"{name} {xy} lies outside the scene's map {self.grid.extent}")
+        self._check_goal(start, goal)  # type: ignore[arg-type]
         return start, goal  # type: ignore[return-value]
+
+    def _check_goal(self, start: Pose2D, goal: tuple[float, float]) -> None:
+        """The goal must leave room for the chair and be reachable from the start.
+
+        Raises:
+            NavigationEnvError: naming the goal and the nearest obstacle, or the start it is cut off from.
+        """
+        fs = self.free_space
+        half = self.spec_robot.body.width / 2
+        i, j = self.grid.world_to_index(goal[0], goal[1])
+        if fs.clearance[i, j] < half:
+            name, dist = fs.nearest_obstacle(goal)
+            raise NavigationEnvError(
+                f"goal {tuple(goal)}: {max(dist, 0.0):.2f} m from {name!r}, the chair "
+                f"({self.spec_robot.body.width} m wide) cannot stand there"
+            )
+        reach = self.robot_radius
+        a = fs.label_near((start.x, start.y), reach)
+        b = fs.label_near(goal, reach)
+        if a == 0 or a != b:
+            name, _ = fs.nearest_obstacle(goal)
+            raise NavigationEnvError(
+                f"goal {tuple(goal)} is not reachable from the start {(start.x, start.y)}: no passage "
+                f"{2 * (half + PASS_MARGIN):.2f} m wide joins them (near the goal: {name!r})"
+            )
+
+    def _footprint_overlaps(self) -> list[str]:
+        """Scene objects the chair's collision shapes penetrate where it stands now (no stepping)."""
+        import pybullet as p
+
+        p.performCollisionDetection(physicsClientId=self.client)
+        hit = {
+            self._body_names[c[2]]
+            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
+            if c[2] in self._body_names and c[8] < 0.0
+        }
+        return sorted(hit)
 
     def _sample_start(self, rng: np.random.Generator, goal: npt.NDArray[np.float64] | None) -> Pose2D:
         cells = self._start_cells
@@ -667,14 +650,61 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         pos, orn = p.multiplyTransforms((start.x, start.y, 0.0), q, *self._inertial)
         p.resetBasePositionAndOrientation(self.robot.body, pos, orn, physicsClientId=self.client)
         p.resetBaseVelocity(self.robot.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=self.client)
-        for motor in (self.robot.left, self.robot.right):
-            motor.reset()
-        self.robot.set_motor_rpm(0.0, 0.0)
         world = self._chair.world
         world.steps = 0  # scripted people restart their walks; stamps restart at 0
         if self._chair.bodies.moving:
             self._chair.bodies.update(self.client, 0.0)
+        static = [n for n in self._footprint_overlaps() if self._chair.bodies.ids[n] not in self._people]
+        if static:
+            raise NavigationEnvError(
+                f"start {(start.x, start.y, start.theta)}: the chair's footprint there overlaps "
+                + ", ".join(repr(n) for n in static)
+            )
+        self._apply_dynamics(self.dynamics)
+        for motor in (self.robot.left, self.robot.right):
+            motor.reset()
+        self.robot.set_motor_rpm(0.0, 0.0)
         self._chair.step(SETTLE_STEPS)
+
+    def _apply_dynamics(self, d: EpisodeDynamics) -> None:
+        """Give the simulated chair this episode's tyres, floor, payload, motors and sensor noise."""
+        import pybullet as p
+
+        from robchair.control import DiscretePlant
+
+        c = self.client
+        p.changeDynamics(self._chair.world.plane, -1, lateralFriction=d.floor_friction, physicsClientId=c)
+        mass = self._base_mass + d.payload_kg
+        inertia = [v * mass / self._base_mass for v in self._base_inertia]
+        p.changeDynamics(self.robot.body, -1, mass=mass, localInertiaDiagonal=inertia, physicsClientId=c)
+        for motor, nominal, kw, kx in zip(
+            (self.robot.left, self.robot.right),
+            self._nominal_plants,
+            d.motor_omega_n_scale,
+            d.motor_xi_scale,
+            strict=True,
+        ):
+            plant = replace(nominal, omega_n=nominal.omega_n * kw, xi=nominal.xi * kx)
+            motor.plant = DiscretePlant(plant, self.robot.motor_dt)
+        for mount, arr in self._chair.sonars.items():
+            arr.noise_std_m = self._sonar_noise[mount] * d.sensor_noise_scale
+        self._latency_steps = min(
+            round(d.command_latency_s * self._chair.world.physics_hz), self.substeps - 1
+        )
+
+    def _command_rpm(self, v: float, w: float) -> tuple[float, float]:
+        """Motor set points for the twist (v, w): the controller regulates the motor speed, so a
+        tyre ``k`` times the spec's radius drives the chair ``k`` times faster than commanded; the
+        physics keeps the spec's radius and gets set points ``k`` times higher instead."""
+        left, right = self.drive.motor_rpm(v, w)
+        kl, kr = self.dynamics.tyre_radius_scale
+        return left * kl, right * kr
+
+    def _encoder_counts(self) -> tuple[int, int]:
+        """The encoders as the chair's odometry sees them (the wheel turns ``1 / k`` as far)."""
+        (cl, cr), (l0, r0) = self.robot.encoder_counts(), self._counts0
+        kl, kr = self.dynamics.tyre_radius_scale
+        return l0 + round((cl - l0) / kl), r0 + round((cr - r0) / kr)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -686,20 +716,27 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             options: ``{"start": (x, y, yaw), "goal": (x, y)}`` (either optional) for this episode.
         """
         super().reset(seed=seed)
+        self._map = None  # until the episode has started, step() refuses to run
+        self._ended = False
         opts = dict(options or {})
-        unknown = set(opts) - {"start", "goal"}
+        allowed = {"start", "goal"} | ({"room_seed"} if self.rooms_config is not None else set())
+        unknown = set(opts) - allowed
         if unknown:
-            raise NavigationEnvError(f"reset options {sorted(unknown)}: unknown (allowed: 'start', 'goal')")
+            raise NavigationEnvError(f"reset options {sorted(unknown)}: unknown (allowed: {sorted(allowed)})")
+        if self.rooms_config is not None:
+            self._next_floor(opts.get("room_seed"))
         start, goal = self._sample_start_goal(opts)
         self.start_pose, self.goal = start, goal
         # one child stream for all sensor noise, drawn after start and goal so they stay put
         self._sensor_rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
+        self.dynamics = self.randomization.sample(self.np_random)
         self._place_chair(start)
         from mapping.vhv import VHVMap
 
         self._map = VHVMap(self.grid, tolerance=self.patch_cell)
         self._odom = Odometry(self.spec_robot, start)
-        self._odom.update(*self.robot.encoder_counts())
+        self._counts0 = self.robot.encoder_counts()
+        self._odom.update(*self._encoder_counts())
         self._path = []
         self._steps = 0
         pose = self._pose()
@@ -715,21 +752,24 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         """
         if self._map is None:
             raise NavigationEnvError("step() called before reset()")
+        if self._ended:
+            raise NavigationEnvError(
+                "step() called after the episode terminated (goal reached or collision); call reset()"
+            )
         self._check_not_closed()
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (2,) or not np.isfinite(a).all():
-            raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
-        a = np.clip(a, -1.0, 1.0)
-        v, w = self.drive.limit(float(a[0]) * self.max_speed, float(a[1]) * self.max_yaw_rate)
-        self.robot.set_motor_rpm(*self.drive.motor_rpm(v, w))
+        v, w = self._twist(action)
+        rpm = self._command_rpm(v, w)
         world = self._chair.world
         odom_every = world.physics_hz // ODOM_HZ
-        collided = False
-        for _ in range(self.substeps):
+        contacts: set[str] = set()
+        for k in range(self.substeps):
+            if k == self._latency_steps:  # the command reaches the controller after the latency
+                self.robot.set_motor_rpm(*rpm)
             self._chair.step(1)
             if world.steps % odom_every == 0:
-                self._odom.update(*self.robot.encoder_counts())
-            collided = collided or self._in_collision()
+                self._odom.update(*self._encoder_counts())
+            contacts |= self._touching()
+        collided = bool(contacts)
         self._steps += 1
         pose = self._pose()
         self._sense(pose)
@@ -739,7 +779,39 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         self._prev_distance = distance
         obs = self._observation(pose)
         info = self._info(pose, collided, reached, terms)
-        return obs, float(sum(terms.values())), bool(collided or reached), False, info
+        if collided:
+            info["contacts"] = sorted(contacts)
+        self._ended = bool(collided or reached)
+        return obs, float(sum(terms.values())), self._ended, False, info
+
+    def _next_floor(self, seed: Any) -> None:
+        """Put the chair on the floor of ``seed`` (None: drawn from ``np_random`` in the split's range)."""
+        from sim.rooms import generate_floor
+
+        if seed is None:
+            seed = self._room_range[int(self.np_random.integers(len(self._room_range)))]
+        elif isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+            raise NavigationEnvError(f"room_seed={seed!r}: expected a non-negative integer")
+        if int(seed) == self.room_seed:
+            return
+        self.scene = generate_floor(int(seed), self.rooms_config).scene
+        self._chair.close()
+        self._setup_scene()
+        self.room_seed = int(seed)
+
+    def _twist(self, action: Any) -> tuple[float, float]:
+        """The body twist (v m/s, w rad/s) an action asks for, within the drive's limits."""
+        if self.action_type == "discrete":
+            if not self.action_space.contains(action):
+                raise NavigationEnvError(
+                    f"action={action!r}: expected an integer in [0, {len(DISCRETE_ACTIONS)})"
+                )
+            action = DISCRETE_ACTIONS[int(action)]
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,) or not np.isfinite(a).all():
+            raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
+        a = np.clip(a, -1.0, 1.0)
+        return self.drive.limit(float(a[0]) * self.max_speed, float(a[1]) * self.max_yaw_rate)
 
     # ---- state -------------------------------------------------------------------------------
 
@@ -768,13 +840,29 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             if p.getClosestPoints(self.robot.body, b, 0.0, physicsClientId=self.client)
         }
 
-    def _in_collision(self) -> bool:
+    def own_occupancy(self) -> tuple[GridSpec, npt.NDArray[np.bool_]]:
+        """The chair's own 2D map of this episode: cells holding structure in its height band.
+
+        Built from the chair's sensors only (never the scene's ground truth), placed with
+        ``pose_source``. Returns the grid and a copy of the ``(nx, ny)`` bool occupancy.
+        """
+        if self._occ is None:
+            raise NavigationEnvError("own_occupancy() called before reset()")
+        return self.grid, self._occ.copy()
+
+    def _touching(self) -> set[str]:
+        """Names of the scene bodies (walking people included) the chair touches after this sub-step."""
         import pybullet as p
 
-        for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client):
-            if c[2] in self._scene_bodies:
-                return True
-        return bool(self._people) and bool(self._touching_people())
+        names = self._body_names
+        hit = {
+            names[c[2]]
+            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
+            if c[2] in names
+        }
+        if self._people:
+            hit |= {names[b] for b in self._touching_people()}
+        return hit
 
     def contacts(self) -> list[str]:
         """Names of the scene objects the chair touches now (walking people included)."""
@@ -803,7 +891,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             frame = chair.kinect.capture(t_gt, stamp_ns=stamp, rng=self._sensor_rng)
             pts = frame.points
             if self._own_noise:
-                pts = decimated_depth_noise(pts, chair.kinect.model, self._sensor_rng)
+                pts = decimated_depth_noise(
+                    pts, chair.kinect.model, self._sensor_rng, self.dynamics.sensor_noise_scale
+                )
+            if self.depth_image:  # the camera's depth (its x, REP-103); 0 where it saw nothing
+                z = np.asarray(pts[..., 0], dtype=np.float64)
+                self._depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self._depth_max).astype(np.float32)
             t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
             pts = pts.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
             self._map.insert(pts, sensor_origin=t[:3, 3])
@@ -825,14 +918,38 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
             self._sonar_ranges = np.where(
                 np.isfinite(rr), np.clip(rr, 0.0, self.sonar_max_range), self.sonar_max_range
             ).astype(np.float32)
+        if self._laser is not None:
+            self._sense_laser(pose, gt)
         from mapping.derived import occupancy_2d
 
         self._occ = occupancy_2d(self._map, *self.band)
 
+    def _sense_laser(self, pose: Pose2D, gt: bool) -> None:
+        """One Hokuyo scan (REP-117 ranges) into the observation and its hits into the map."""
+        laser = self._laser
+        laser.accuracy_sigmas = LASER_ACCURACY_SIGMAS / max(self.dynamics.sensor_noise_scale, 1e-6)
+        r = laser.ranges(self.robot.link_transform("laser_link"), rng=self._sensor_rng).astype(np.float64)
+        m = laser.model
+        # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
+        rr = np.where(np.isposinf(r), m.range_max, np.where(np.isneginf(r), 0.0, r))
+        self._laser_ranges = np.clip(rr, 0.0, m.range_max).astype(np.float32)  # noise may pass range_max
+        hit = np.isfinite(r)
+        if hit.any():
+            a = m.angles()[hit]
+            local = np.stack([r[hit] * np.cos(a), r[hit] * np.sin(a), np.zeros(int(hit.sum()))], axis=1)
+            t = (
+                self.robot.link_transform("laser_link")
+                if gt
+                else planar_transform(pose) @ self.spec_robot.mounts["laser_link"].transform()
+            )
+            self._map.insert(local @ t[:3, :3].T + t[:3, 3], sensor_origin=t[:3, 3])
+
     def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
         assert self._occ is not None
         dist, bearing = goal_in_robot_frame(pose, self.goal)
-        v, w = self.drive.twist_from_rpm(*self.robot.wheel_speed_rpm())
+        kl, kr = self.dynamics.tyre_radius_scale
+        ml, mr = self.robot.wheel_speed_rpm()
+        v, w = self.drive.twist_from_rpm(ml / kl, mr / kr)  # what the encoders say
         obs: dict[str, np.ndarray] = {
             "occupancy": egocentric_patch(
                 self._occ, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
@@ -842,6 +959,18 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if self.sonars_on:
             obs["sonar"] = self._sonar_ranges.copy()
+        if self._laser is not None:
+            obs["laser"] = self._laser_ranges.copy()
+        if self.depth_image:
+            obs["depth"] = self._depth.copy()
+        if self.elevation_map:
+            from mapping.derived import elevation
+
+            top, _ = elevation(self._map)
+            top = np.clip(np.nan_to_num(top - 0.0, nan=0.0), 0.0, ELEVATION_MAX).astype(np.float32)
+            obs["elevation"] = egocentric_values(
+                top, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
+            )
         return obs
 
     def _info(
@@ -859,8 +988,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         }
         if terms is not None:
             info["reward_terms"] = terms
-        if collided:
-            info["contacts"] = self.contacts()
+        info["dynamics"] = self.dynamics.as_dict()
         return info
 
     # ---- rendering / closing -----------------------------------------------------------------
@@ -914,3 +1042,23 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray]):
         if chair is not None and not self._closed:
             chair.close()
             self._closed = True
+
+
+__all__ = [
+    "DISCRETE_ACTIONS",
+    "PATCH_BEHIND",
+    "PATCH_CELL",
+    "PATCH_SHAPE",
+    "FreeSpace",
+    "NavigationEnvError",
+    "RewardWeights",
+    "RobChairNavigationEnv",
+    "decimated_depth_noise",
+    "egocentric_patch",
+    "egocentric_values",
+    "goal_in_robot_frame",
+    "navigation_reward",
+    "patch_cell_centres",
+    "planar_transform",
+    "reward_terms",
+]

@@ -24,6 +24,7 @@ from hw.interfaces import MotorController, MotorFaults, PIDConfig
 from hw.roboteq import codec
 from hw.roboteq.driver import RoboteqMDC2230
 from hw.roboteq.emulator import RoboteqEmulator, SyncedClock
+from hw.roboteq.gains import roboteq_gains
 from robchair import control
 from robchair.kinematics import DiffDrive, Odometry
 from robchair.spec import load_spec
@@ -173,7 +174,7 @@ def test_straight_run_distance_matches_the_closed_loop_lag_of_the_quantised_pid(
     for ch in (1, 2):
         step = spec.step_for_channel(ch)
         plant = control.identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant
-        q = control.roboteq_gains(control.design_pid(plant), 1).quantised
+        q = roboteq_gains(control.design_pid(plant), 1).quantised
         num, den = q.closed_loop_tf().num[0][0], q.closed_loop_tf().den[0][0]
         # T = N/D, T(0) = 1  ->  -T'(0) = (D'(0) - N'(0)) / D(0)
         lags.append((den[-2] - num[-2]) / den[-1])

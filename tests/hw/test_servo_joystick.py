@@ -225,3 +225,16 @@ def test_garbled_lines_on_the_wire_never_move_the_chair():
 def test_joystick_settings_are_validated():
     with pytest.raises(CommandError, match="deadzone"):
         SerialJoystick(ArduinoJoystickEmulator(), deadzone=1.5)
+
+
+def test_a_failing_serial_line_is_a_device_io_error_naming_the_joystick():
+    from hw.errors import DeviceIOError
+
+    class Unplugged(ArduinoJoystickEmulator):
+        @property
+        def in_waiting(self):
+            raise OSError(5, "Input/output error")
+
+    with SerialJoystick(Unplugged(), clock=ManualClock(), name="joystick") as js:
+        with pytest.raises(DeviceIOError, match="joystick: serial line failed"):
+            js.read()

@@ -38,14 +38,29 @@ def board(ranges, ids=(0, 1)):
 
 
 def test_echo_width_over_58_us_per_cm_gives_the_range():
-    pins = ScriptedPins([0.0058, 0.029, 0.036])  # 100 cm, 500 cm, the 36 ms no-echo pulse
+    pins = ScriptedPins([0.0058, 0.0174, 0.036])  # 100 cm, 300 cm (the rated maximum), no-echo pulse
     assert isinstance(pins, EchoPins)
     with SRF04(pins, clock=ManualClock()) as s:
         assert isinstance(s, Ranger)
         assert s.read().range_m == pytest.approx(1.0)
-        assert s.read().range_m == pytest.approx(5.0)
-        assert math.isnan(s.read().range_m)
+        assert s.read().range_m == pytest.approx(3.0)
+        assert s.read().range_m == math.inf  # REP-117: no return
     assert pins.closed
+
+
+@pytest.mark.parametrize("width_s", [0.018, 0.0245, 0.0299, 0.030, 0.036])
+def test_echoes_beyond_the_rated_3_m_read_as_no_return(width_s):
+    # 18-30 ms pulses used to read as 3.1-5.2 m, beyond what the SRF04 is rated to see
+    with SRF04(ScriptedPins([width_s]), clock=ManualClock()) as s:
+        assert s.read().range_m == math.inf
+
+
+@pytest.mark.parametrize("width_s", [0.0, 0.00005, 0.0001, 0.00017])
+def test_echoes_under_the_3_cm_minimum_read_as_invalid(width_s):
+    # a pulse under 174 us (3 cm) is ring-down or crosstalk as often as an object: NaN, not 9 mm
+    with SRF04(ScriptedPins([width_s]), clock=ManualClock()) as s:
+        r = s.read()
+        assert math.isnan(r.range_m) and r.min_range_m == 0.03
 
 
 def test_no_pulse_at_all_raises_a_timeout_and_bad_widths_a_protocol_error():
@@ -83,7 +98,7 @@ def test_arduino_reports_echo_widths_that_become_ranges():
     s1 = SRF04(ArduinoEchoPins(emu, 1, clock), clock=clock, name="rear")
     with s0, s1:
         assert s0.read().range_m == pytest.approx(0.75)  # 75 cm * 58 = 4350 us on the wire
-        assert math.isnan(s1.read().range_m)  # 36000 us: nothing in range
+        assert s1.read().range_m == math.inf  # 36000 us: nothing in range
     assert emu.requests == [0, 1]
 
 
@@ -140,4 +155,4 @@ def test_srf04_on_raspberry_pi_gpio_23_24_measures_something():
 
     with SRF04(PigpioEchoPins(trigger_gpio=23, echo_gpio=24)) as s:
         r = s.read()
-        assert math.isnan(r.range_m) or 0.0 < r.range_m < 5.0
+        assert r.range_m == math.inf or 0.03 <= r.range_m <= 3.0

@@ -48,7 +48,7 @@ def test_driver_reads_centimetre_ranges_from_the_emulator():
         assert a.read().range_m == 0.50
         assert b.read().range_m == 1.23  # the device rounds to whole centimetres
         r = c.read()
-        assert math.isnan(r.range_m)  # echo 0 = no echo
+        assert r.range_m == math.inf  # echo 0 = no echo: REP-117 +inf
         assert r.min_range_m == 0.03 and r.max_range_m == 6.0
 
 
@@ -77,7 +77,9 @@ def test_sleep_mode_waits_the_ranging_time_and_then_needs_no_busy_poll():
 def test_any_range_within_the_setting_reads_back_to_the_centimetre(r_cm, mode):
     clock, _, bus = make(busy_mode=mode, x70=r_cm / 100.0)
     with SRF08(bus, 0x70, clock=clock) as s:
-        assert s.read().range_m == r_cm / 100.0
+        r = s.read().range_m
+        # under the 3 cm minimum an echo is ring-down: invalid (REP-117 NaN)
+        assert math.isnan(r) if r_cm < 3 else r == r_cm / 100.0
 
 
 def test_a_lower_range_register_shortens_ranging_and_cuts_far_echoes():
@@ -88,7 +90,7 @@ def test_a_lower_range_register_shortens_ranging_and_cuts_far_echoes():
     with SRF08(bus, 0x70, clock=clock, max_range_m=1.0) as s:
         assert bus.devices[0x70].range_register == 23
         t0 = clock.now_ns()
-        assert math.isnan(s.read().range_m)  # 1.2 m is beyond 1.032 m: not heard
+        assert s.read().range_m == math.inf  # 1.2 m is beyond 1.032 m: not heard
         assert clock.now_ns() - t0 == 10_000_000  # 65 ms * 24/256 = 6.09 ms -> ready at the 2nd 5 ms poll
         scene.ranges[0x70] = 0.9
         assert s.read().range_m == 0.90
@@ -184,7 +186,12 @@ def test_general_call_starts_every_sonar_at_once():
     assert [a for a, _ in scene.calls] == [0x70, 0x71]
     assert bus.read_byte_data(0x70, 0) == 0xFF  # both busy
     clock.advance(0.065)
-    assert bus.read_i2c_block_data(0x71, 2, 2) == [0, 60]
+    # one acoustic space (the default): 0x71 hears 0x70's echo of the nearer object first
+    assert bus.read_i2c_block_data(0x71, 2, 2) == [0, 30]
+    apart = SRF08Bus(clock, scene, addresses=[0x70, 0x71], groups=[(0x70,), (0x71,)])
+    apart.write_byte_data(0x00, 0, 0x51)
+    clock.advance(0.065)
+    assert apart.read_i2c_block_data(0x71, 2, 2) == [0, 60]
 
 
 # --- address change -----------------------------------------------------------------------------------
@@ -239,29 +246,37 @@ def test_an_io_error_on_one_sonar_leaves_the_other_five_reading(caplog):
         for a in range(2)
     ]
     assert all(isinstance(arr, SonarArray) for arr in arrays)
+
+    def cycle(arr):
+        """Three reads 65 ms apart: one firing slot each, so every sonar of ``arr`` is fired once."""
+        for _ in range(3):
+            clock.advance(0.065)
+            r = arr.read()
+        return r
+
     for arr in arrays:
         arr.open()
     bus.inject_io_error(0x74)  # middle sonar of the second array dies
     with caplog.at_level(logging.INFO, logger="hw.sonar_array"):
-        left, right = arrays[0].read(), arrays[1].read()
+        left, right = cycle(arrays[0]), cycle(arrays[1])
     assert left.ranges_m == pytest.approx((0.30, 0.40, 0.50))
     assert right.ranges_m[0] == pytest.approx(0.60) and right.ranges_m[2] == pytest.approx(0.80)
     assert math.isnan(right.ranges_m[1])
     assert arrays[1].error_counts == [0, 1, 0] and arrays[0].error_counts == [0, 0, 0]
     assert "sonar 2" in caplog.text and "0x74" in caplog.text
     for _ in range(4):
-        arrays[1].read()
+        cycle(arrays[1])
     assert arrays[1].dead == (False, True, False)
     assert "sonar 2" in caplog.records[-1].getMessage() and caplog.records[-1].levelno == logging.WARNING
-    # dead: the next 9 reads rest it (no bus traffic to 0x74), the 10th tries again
+    # dead: the next 9 firings rest it (no bus traffic to 0x74), the 10th tries again
     bus.clear_faults(0x74)
     before = bus.devices[0x74].rangings
     for _ in range(9):
-        r = arrays[1].read()
+        r = cycle(arrays[1])
         assert math.isnan(r.ranges_m[1]) and r.ranges_m[0] == pytest.approx(0.60)
     assert bus.devices[0x74].rangings == before
     assert arrays[1].skipped_counts == [0, 9, 0]
-    assert arrays[1].read().ranges_m[1] == pytest.approx(0.70)
+    assert cycle(arrays[1]).ranges_m[1] == pytest.approx(0.70)
     assert arrays[1].dead == (False, False, False)
     assert arrays[1].error_counts == [0, 5, 0]
     for arr in arrays:
@@ -282,7 +297,7 @@ def test_the_array_needs_three_rangers_and_a_servo_to_turn():
 def test_real_srf08_on_i2c_bus_1_answers_a_ranging():
     with SRF08(1, 0x70) as s:
         r = s.read()
-        assert math.isnan(r.range_m) or 0.0 < r.range_m < 11.0
+        assert r.range_m == math.inf or 0.03 <= r.range_m < 11.0
 
 
 def test_a_scripted_obstacle_approaching_is_read_as_the_script_says():
@@ -296,9 +311,9 @@ def test_a_scripted_obstacle_approaching_is_read_as_the_script_says():
         for t in (0.0, 0.2, 0.35, 0.6):
             clock.sleep_until_ns(round(t * 1e9))
             seen.append((a.read().range_m, b.read().range_m))
-    assert seen[1][0] == 1.0 and math.isnan(seen[1][1])  # 0x71 not named before 0.3 s
+    assert seen[1][0] == 1.0 and seen[1][1] == math.inf  # 0x71 not named before 0.3 s
     assert seen[2] == (0.5, 0.7)
-    assert math.isnan(seen[0][0]) and all(math.isnan(v) for v in seen[3])
+    assert seen[0][0] == math.inf and all(v == math.inf for v in seen[3])
 
 
 def test_a_script_with_times_out_of_order_is_refused():

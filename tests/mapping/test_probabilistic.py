@@ -312,3 +312,41 @@ def test_exports_carry_three_values_and_read_back(tmp_path):
     np.testing.assert_array_equal(data, codes.T)  # row-major by y: -1 / 0 / 100 survive the bag
     for name in ("occupancy.png", "elevation.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_beam_points_fill_the_beam_cross_section_at_the_range():
+    from mapping.sonar import beam_points
+
+    p = beam_points(0.8, -10.0, 20.0, 5.0)
+    np.testing.assert_allclose(np.linalg.norm(p, axis=1), 0.8)
+    bearing = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    elevation = np.degrees(np.arcsin(p[:, 2] / 0.8))
+    assert bearing.min() == pytest.approx(-10.0) and bearing.max() == pytest.approx(10.0)
+    assert elevation.min() == pytest.approx(-5.0) and elevation.max() == pytest.approx(5.0)
+    assert np.any((np.abs(bearing) < 0.5) & (np.abs(elevation) < 0.5))  # the axis is sampled
+
+
+def test_no_return_directions_clear_a_walker_seen_against_the_sky():
+    o = (0.0, 0.0, 1.0)
+    walker = render_boxes(
+        None, np.array([[1.5, -0.2, 0.0, 1.9, 0.2, 1.7]]), o, 90, 120, 0.0, -5.0, floor=False
+    )
+    dirs = walker.reshape(-1, 3).astype(np.float64) - o
+    dirs = dirs[np.isfinite(dirs).all(axis=1)]
+    nothing = np.full((10, 3), np.nan)
+    # the camera sees the walker from 0.15 m up; the lowest rays clear from there plus the margin
+    MID = (0.3, 1.4)
+    m = ProbabilisticVHV(_spec(10.0), tolerance=0.1)  # 120 pixels across: 7 cm apart at the range
+    for _ in range(10):
+        m.insert_frame(walker, o)
+    assert _code(m.occupancy_2d(MID), m, 1.52, 0.0) == 100
+    for _ in range(10):
+        m.insert_frame(nothing, o)  # NaN carries no direction: nothing is cleared
+    assert _code(m.occupancy_2d(MID), m, 1.52, 0.0) == 100
+    for _ in range(10):
+        m.insert_frame(nothing, o, no_return_ends=o + 4.0 * dirs / np.linalg.norm(dirs, axis=1)[:, None])
+    codes = m.occupancy_2d(MID)
+    assert _code(codes, m, 1.52, 0.0) == 0 and _code(codes, m, 3.0, 0.0) == 0
+    assert _code(codes, m, 4.5, 0.0) == -1  # beyond the range: still unknown
+    with pytest.raises(MappingError, match=r"expected \(M, 3\)"):
+        m.insert_frame(nothing, o, no_return_ends=dirs[:, :2])

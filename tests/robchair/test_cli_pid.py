@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
+from hw.roboteq.gains import roboteq_gains
 from robchair.cli import main
 from robchair.control import (
     SecondOrderPlant,
     design_pid,
     identify_from_step_metrics,
-    roboteq_gains,
     write_step_trace,
 )
 
@@ -126,10 +126,11 @@ def test_pid_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, arg
 
 
 def test_root_locus_passes_through_the_design_at_unit_gain_and_starts_at_the_open_loop_poles():
-    from robchair.commands.pid import root_locus
+    from robchair.control import root_locus
 
     d = design_pid(identify_from_step_metrics(0.1365, 0.3975, 0.10).plant, xi_w=0.7)
-    locus = root_locus(d, [0.0, 1.0])
+    locus, gains = root_locus(d, [0.0, 1.0])
+    assert locus.shape == (2, 3) and list(gains) == [0.0, 1.0]
     open_loop = np.sort_complex(np.roots([1.0, d.plant.a1, d.plant.a0, 0.0]))
-    np.testing.assert_allclose(locus[0], open_loop, atol=1e-12)
-    np.testing.assert_allclose(locus[1], np.sort_complex(d.designed_poles), rtol=1e-9)
+    np.testing.assert_allclose(np.sort_complex(locus[0]), open_loop, atol=1e-12)
+    np.testing.assert_allclose(np.sort_complex(locus[1]), np.sort_complex(d.designed_poles), rtol=1e-9)

@@ -24,13 +24,11 @@ from robchair.control import (
     design_pid,
     designed_poles,
     evaluate_gains,
-    gains_from_roboteq,
     identify_from_step_metrics,
     identify_from_trace,
     pole_mismatch,
     pole_placement_gains,
     read_step_trace,
-    roboteq_gains,
     sampled_loop,
     write_step_trace,
 )
@@ -357,16 +355,20 @@ def test_discrete_pid_at_1khz_tracks_the_continuous_closed_loop(tau_d):
     assert errors[1] == pytest.approx(errors[0] / 2, rel=0.1)
 
 
+@pytest.mark.parametrize("on_measurement", [False, True])
 @pytest.mark.parametrize("tau_d", [0.0, 0.02])
-def test_sample_by_sample_loop_equals_python_control_discrete_closed_loop(tau_d):
+def test_sample_by_sample_loop_equals_python_control_discrete_closed_loop(tau_d, on_measurement):
     # Independent z-domain model of the same loop: c2d plant and the PID's difference equations
     design = design_pid(identify_from_step_metrics(*MOTORS["motor 2"]).plant)
     dt = 1e-3
     pz = ct.c2d(design.plant.tf(), dt, method="zoh")
     z = ct.tf([1.0, 0.0], [1.0], dt)
-    c = design.kp + design.ki * dt * z / (z - 1) + design.kd * (z - 1) / ((tau_d + dt) * z - tau_d)
-    t, y = _closed_loop_discrete(design, dt, 2.0, tau_d=tau_d)
-    y_z = np.asarray(ct.step_response(ct.feedback(c * pz, 1), T=t).outputs).ravel() * 100.0
+    c_pi = design.kp + design.ki * dt * z / (z - 1)
+    c = c_pi + design.kd * (z - 1) / ((tau_d + dt) * z - tau_d)
+    t, y = _closed_loop_discrete(design, dt, 2.0, tau_d=tau_d, derivative_on_measurement=on_measurement)
+    # derivative on the measurement: the reference reaches the command through P and I only
+    reference = ct.ss(c_pi) * ct.feedback(ct.ss(pz), ct.ss(c)) if on_measurement else ct.feedback(c * pz, 1)
+    y_z = np.asarray(ct.step_response(reference, T=t).outputs).ravel() * 100.0
     np.testing.assert_allclose(y, y_z, atol=1e-7)
 
 
@@ -375,15 +377,17 @@ def test_derivative_on_measurement_has_no_setpoint_kick():
     pid.update(0.0, 0.0)
     u = pid.update(10.0, 0.0)
     assert u == pytest.approx(1.0 * 10 + 2.0 * 0.01 * 10, rel=1e-12)
-    kick = DiscretePID(1.0, 2.0, 0.3, dt=0.01)
+    kick = DiscretePID(1.0, 2.0, 0.3, dt=0.01, derivative_on_measurement=False)
     kick.update(0.0, 0.0)
     assert kick.update(10.0, 0.0) == pytest.approx(10 + 0.2 + 0.3 * 10 / 0.01, rel=1e-12)
 
 
 def test_filtered_derivative_follows_first_order_lag_of_a_ramp():
-    # error ramps at 1/s: ideal D = kd; the filtered D approaches kd as 1 - a^k, a = tau / (tau + dt)
+    # -measurement ramps at 1/s: ideal D = kd; the filtered D approaches kd as 1 - a^k, a = tau / (tau + dt)
     pid = DiscretePID(0.0, 0.0, 0.5, dt=0.01, tau_d=0.05)
-    outs = [pid.update(0.01 * k, 0.0) for k in range(200)]
+    outs = [pid.update(0.0, -0.01 * k) for k in range(200)]
+    on_error = DiscretePID(0.0, 0.0, 0.5, dt=0.01, tau_d=0.05, derivative_on_measurement=False)
+    np.testing.assert_allclose([on_error.update(0.01 * k, 0.0) for k in range(200)], outs, atol=1e-12)
     a = 0.05 / 0.06
     expected = [0.5 * (1 - a**k) for k in range(200)]
     np.testing.assert_allclose(outs, expected, atol=1e-12)
@@ -436,46 +440,6 @@ def test_motor_model_open_loop_saturates_at_max_rpm_and_closed_loop_reaches_the_
     assert closed.advance(300.0, 3.0) == pytest.approx(300.0, rel=2e-3)
     closed.reset()
     assert closed.speed_rpm == 0.0
-
-
-# --------------------------------------------------------------------------------------------- Roboteq
-
-
-def test_roboteq_firmware_1_and_2_encodings_of_motor_1():
-    d = design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant)
-    g1 = roboteq_gains(d, 1)
-    assert (g1.kp, g1.ki, g1.kd) == (round(d.kp * 10), round(d.ki * 10), round(d.kd * 10)) == (14, 37, 3)
-    g2 = roboteq_gains(d, 2)
-    assert (g2.kp, g2.ki, g2.kd) == (round(d.kp * 1e6), round(d.ki * 1e6), round(d.kd * 1e6))
-    assert gains_from_roboteq(g1.kp, g1.ki, g1.kd, 1) == pytest.approx((1.4, 3.7, 0.3))
-    assert gains_from_roboteq(g2.kp, g2.ki, g2.kd, 2) == pytest.approx((d.kp, d.ki, d.kd), abs=5e-7)
-
-
-def test_quantised_gains_poles_are_recomputed_and_close_to_the_design():
-    for name in MOTORS:
-        d = design_pid(identify_from_step_metrics(*MOTORS[name]).plant)
-        g2 = roboteq_gains(d, 2)
-        assert g2.max_pole_shift < 2e-3  # 1e-6 gain resolution (the double pole splits as sqrt)
-    g1 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant), 1)
-    # motor 1 on firmware 1.x: KP 14, KI 37, KD 3 -> the PID 0.3 s + 1.4 + 3.7 / s
-    expected = np.sort_complex(
-        np.asarray(ct.poles(ct.feedback(ct.tf([0.3, 1.4, 3.7], [1, 0]) * g1.quantised.plant.tf(), 1)))
-    )
-    np.testing.assert_allclose(np.sort_complex(g1.quantised.achieved_poles), expected, rtol=1e-9)
-    assert g1.max_pole_shift < 0.1  # 0.1 resolution of firmware 1.x still keeps motor 1 within 10 %
-    # motor 2 on firmware 1.x: K_d = 0.249 rounds to 0.2, which moves the poles by up to 96 %
-    g1_m2 = roboteq_gains(design_pid(identify_from_step_metrics(*MOTORS["motor 2"]).plant), 1)
-    assert (g1_m2.kp, g1_m2.ki, g1_m2.kd) == (11, 32, 2)
-    assert 0.5 < g1_m2.max_pole_shift < 1.0
-    assert np.all(g1_m2.quantised.achieved_poles.real < 0)
-
-
-def test_gain_outside_firmware_range_is_refused():
-    d = design_pid(SecondOrderPlant(2.0, 0.5), omega_w=20.0)
-    with pytest.raises(ControlError, match=r"firmware 1\.x cannot hold"):
-        roboteq_gains(d, 1)
-    with pytest.raises(ControlError, match="firmware_major = 3"):
-        roboteq_gains(d, 3)
 
 
 def test_discrete_plant_integrates_its_output_exactly():
@@ -542,3 +506,26 @@ def test_fit_without_gain_and_delay_keeps_them_fixed():
     assert fit.plant.xi == pytest.approx(0.45, rel=0.01)
     assert fit.metrics is not None
     assert fit.metrics.t_p == pytest.approx(true.peak_time, rel=0.01)
+
+
+def _rise_10_90(y, r, dt):
+    return dt * (int(np.argmax(y >= 0.9 * r)) - int(np.argmax(y >= 0.1 * r)))
+
+
+@pytest.mark.parametrize("step", [100.0, 300.0, 644.0])
+def test_sampled_loop_with_the_command_limit_rises_as_the_design_says_at_every_step_size(step):
+    # derivative on the measurement (the default): no set-point kick into the +-1000 limit
+    design = design_pid(identify_from_step_metrics(*MOTORS["motor 1"]).plant)
+    assert design.derivative_on_measurement
+    _, y = _closed_loop_discrete(design, 1e-3, 4.0, r=step, u_min=-1000.0, u_max=1000.0)
+    assert _rise_10_90(y, step, 1e-3) == pytest.approx(design.closed_loop.rise_time, abs=2e-3)
+    assert design.closed_loop.rise_time == pytest.approx(0.527, abs=1e-3)
+    # derivative on the error: the first sample saturates, and the loop leaves the design it claims
+    on_error = design_pid(design.plant, derivative_on_measurement=False)
+    pid = DiscretePID.from_design(on_error, dt=1e-3, u_min=-1000.0, u_max=1000.0)
+    plant = DiscretePlant(design.plant, 1e-3)
+    u0 = pid.update(step, plant.output)
+    assert u0 == 1000.0 and pid.saturated
+    assert on_error.closed_loop.rise_time == pytest.approx(0.944, abs=1e-3)
+    _, y_err = _closed_loop_discrete(on_error, 1e-3, 4.0, r=step, u_min=-1000.0, u_max=1000.0)
+    assert abs(_rise_10_90(y_err, step, 1e-3) - on_error.closed_loop.rise_time) > 0.3

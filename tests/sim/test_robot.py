@@ -63,6 +63,33 @@ def test_closed_loop_reaches_the_set_point_without_steady_state_error(world_robo
     assert right == pytest.approx(-200.0, abs=3.0)
 
 
+def test_wheels_run_the_emulators_discrete_pid_at_the_controller_rate(world_robot):
+    # the same DiscretePID / DiscretePlant classes as the Roboteq emulator, at 1 kHz under 240 Hz physics
+    from robchair.control import CONTROLLER_RATE_HZ, DiscretePID, DiscretePlant, MotorModel, design_pid
+
+    world, robot, spec = world_robot
+    assert isinstance(robot.left.pid, DiscretePID) and isinstance(robot.left.plant, DiscretePlant)
+    assert robot.left.pid.dt == robot.motor_dt == 1.0 / CONTROLLER_RATE_HZ
+    assert robot.left.pid.derivative_on_measurement
+    ticks = []
+    original = robot.left.pid.update
+    robot.left.pid.update = lambda r, y: ticks.append(y) or original(r, y)
+    robot.set_closed_loop(True)
+    robot.set_motor_rpm(100.0, 100.0)
+    sim = np.empty(world.physics_hz)
+    for k in range(world.physics_hz):
+        world.step(1)
+        sim[k] = robot.wheel_speed_rpm()[0]
+    assert len(ticks) == CONTROLLER_RATE_HZ  # one second of controller ticks
+    # against the emulator's loop alone (MotorModel: the same PID and plant, no physics)
+    step = spec.step_for_channel(1)
+    plant = identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant
+    model = MotorModel(plant, design_pid(plant), max_motor_rpm=spec.max_motor_rpm)
+    ref = np.array([model.advance(100.0, 1.0 / world.physics_hz) for _ in range(world.physics_hz)])
+    # the joint follows the plant through the floor contact: within 2.5 % of the step
+    assert np.max(np.abs(sim - ref)) < 2.5
+
+
 def test_encoders_count_quadrature_x4_on_the_motor_shaft(world_robot):
     world, robot, spec = world_robot
     c0 = robot.encoder_counts()

@@ -130,3 +130,58 @@ def test_wheels_do_not_slip_so_odometry_matches_the_driven_arc(settled):
     turned = math.remainder(end.theta - start.theta, 2 * math.pi)
     assert abs(turned) > 1.0  # it really turned (about 2 rad)
     assert odo.pose.theta == pytest.approx(turned, abs=0.03)  # casters would make the chair under-turn
+
+
+def _touches(client, robot_body, wall, xyz):
+    import pybullet as p
+
+    p.resetBasePositionAndOrientation(wall, xyz, (0, 0, 0, 1), physicsClientId=client)
+    p.performCollisionDetection(physicsClientId=client)
+    # Bullet also reports points within its contact threshold: only penetration (distance <= 0) counts
+    pts = p.getContactPoints(bodyA=robot_body, bodyB=wall, physicsClientId=client)
+    return any(c[8] <= 0.0 for c in pts)
+
+
+def _first_contact(client, robot_body, wall, axis, sign, far=1.5):
+    """Bisect the wall's face position along ``axis`` (0 = x, 1 = y) from outside toward the chair."""
+    half = 0.05  # the wall is 0.1 m thick
+    out, inside = far, 0.0  # distances of the wall's near face from base_link along sign * axis
+    for _ in range(30):
+        mid = (out + inside) / 2
+        xyz = [0.16, 0.0, 0.5]  # the footprint's centre, half-way up
+        xyz[axis] = sign * (mid + half)
+        if _touches(client, robot_body, wall, tuple(xyz)):
+            inside = mid
+        else:
+            out = mid
+    return (out + inside) / 2
+
+
+def test_collision_footprint_measured_against_a_movable_wall_is_the_spec_s_0_64_by_0_84_m():
+    import pybullet as p
+
+    from sim.robot import SimRobot
+    from sim.world import World
+
+    spec = load_spec()
+    with World() as world:
+        robot = SimRobot(world, spec)
+        world.step(60)
+        c = world.client
+        # a wall taller than the chair, 4 m long, 0.1 m thick, static like every scene body
+        walls = {}
+        for axis in (0, 1):
+            ext = [2.0, 2.0, 1.0]
+            ext[axis] = 0.05
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=ext, physicsClientId=c)
+            walls[axis] = p.createMultiBody(0.0, col, basePosition=(10, 10, 10), physicsClientId=c)
+        p.setCollisionFilterPair(walls[0], world.plane, -1, -1, 0, physicsClientId=c)
+        left = _first_contact(c, robot.body, walls[1], 1, +1)
+        right = _first_contact(c, robot.body, walls[1], 1, -1)
+        p.resetBasePositionAndOrientation(walls[1], (10, 10, 10), (0, 0, 0, 1), physicsClientId=c)
+        front = _first_contact(c, robot.body, walls[0], 0, +1)
+        back = _first_contact(c, robot.body, walls[0], 0, -1)
+    assert left + right == pytest.approx(spec.body.width, abs=0.02)
+    assert left == pytest.approx(right, abs=0.005)
+    assert front + back == pytest.approx(spec.body.depth, abs=0.02)
+    assert front == pytest.approx(spec.body.centre_x + spec.body.depth / 2, abs=0.015)

@@ -1,0 +1,355 @@
+"""A grid planner on the chair's own occupancy map, and the classical baseline built on it.
+
+Planning: the occupancy grid is inflated by half the chair's width plus a margin (cells closer than
+that to an occupied cell are forbidden for ``base_link``), every free cell gets a cost that grows
+near obstacles (so routes keep to the middle of passages), and Dijkstra's algorithm
+(:func:`scipy.sparse.csgraph.dijkstra`, 8-connected grid, edge weight = length x mean cell cost)
+runs from the goal, which gives the route from every cell at once. Cells the map has never seen
+count as free (the map only knows what the chair has sensed). The route is the chain of
+predecessors from the chair's cell, shortened to the cells where it turns.
+
+Following: pure pursuit (Coulter 1992) with a look-ahead point on the route; a look-ahead point
+more than 60 deg off the heading turns the chair on the spot; the speed falls near the goal and
+where the map shows obstacles close to the route.
+
+:class:`BaselinePolicy` replans every ``replan_every`` steps, or at once when the route runs into a
+cell the map has since marked occupied, from the map the environment's chair builds itself
+(:meth:`sim.envs.navigation.RobChairNavigationEnv.own_occupancy`), never from the ground truth.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mapping.grid import GridSpec
+from robchair.errors import RobChairError
+
+
+class PlanningError(RobChairError, ValueError):
+    """A planner argument is invalid."""
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Grid-planner settings.
+
+    Attributes:
+        inflation: Forbidden distance from ``base_link`` to an occupied cell, m (half the chair's
+            width plus a margin).
+        comfort: Distance, m, beyond the inflation over which the cost falls to 1.
+        comfort_weight: Extra cost factor at the inflation's edge.
+    """
+
+    inflation: float = 0.37
+    comfort: float = 0.6
+    comfort_weight: float = 4.0
+
+
+def cost_map(occupied: npt.NDArray[np.bool_], cell: float, cfg: PlannerConfig) -> npt.NDArray[np.float64]:
+    """Per-cell traversal cost (``inf`` = forbidden) of an occupancy grid.
+
+    Args:
+        occupied: ``(nx, ny)`` bool grid.
+        cell: Cell size, m.
+        cfg: Inflation and comfort settings.
+
+    Returns:
+        ``(nx, ny)`` float64: ``inf`` within ``cfg.inflation`` of an occupied cell, else
+        ``1 + comfort_weight * max(0, 1 - (d - inflation) / comfort)``.
+    """
+    from scipy import ndimage
+
+    if not occupied.any():
+        return np.ones(occupied.shape)
+    d = ndimage.distance_transform_edt(~occupied) * cell
+    cost = 1.0 + cfg.comfort_weight * np.clip(1.0 - (d - cfg.inflation) / cfg.comfort, 0.0, 1.0)
+    cost[d < cfg.inflation] = np.inf
+    return cost
+
+
+def _grid_graph(cost: npt.NDArray[np.float64]) -> Any:
+    """Sparse 8-connected graph of the finite cells (edge = step length x mean of the two costs)."""
+    from scipy.sparse import coo_matrix
+
+    nx, ny = cost.shape
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    rows, cols, w = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        a = idx[max(0, -di) : nx - max(0, di), max(0, -dj) : ny - max(0, dj)]
+        b = idx[max(0, di) : nx + min(0, di) or None, max(0, dj) : ny + min(0, dj) or None]
+        ca, cb = cost.ravel()[a.ravel()], cost.ravel()[b.ravel()]
+        ok = np.isfinite(ca) & np.isfinite(cb)
+        length = math.hypot(di, dj)
+        rows.append(a.ravel()[ok])
+        cols.append(b.ravel()[ok])
+        w.append(length * (ca[ok] + cb[ok]) / 2)
+    r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
+    n = nx * ny
+    return coo_matrix(
+        (np.concatenate([ww, ww]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n)
+    ).tocsr()
+
+
+def _nearest_finite(cost: npt.NDArray[np.float64], i: int, j: int) -> tuple[int, int] | None:
+    fi, fj = np.nonzero(np.isfinite(cost))
+    if len(fi) == 0:
+        return None
+    k = int(np.argmin((fi - i) ** 2 + (fj - j) ** 2))
+    return int(fi[k]), int(fj[k])
+
+
+def plan_path(
+    occupied: npt.NDArray[np.bool_],
+    grid: GridSpec,
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    cfg: PlannerConfig = PlannerConfig(),
+) -> list[tuple[float, float]] | None:
+    """Cheapest route (world x, y points, start first) from ``start`` to ``goal``, or None.
+
+    A start or goal inside the inflated obstacles is moved to the nearest allowed cell (the chair
+    may stand closer to a wall than the inflation; it leaves that way first).
+
+    Args:
+        occupied: ``(nx, ny)`` bool occupancy of ``grid`` (axis z).
+        grid: The grid.
+        start: Chair position (m).
+        goal: Goal position (m).
+        cfg: Planner settings.
+
+    Raises:
+        PlanningError: a point outside the grid.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    for name, p in (("start", start), ("goal", goal)):
+        i, j = grid.world_to_index(p[0], p[1])
+        if not bool(grid.contains_index(i, j)):
+            raise PlanningError(f"{name} {tuple(p)} lies outside the planning grid {grid.extent}")
+    cost = cost_map(occupied, grid.cell_size, cfg)
+    si, sj = (int(v) for v in grid.world_to_index(start[0], start[1]))
+    gi, gj = (int(v) for v in grid.world_to_index(goal[0], goal[1]))
+    s = (si, sj) if np.isfinite(cost[si, sj]) else _nearest_finite(cost, si, sj)
+    g = (gi, gj) if np.isfinite(cost[gi, gj]) else _nearest_finite(cost, gi, gj)
+    if s is None or g is None:
+        return None
+    ny = cost.shape[1]
+    graph = _grid_graph(cost)
+    dist, pred = dijkstra(graph, indices=g[0] * ny + g[1], return_predecessors=True)
+    node = s[0] * ny + s[1]
+    if not np.isfinite(dist[node]):
+        return None
+    cells = [node]
+    while cells[-1] != g[0] * ny + g[1]:
+        cells.append(int(pred[cells[-1]]))
+    ii, jj = np.divmod(np.asarray(cells), ny)
+    u, v = grid.index_to_world(ii, jj)
+    pts = np.stack([u, v], axis=1)
+    return [
+        (float(start[0]), float(start[1])),
+        *map(tuple, _corners(pts)[1:-1]),
+        (float(goal[0]), float(goal[1])),
+    ]  # type: ignore[list-item]
+
+
+def _corners(pts: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Keep the first, the last and every point where the route changes direction."""
+    if len(pts) <= 2:
+        return pts
+    d = np.diff(pts, axis=0)
+    turn = np.any(np.abs(np.diff(np.sign(d), axis=0)) > 0, axis=1)
+    keep = np.concatenate([[True], turn, [True]])
+    return pts[keep]
+
+
+def shortcut(
+    route: list[tuple[float, float]], cost: npt.NDArray[np.float64], grid: GridSpec
+) -> list[tuple[float, float]]:
+    """String pulling: drop every point the route can skip on a straight line of finite-cost cells."""
+    if len(route) <= 2:
+        return route
+
+    def clear(a: tuple[float, float], b: tuple[float, float]) -> bool:
+        n = max(2, int(math.hypot(b[0] - a[0], b[1] - a[1]) / (grid.cell_size / 3)))
+        t = np.linspace(0.0, 1.0, n)
+        i, j = grid.world_to_index(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
+        ok = grid.contains_index(i, j)
+        return bool(ok.all() and np.isfinite(cost[i, j]).all())
+
+    out = [route[0]]
+    k = 0
+    while k < len(route) - 1:
+        far = k + 1
+        for m in range(len(route) - 1, k + 1, -1):
+            if clear(route[k], route[m]):
+                far = m
+                break
+        out.append(route[far])
+        k = far
+    return out
+
+
+def path_length(points: Any) -> float:
+    """Length of a polyline, m."""
+    p = np.asarray(points, dtype=float)
+    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
+
+
+def route_blocked(
+    route: list[tuple[float, float]], occupied: npt.NDArray[np.bool_], grid: GridSpec, cfg: PlannerConfig
+) -> bool:
+    """Whether the route ahead passes within the inflation of a cell the map now holds occupied."""
+    from scipy import ndimage
+
+    if not occupied.any() or len(route) < 2:
+        return False
+    near = ndimage.binary_dilation(occupied, iterations=max(1, int(cfg.inflation / grid.cell_size) - 1))
+    pts = np.asarray(route)
+    for a, b in itertools.pairwise(pts):
+        n = max(2, int(np.hypot(*(b - a)) / (grid.cell_size / 2)))
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        q = a + t * (b - a)
+        # the chair may stand closer to a wall than the inflation: judge the route ahead of it only
+        q = q[np.hypot(q[:, 0] - pts[0, 0], q[:, 1] - pts[0, 1]) > cfg.inflation + 0.2]
+        i, j = grid.world_to_index(q[:, 0], q[:, 1])
+        ok = grid.contains_index(i, j)
+        if near[i[ok], j[ok]].any():
+            return True
+    return False
+
+
+@dataclass
+class PurePursuit:
+    """Pure-pursuit follower of a polyline route for a differential drive.
+
+    Attributes:
+        lookahead: Look-ahead distance, m.
+        cruise: Cruise speed, m/s.
+        max_yaw_rate: Largest yaw rate commanded, rad/s.
+        turn_in_place: Heading error (rad) beyond which the chair turns on the spot.
+        decel: Deceleration used to slow down for the goal, m/s^2.
+    """
+
+    lookahead: float = 0.6
+    cruise: float = 0.5
+    max_yaw_rate: float = 0.8
+    turn_in_place: float = math.radians(60.0)
+    decel: float = 0.4
+
+    def command(
+        self, pose: tuple[float, float, float], route: list[tuple[float, float]]
+    ) -> tuple[float, float]:
+        """Twist (v m/s, w rad/s) toward the look-ahead point of ``route`` from ``pose`` (x, y, yaw)."""
+        x, y, th = pose
+        pts = np.asarray(route, dtype=float)
+        p = np.array([x, y])
+        # closest point of the route, then walk the look-ahead along it
+        best, best_d, best_s = 0, math.inf, 0.0
+        cum = (
+            np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+            if len(pts) > 1
+            else np.zeros(1)
+        )
+        for k in range(len(pts) - 1):
+            a, b = pts[k], pts[k + 1]
+            ln2 = float(np.dot(b - a, b - a))
+            t = 0.0 if ln2 == 0 else float(np.clip(np.dot(p - a, b - a) / ln2, 0.0, 1.0))
+            d = float(np.hypot(*(a + t * (b - a) - p)))
+            if d < best_d:
+                best, best_d, best_s = k, d, float(cum[k] + t * math.sqrt(ln2))
+        del best
+        s = best_s + self.lookahead
+        if len(pts) == 1 or s >= cum[-1]:
+            target = pts[-1]
+        else:
+            k = int(np.searchsorted(cum, s, side="right") - 1)
+            seg = cum[k + 1] - cum[k]
+            target = pts[k] + (s - cum[k]) / seg * (pts[k + 1] - pts[k]) if seg > 0 else pts[k]
+        dx, dy = target - p
+        c, sn = math.cos(th), math.sin(th)
+        xr, yr = c * dx + sn * dy, -sn * dx + c * dy
+        err = math.atan2(yr, xr)
+        remaining = float(cum[-1] - best_s) + best_d
+        if abs(err) > self.turn_in_place:
+            return 0.0, math.copysign(self.max_yaw_rate, err)
+        v = min(self.cruise, math.sqrt(2 * self.decel * max(remaining, 0.0)))
+        l2 = max(xr * xr + yr * yr, 1e-9)
+        w = float(np.clip(v * 2.0 * yr / l2, -self.max_yaw_rate, self.max_yaw_rate))
+        return v, w
+
+
+class BaselinePolicy:
+    """The classical baseline: plan on the chair's own map, replan, follow with pure pursuit.
+
+    Works on any :class:`sim.envs.navigation.RobChairNavigationEnv` (continuous actions); it reads
+    the chair's own occupancy (:meth:`own_occupancy`), its pose estimate and the goal from ``info``.
+
+    Args:
+        env: The environment (wrappers are unwrapped).
+        planner: Planner settings.
+        follower: Follower settings.
+        replan_every: Agent steps between replans.
+    """
+
+    def __init__(
+        self,
+        env: Any,
+        planner: PlannerConfig | None = None,
+        follower: PurePursuit | None = None,
+        replan_every: int = 10,
+    ) -> None:
+        self.env = getattr(env, "unwrapped", env)
+        if getattr(self.env, "action_type", "continuous") != "continuous":
+            raise PlanningError("the baseline drives continuous (v, w) actions; use a continuous id")
+        self.cfg = (
+            planner
+            if planner is not None
+            else PlannerConfig(inflation=self.env.spec_robot.body.width / 2 + 0.05)
+        )
+        self.follower = follower if follower is not None else PurePursuit()
+        self.replan_every = int(replan_every)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the route (call at every episode start)."""
+        self.route: list[tuple[float, float]] | None = None
+        self.routes: list[list[tuple[float, float]]] = []
+        self._since = 0
+
+    def __call__(self, obs: Any, info: dict[str, Any]) -> npt.NDArray[np.float32]:
+        """The normalised action for this step."""
+        grid, occ = self.env.own_occupancy()
+        x, y, th = info["pose_estimate"]
+        goal = tuple(info["goal"])
+        if (
+            self.route is None
+            or self._since >= self.replan_every
+            or route_blocked(self.route, occ, grid, self.cfg)
+        ):
+            route = plan_path(occ, grid, (x, y), goal, self.cfg)  # type: ignore[arg-type]
+            self.route = route if route is not None else [(x, y), goal]  # type: ignore[list-item]
+            self.routes.append(self.route)
+            self._since = 0
+        self._since += 1
+        v, w = self.follower.command((x, y, th), self.route)
+        return np.array([v / self.env.max_speed, w / self.env.max_yaw_rate], dtype=np.float32).clip(-1, 1)
+
+
+class RandomPolicy:
+    """Uniformly random actions from the environment's action space (seeded per episode)."""
+
+    def __init__(self, env: Any, seed: int = 0) -> None:
+        self.space = env.action_space
+        self.space.seed(seed)
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def __call__(self, obs: Any, info: dict[str, Any]) -> Any:
+        return self.space.sample()

@@ -1,0 +1,82 @@
+"""Motor-controller diagnostics at a low rate: into ``metrics.json`` and the bag as ``/diagnostics``.
+
+A controller that offers ``read_diagnostics()`` (the Roboteq driver: retries, discarded lines, watchdog
+trips, battery and internal volts, motor amps, temperatures, fault and status flags; five serial
+transactions) is polled every ``period_s`` of the run's clock, not every cycle, so it does not starve
+the control loop. Each sample is written to the run's bag as ``diagnostic_msgs/DiagnosticArray`` (one
+``DiagnosticStatus`` named ``motor_controller``: OK, WARN when a status flag is set, ERROR when a fault
+flag is set or the driver is in its error state) and the last one goes into ``metrics.json`` under
+``controller.diagnostics``. A controller without diagnostics (the simulated one) gives
+``controller.diagnostics = null``. A failing diagnostics read raises, as any sensor does, and the runtime
+stops the chair.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import TYPE_CHECKING, Any
+
+from robchair.observers import Observer
+
+if TYPE_CHECKING:
+    from robchair.observers.recorder import RunRecorder
+    from robchair.runtime import CycleResult, RunResult, Runtime
+
+TOPIC = "/diagnostics"
+OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
+
+
+class DiagnosticsObserver(Observer):
+    """Polls ``backend.motors.read_diagnostics()`` every ``period_s`` and records the samples.
+
+    Args:
+        period_s: time between samples on the run's clock, s (1 Hz by default).
+        recorder: the run's recorder, whose bag gets ``/diagnostics`` (None: metrics only).
+    """
+
+    def __init__(self, period_s: float = 1.0, recorder: RunRecorder | None = None) -> None:
+        self.period_ns = round(float(period_s) * 1e9)
+        self.recorder = recorder
+        self.samples = 0
+        self.last: Any = None
+        self._next_ns: int | None = None
+        self._read: Any = None
+
+    def episode_start(self, runtime: Runtime) -> None:
+        self._read = getattr(runtime.backend.motors, "read_diagnostics", None)
+        self._next_ns = runtime.t0_ns
+
+    def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
+        if self._read is None or self._next_ns is None or cycle.stamp_ns < self._next_ns:
+            return
+        if cycle.fault is not None:  # the driver already failed and stopped: the fault is the report
+            return
+        self._next_ns = cycle.stamp_ns + self.period_ns
+        sample = self._read()
+        self.last = sample
+        self.samples += 1
+        if self.recorder is not None:
+            self._write(sample, cycle.stamp_ns)
+
+    def _write(self, sample: Any, stamp_ns: int) -> None:
+        assert self.recorder is not None
+        bag = self.recorder.bag
+        t = bag.t
+        level = ERROR if (sample.faults or sample.state == "error") else WARN if sample.status else OK
+        message = ", ".join(sample.faults) or ", ".join(sample.status) or "ok"
+        pairs = sample.as_key_values().items()
+        status = t["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=level,
+            name="motor_controller",
+            message=message,
+            hardware_id=f"roboteq {sample.firmware}".strip(),
+            values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in pairs],
+        )
+        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
+        bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
+
+    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+        diag = None
+        if self.last is not None:
+            diag = {**asdict(self.last), "samples": self.samples}
+        result.extra["controller"] = {**result.extra.get("controller", {}), "diagnostics": diag}

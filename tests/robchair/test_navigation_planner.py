@@ -1,0 +1,87 @@
+"""The grid planner, the pure-pursuit follower and the route check of the classical baseline."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapping.grid import GridSpec
+from robchair.navigation.planner import (
+    PlannerConfig,
+    PlanningError,
+    PurePursuit,
+    cost_map,
+    path_length,
+    plan_path,
+    route_blocked,
+)
+
+
+def _room_with_wall(gap_centre=None, gap=1.2):
+    """A 10 m x 6 m grid, a wall across x = 5 with an optional gap."""
+    grid = GridSpec(cell_size=0.1, size_x=10.0, size_y=6.0, centre=(5.0, 3.0))
+    occ = np.zeros(grid.shape, dtype=bool)
+    i, _ = grid.world_to_index(5.0, 0.0)
+    occ[i, :] = True
+    if gap_centre is not None:
+        _, j0 = grid.world_to_index(5.0, gap_centre - gap / 2)
+        _, j1 = grid.world_to_index(5.0, gap_centre + gap / 2)
+        occ[i, j0 + 1 : j1] = False
+    return grid, occ
+
+
+def test_cost_is_infinite_within_the_inflation_and_falls_to_one_far_away():
+    grid, occ = _room_with_wall()
+    cost = cost_map(occ, 0.1, PlannerConfig(inflation=0.37, comfort=0.6, comfort_weight=4.0))
+    i, j = grid.world_to_index(np.array([5.2, 5.5, 8.0]), np.array([3.0, 3.0, 3.0]))
+    assert math.isinf(cost[i[0], j[0]])
+    assert 1.0 < cost[i[1], j[1]] < 5.0
+    assert cost[i[2], j[2]] == 1.0
+
+
+def test_the_route_goes_through_the_doorway_and_is_not_much_longer_than_needed():
+    grid, occ = _room_with_wall(gap_centre=4.5, gap=1.2)
+    route = plan_path(occ, grid, (2.0, 1.0), (8.0, 1.0))
+    assert route is not None and route[0] == (2.0, 1.0) and route[-1] == (8.0, 1.0)
+    pts = np.asarray(route)
+    crossing = pts[np.argmin(np.abs(pts[:, 0] - 5.0))]
+    assert abs(crossing[1] - 4.5) < 0.3  # through the gap's middle
+    straight = math.hypot(2.5, 3.5) + math.hypot(3.0, 3.5)
+    assert path_length(route) < 1.25 * straight  # it keeps off the door posts, at a small detour
+
+
+def test_no_route_when_the_wall_is_closed_or_the_door_too_narrow_for_the_chair():
+    grid, occ = _room_with_wall()
+    assert plan_path(occ, grid, (2.0, 1.0), (8.0, 1.0)) is None
+    grid, occ = _room_with_wall(gap_centre=3.0, gap=0.6)  # 0.6 m: narrower than the 0.64 m chair
+    assert plan_path(occ, grid, (2.0, 1.0), (8.0, 1.0)) is None
+
+
+def test_points_outside_the_grid_are_refused():
+    grid, occ = _room_with_wall(gap_centre=3.0)
+    with pytest.raises(PlanningError, match="goal"):
+        plan_path(occ, grid, (2.0, 1.0), (80.0, 1.0))
+
+
+def test_a_route_through_a_newly_seen_obstacle_is_blocked():
+    grid, occ = _room_with_wall(gap_centre=4.5, gap=1.2)
+    route = [(2.0, 4.5), (8.0, 4.5)]
+    cfg = PlannerConfig()
+    assert not route_blocked(route, occ, grid, cfg)
+    i, j = grid.world_to_index(6.5, 4.5)
+    occ[i, j] = True
+    assert route_blocked(route, occ, grid, cfg)
+
+
+def test_pure_pursuit_turns_toward_the_route_and_slows_for_the_goal():
+    pp = PurePursuit(lookahead=0.6, cruise=0.5, max_yaw_rate=0.8)
+    v, w = pp.command((0.0, 0.0, 0.0), [(0.0, 0.0), (5.0, 0.0)])
+    assert v == pytest.approx(0.5) and w == pytest.approx(0.0)
+    v, w = pp.command((0.0, -0.3, 0.0), [(0.0, 0.0), (5.0, 0.0)])
+    assert v > 0 and w > 0  # the route is to the left: turn counter-clockwise
+    v, w = pp.command((0.0, 0.0, math.pi), [(0.0, 0.0), (5.0, 0.0)])
+    assert v == 0.0 and abs(w) == pytest.approx(0.8)  # behind: turn on the spot
+    v, _ = pp.command((4.95, 0.0, 0.0), [(0.0, 0.0), (5.0, 0.0)])
+    assert v < 0.25  # v <= sqrt(2 a d) near the goal
