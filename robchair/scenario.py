@@ -369,7 +369,7 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
             write_zoom_picture(res, tuple(band), out / "map" / "zoom_2d.png")
         import matplotlib.pyplot as plt
 
-        plt.imsave(out / "scene.png", render_scene(scenario, spec))
+        plt.imsave(out / "scene.png", render_scene(scenario, spec, path=res.paths.get("ground_truth")))
         files += ["map", "scene.png"]
         timing["pictures"] = time.perf_counter() - t0
     if "bag" in res.extra:
