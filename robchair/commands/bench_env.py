@@ -54,8 +54,8 @@ def _physics_only(steps: int, seed: int) -> float:
     """Seconds for ``steps`` agent periods of physics + motors with random twists, no sensors."""
     import numpy as np
 
+    from robchair.envs.navigation import AGENT_HZ
     from sim.backend import SimChair
-    from sim.envs.navigation import AGENT_HZ
     from sim.world import PHYSICS_HZ
 
     chair = SimChair(scene=_office(), sensor=None, sonars=False, seed=seed)
@@ -141,8 +141,8 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
 
 def _run(args: argparse.Namespace) -> int:
+    from robchair.envs.navigation import AGENT_HZ
     from robchair.errors import RobChairError
-    from sim.envs.navigation import AGENT_HZ
 
     if args.steps < 1 or args.repeats < 1:
         raise RobChairError(f"--steps and --repeats must be >= 1, got {args.steps}, {args.repeats}")

@@ -14,7 +14,7 @@ where the map shows obstacles close to the route.
 
 :class:`BaselinePolicy` replans every ``replan_every`` steps, or at once when the route runs into a
 cell the map has since marked occupied, from the map the environment's chair builds itself
-(:meth:`sim.envs.navigation.RobChairNavigationEnv.own_occupancy`), never from the ground truth.
+(:meth:`robchair.envs.navigation.RobChairNavigationEnv.own_occupancy`), never from the ground truth.
 """
 
 from __future__ import annotations
@@ -287,7 +287,7 @@ class PurePursuit:
 class BaselinePolicy:
     """The classical baseline: plan on the chair's own map, replan, follow with pure pursuit.
 
-    Works on any :class:`sim.envs.navigation.RobChairNavigationEnv` (continuous actions); it reads
+    Works on any :class:`robchair.envs.navigation.RobChairNavigationEnv` (continuous actions); it reads
     the chair's own occupancy (:meth:`own_occupancy`), its pose estimate and the goal from ``info``.
 
     Args:

@@ -1,7 +1,7 @@
 """Gymnasium environments of the RobChair digital twin; importing this module registers them.
 
 Registered ids (lazy ``entry_point`` strings: nothing heavy is imported until :func:`gymnasium.make`);
-every id runs :class:`sim.envs.navigation.RobChairNavigationEnv` at 10 Hz with 300 agent steps (30 s)
+every id runs :class:`robchair.envs.navigation.RobChairNavigationEnv` at 10 Hz with 300 agent steps (30 s)
 per episode. The ``-v1`` ids draw a new chair per episode (domain randomisation, see the class
 docstring); the ``-v0`` ids keep the nominal chair.
 
@@ -16,7 +16,7 @@ docstring); the ``-v0`` ids keep the nominal chair.
 * ``RobChair/NavigationKinect-v1`` - the light observation plus the decimated Kinect v2 in the map.
 * ``RobChair/NavigationDynamic-v1`` - random floors with two people walking.
 * ``RobChair/NavigationDiscrete-v1`` - the light observation with five discrete actions
-  (:data:`sim.envs.navigation.DISCRETE_ACTIONS`: stop, forward slow, forward fast, turn left, right).
+  (:data:`robchair.envs.navigation.DISCRETE_ACTIONS`: stop, forward slow, forward fast, turn left, right).
 
 Example:
     >>> import gymnasium
@@ -59,7 +59,7 @@ for _id, _kwargs in _REGISTRATIONS.items():
     if _id not in gymnasium.registry:
         gymnasium.register(
             id=_id,
-            entry_point="sim.envs.navigation:RobChairNavigationEnv",
+            entry_point="robchair.envs.navigation:RobChairNavigationEnv",
             max_episode_steps=300,
             kwargs=dict(_kwargs),
         )

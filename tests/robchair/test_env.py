@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robchair.kinematics import Pose2D
-from sim.envs.navigation import (
+from robchair.envs.navigation import (
     FreeSpace,
     NavigationEnvError,
     RewardWeights,
@@ -20,6 +19,7 @@ from sim.envs.navigation import (
     navigation_reward,
     reward_terms,
 )
+from robchair.kinematics import Pose2D
 
 pytest.importorskip("pybullet")
 gymnasium = pytest.importorskip("gymnasium")
@@ -31,7 +31,7 @@ ENV_ID = "RobChair/Navigation-v0"
 
 @pytest.fixture(scope="module")
 def env():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(render_mode="rgb_array", randomization=False)  # as RobChair/Navigation-v0
     yield e
@@ -201,7 +201,7 @@ def test_env_checker_accepts_the_environment():
 def test_registered_ids_use_lazy_entry_points_and_a_time_limit():
     for env_id in sim.envs.ENV_IDS:
         spec = gymnasium.spec(env_id)
-        assert spec.entry_point == "sim.envs.navigation:RobChairNavigationEnv"
+        assert spec.entry_point == "robchair.envs.navigation:RobChairNavigationEnv"
         assert spec.max_episode_steps == 300
 
 
@@ -262,7 +262,7 @@ def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(env):
 
 
 def test_a_person_walking_into_the_standing_chair_ends_the_episode_as_a_collision():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     # outdoor scene: walker_towards leaves (11, 1.5) at 0.8 m/s toward -x, straight at the chair
     e = RobChairNavigationEnv(scene="outdoor", sensor=None, sonars=True)
@@ -382,7 +382,7 @@ def test_bad_actions_and_options_are_refused_with_a_clear_error(env):
 
 
 def test_bad_constructor_arguments_are_refused_before_anything_is_built():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     with pytest.raises(NavigationEnvError, match="render_mode"):
         RobChairNavigationEnv(render_mode="human")
@@ -427,7 +427,7 @@ def test_a_random_policy_runs_until_the_time_limit_truncates(env):
 def test_close_releases_the_pybullet_client_and_is_idempotent():
     import pybullet as p
 
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(sensor=None, sonars=True)
     e.reset(seed=0)
@@ -457,7 +457,7 @@ def test_sonar_only_variant_observes_six_ranges_and_is_deterministic():
 
 
 def test_odometry_pose_source_stays_close_to_ground_truth_over_a_short_drive():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(pose_source="odometry")
     try:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.envs.navigation import NavigationEnvError
+from robchair.envs.navigation import NavigationEnvError
 
 pytest.importorskip("pybullet")
 gymnasium = pytest.importorskip("gymnasium")
@@ -21,7 +21,7 @@ import sim.envs  # noqa: E402,F401  (registers the ids)
 
 @pytest.fixture(scope="module")
 def env():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(sensor=None, sonars=True)
     yield e
@@ -57,7 +57,7 @@ def test_a_goal_cut_off_from_the_start_is_refused(env):
 
 
 def test_goal_distance_must_start_above_the_goal_tolerance():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     with pytest.raises(NavigationEnvError, match=r"goal_distance.*goal_tolerance"):
         RobChairNavigationEnv(sensor=None, sonars=True, goal_distance=(0.0, 0.2))
@@ -75,7 +75,7 @@ def test_a_step_after_the_episode_terminated_raises_and_pays_nothing(env):
 
 
 def test_a_contact_within_a_sub_step_is_reported_by_name():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
     from sim.scene import Motion, Scene, SceneObject
 
     # a runner crosses the standing chair's footprint at 4 m/s within one 1 s agent step: overlapping
@@ -120,7 +120,7 @@ def _drift(env, seed):
 
 
 def test_each_episode_draws_its_own_chair_from_np_random_and_a_seed_repeats_it():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     e = RobChairNavigationEnv(sensor=None, sonars=True, pose_source="odometry")
     try:
@@ -137,7 +137,7 @@ def test_each_episode_draws_its_own_chair_from_np_random_and_a_seed_repeats_it()
 
 
 def test_randomisation_ranges_are_arguments_and_bad_ranges_are_refused():
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
     from sim.envs.randomization import DomainRandomization
     from sim.errors import SimError
 
@@ -173,8 +173,8 @@ def test_the_environment_pickles_and_deep_copies_into_an_equal_environment():
 
 
 def test_an_environment_built_with_an_explicit_spec_pickles_too():
+    from robchair.envs.navigation import RobChairNavigationEnv
     from robchair.spec import load_spec
-    from sim.envs.navigation import RobChairNavigationEnv
 
     spec = load_spec()
     assert pickle.loads(pickle.dumps(spec)) == spec
@@ -190,7 +190,7 @@ def test_an_environment_built_with_an_explicit_spec_pickles_too():
 def test_metadata_declares_the_autoreset_mode():
     from gymnasium.vector import AutoresetMode
 
-    from sim.envs.navigation import RobChairNavigationEnv
+    from robchair.envs.navigation import RobChairNavigationEnv
 
     assert RobChairNavigationEnv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     assert math.isfinite(RobChairNavigationEnv.metadata["render_fps"])

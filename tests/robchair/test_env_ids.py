@@ -87,7 +87,7 @@ def test_random_floors_change_with_the_seed_and_evaluation_floors_come_from_thei
 
 
 def test_the_discrete_variant_maps_its_five_actions_to_documented_twists():
-    from sim.envs.navigation import DISCRETE_ACTIONS, NavigationEnvError
+    from robchair.envs.navigation import DISCRETE_ACTIONS, NavigationEnvError
 
     env = gymnasium.make("RobChair/NavigationDiscrete-v1").unwrapped
     try:
