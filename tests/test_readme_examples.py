@@ -27,7 +27,7 @@ README = ROOT / "README.md"
 BIN = Path(sys.executable).parent
 
 MAIN_JOB = (
-    "python3.11 -m venv .venv && .venv/bin/pip install -q -e . && "
+    "python3.11 -m venv .venv && .venv/bin/pip install -q -e '.[viz]' && "
     ".venv/bin/robchair sim --out runs/default --overwrite"
 )
 TEST_SUITE = "python3.11 -m venv .venv && .venv/bin/pip install -q -e '.[dev]' && .venv/bin/python -m pytest"
