@@ -197,12 +197,33 @@ def _sonar_arrays(
     return tuple(arrays)
 
 
+
+def _roboteq(port: str, cfg: ConfigTable, spec: RobChairSpec, clock: Clock, **extra: Any) -> Any:
+    """The Roboteq driver on ``port`` with the table's link settings and the spec's drive, PID and
+    controller-side protections (ramps, amps limit, loop-error detection)."""
+    from hw.roboteq.driver import RoboteqMDC2230
+    from hw.roboteq.settings import RoboteqProtections
+
+    return RoboteqMDC2230(
+        port,
+        timeout_s=cfg.number("timeout_s", 0.1, gt=0),
+        retries=cfg.integer("retries", 2, ge=0),
+        watchdog_ms=cfg.integer("watchdog_ms", 1000, ge=1),
+        encoder_ppr=int(spec.encoder_ppr),
+        max_rpm=int(spec.max_motor_rpm),
+        gear_ratio=float(spec.gear_ratio),
+        encoder_on=spec.encoder_on,
+        protections=RoboteqProtections.from_spec(spec),
+        pid=design_pid_configs(spec),
+        clock=clock,
+        release_on_open=cfg.boolean("release_stop", False),
+        **extra,
+    )
+
 def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     """The real drivers over protocol emulators (the ``emulated`` entry)."""
     from hw.clock import MonotonicClock
-    from hw.roboteq.driver import RoboteqMDC2230
     from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
-    from hw.roboteq.settings import RoboteqProtections
 
     cfg = backend_table(config, "emulated")
     cfg.keys(_EMULATED_KEYS)
@@ -218,20 +239,7 @@ def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     path = emu.start()
     on_close: list[Callable[[], None]] = [emu.stop]
     try:
-        motors = RoboteqMDC2230(
-            path,
-            timeout_s=cfg.number("timeout_s", 0.1, gt=0),
-            retries=cfg.integer("retries", 2, ge=0),
-            watchdog_ms=cfg.integer("watchdog_ms", 1000, ge=1),
-            encoder_ppr=int(spec.encoder_ppr),
-            max_rpm=int(spec.max_motor_rpm),
-            gear_ratio=float(spec.gear_ratio),
-            encoder_on=spec.encoder_on,
-            protections=RoboteqProtections.from_spec(spec),
-            pid=design_pid_configs(spec),
-            clock=clock,
-            release_on_open=cfg.boolean("release_stop", False),
-        )
+        motors = _roboteq(path, cfg, spec, clock)
         arrays: tuple[Any, ...] = ()
         extras: dict[str, Any] = {"roboteq_emulator": emu}
         if cfg.boolean("sonars", True):
@@ -258,8 +266,6 @@ def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
 def make_real_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     """The Roboteq on a serial port and the SRF08 arrays on I2C (the ``real`` entry)."""
     from hw.clock import MonotonicClock
-    from hw.roboteq.driver import RoboteqMDC2230
-    from hw.roboteq.settings import RoboteqProtections
 
     cfg = backend_table(config, "real")
     cfg.keys(_REAL_KEYS)
@@ -268,21 +274,7 @@ def make_real_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     port = cfg.string("port")
     spec = _spec(cfg)
     clock = MonotonicClock()
-    motors = RoboteqMDC2230(
-        port,
-        baudrate=cfg.integer("baudrate", 115200, gt=0),
-        timeout_s=cfg.number("timeout_s", 0.1, gt=0),
-        retries=cfg.integer("retries", 2, ge=0),
-        watchdog_ms=cfg.integer("watchdog_ms", 1000, ge=1),
-        encoder_ppr=int(spec.encoder_ppr),
-        max_rpm=int(spec.max_motor_rpm),
-        gear_ratio=float(spec.gear_ratio),
-        encoder_on=spec.encoder_on,
-        protections=RoboteqProtections.from_spec(spec),
-        pid=design_pid_configs(spec),
-        clock=clock,
-        release_on_open=cfg.boolean("release_stop", False),
-    )
+    motors = _roboteq(port, cfg, spec, clock, baudrate=cfg.integer("baudrate", 115200, gt=0))
     arrays: tuple[Any, ...] = ()
     on_close: list[Callable[[], None]] = []
     joystick = None
