@@ -116,8 +116,11 @@ def _wall(x: float, y0: float = -0.3, y1: float = 0.3, z0: float = 0.2, z1: floa
 def test_the_zoom_follows_the_chair_fed_by_the_same_insert_and_answers_fine_inside_coarse_outside(
     spec,
 ) -> None:
-    p = _perception(spec, zoom_half_width=1.0, zoom_factor=5)
-    assert p.zoom.coarse is p.map  # one insert feeds both levels
+    # with the thesis (VHV) map as the main map, the zoom shares it as its coarse level: one insert feeds both
+    p = _perception(spec, zoom_half_width=1.0, zoom_factor=5, map_kind="thesis")
+    assert p.zoom.coarse is p.map
+    # the probabilistic main map is not a VHV map: the zoom keeps a coarse level of its own
+    assert _perception(spec, zoom_half_width=1.0).zoom.coarse is not None
     front = p.corridor.front_x
     gap = 0.213  # from the footprint's front edge to the wall (at x = 0.793 m, inside the 1 m region)
     wall = np.concatenate([_wall(front + gap).reshape(-1, 3), _wall(3.0).reshape(-1, 3)]).reshape(1, -1, 3)
