@@ -27,12 +27,8 @@ status (``hardware_status``); :meth:`unplug` closes the pty as a pulled cable do
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import os
-import select
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -43,6 +39,7 @@ import numpy.typing as npt
 
 from hw.errors import HardwareError, ProtocolError
 from hw.hokuyo import codec, measurement
+from hw.pty_link import PtyServer
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +130,7 @@ class _Pending:
     rev: int
 
 
-class HokuyoEmulator:
+class HokuyoEmulator(PtyServer):
     """An emulated URG-04LX answering SCIP 2.0 on a pty.
 
     Args:
@@ -147,6 +144,7 @@ class HokuyoEmulator:
     """
 
     name = "hokuyo-emulator"
+    idle_wake_s = IDLE_WAKE_S
 
     def __init__(
         self,
@@ -160,6 +158,7 @@ class HokuyoEmulator:
     ) -> None:
         if not (math.isfinite(noise_std_m) and noise_std_m >= 0):
             raise HardwareError(f"HokuyoEmulator: noise_std_m must be >= 0, got {noise_std_m!r}")
+        super().__init__()
         self.scene = scene if scene is not None else room_scene()
         self.params = params
         self.version = dict(DEFAULT_VERSION if version is None else version)
@@ -170,13 +169,6 @@ class HokuyoEmulator:
         self.faults = _Faults()
         self.received: list[str] = []
         self.scans_sent = 0
-        self.unplugged = False
-        self._lock = threading.RLock()
-        self._thread: threading.Thread | None = None
-        self._running = False
-        self._master: int | None = None
-        self._slave: int | None = None
-        self.device_path: str | None = None
         self._rx = b""
         self._t0 = time.monotonic()
         self._stream: _Stream | None = None
@@ -248,53 +240,11 @@ class HokuyoEmulator:
             if hardware_status is not None:
                 self.faults.hardware_status = hardware_status or None
 
-    def unplug(self) -> None:
-        """Close the pty (both ends) as a pulled USB cable does; the thread stops."""
-        with self._lock:
-            self.unplugged = True
-            self._running = False
-            for fd in (self._master, self._slave):
-                if fd is not None:
-                    with contextlib.suppress(OSError):
-                        os.close(fd)
-            self._master = self._slave = None
-
     # --- lifecycle ------------------------------------------------------------------------------
 
-    def start(self) -> str:
-        """Open the pty, start answering, return the device path (the pty's slave side)."""
-        import termios
-        import tty
-
-        if self._thread is not None:
-            raise HardwareError("HokuyoEmulator.start: already started")
-        master, slave = os.openpty()
-        tty.setraw(slave, termios.TCSANOW)
-        self._master, self._slave = master, slave
-        self.device_path = os.ttyname(slave)
+    def _on_start(self) -> None:
         self._t0 = time.monotonic()
-        self._running = True
-        self._thread = threading.Thread(target=self._serve, name="hokuyo-emulator", daemon=True)
-        self._thread.start()
         log.info("Hokuyo emulator on %s", self.device_path)
-        return self.device_path
-
-    def stop(self) -> None:
-        """Stop the thread and close the pty (idempotent)."""
-        self._running = False
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=2.0)
-        self._thread = None
-        if not self.unplugged:
-            self.unplug()
-            self.unplugged = False
-
-    def __enter__(self) -> HokuyoEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # --- time -----------------------------------------------------------------------------------
 
@@ -308,30 +258,14 @@ class HokuyoEmulator:
 
     # --- serving --------------------------------------------------------------------------------
 
-    def _serve(self) -> None:
-        while self._running:
-            master = self._master
-            if master is None:
-                break
-            try:
-                ready, _, _ = select.select([master], [], [], IDLE_WAKE_S)
-            except (OSError, ValueError):
-                break
-            with self._lock:
-                if not self._running or self._master is None:
-                    break
-                if ready:
-                    try:
-                        data = os.read(master, 4096)
-                    except OSError:
-                        data = b""
-                    if data:
-                        self._rx += data.replace(b"\r", b"\n")
-                        while b"\n" in self._rx:
-                            line, self._rx = self._rx.split(b"\n", 1)
-                            if line.strip():
-                                self._handle(line.decode("ascii", errors="replace").strip())
-                self._tick()
+    def _on_wake(self, data: bytes) -> None:
+        if data:
+            self._rx += data.replace(b"\r", b"\n")
+            while b"\n" in self._rx:
+                line, self._rx = self._rx.split(b"\n", 1)
+                if line.strip():
+                    self._handle(line.decode("ascii", errors="replace").strip())
+        self._tick()
 
     def _tick(self) -> None:
         """Send what falls due: scans of finished revolutions, delayed replies."""
@@ -355,12 +289,6 @@ class HokuyoEmulator:
         self._delayed = [d for d in self._delayed if d[0] > now]
         for _, data in due:
             self._write(data)
-
-    def _write(self, data: bytes) -> None:
-        if self._master is None:
-            return
-        with contextlib.suppress(OSError):
-            os.write(self._master, data)
 
     def _send_block(self, lines: list[bytes], *, data_from: int | None = None) -> None:
         """Send one reply block; ``data_from`` is the index of the first line that faults may damage."""

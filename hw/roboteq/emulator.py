@@ -40,13 +40,9 @@ Fault injection: :meth:`RoboteqEmulator.inject` drops, garbles or delays the nex
 from __future__ import annotations
 
 import collections
-import contextlib
 import functools
 import logging
 import math
-import os
-import select
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,6 +50,7 @@ from typing import Any
 from hw.clock import ManualClock, MonotonicClock
 from hw.errors import HardwareError, ProtocolError
 from hw.interfaces import Clock, MotorFaults
+from hw.pty_link import PtyServer
 from hw.roboteq import codec
 from hw.roboteq.gains import FIRMWARE_RANGE, gains_from_roboteq
 from robchair.spec import RobChairSpec
@@ -136,7 +133,7 @@ def _plant_and_default_gains(
     return plant, (fw.kp, fw.ki, fw.kd)
 
 
-class RoboteqEmulator:
+class RoboteqEmulator(PtyServer):
     """An emulated MDC2230 answering on a pty.
 
     Args:
@@ -150,6 +147,7 @@ class RoboteqEmulator:
     """
 
     name = "roboteq-emulator"
+    idle_wake_s = IDLE_WAKE_S
 
     def __init__(
         self,
@@ -166,6 +164,7 @@ class RoboteqEmulator:
 
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise HardwareError(f"RoboteqEmulator: rate_hz must be > 0, got {rate_hz!r}")
+        super().__init__()
         self.spec = spec if spec is not None else load_spec()
         self.firmware = codec.parse_firmware_id(firmware)
         self.echo = echo
@@ -174,12 +173,6 @@ class RoboteqEmulator:
         self._dt_ns = round(self.dt * 1e9)
         self.battery_v = battery_v
         self._control = control
-        self._lock = threading.RLock()
-        self._thread: threading.Thread | None = None
-        self._running = False
-        self._master: int | None = None
-        self._slave: int | None = None
-        self.device_path: str | None = None
         self._rx = b""
         self._pending: list[tuple[float, bytes]] = []  # (monotonic due time, bytes) for delayed replies
         # global configuration
@@ -203,7 +196,6 @@ class RoboteqEmulator:
         self.received: collections.deque[tuple[int, str]] = collections.deque(maxlen=100_000)
         self.stops: list[StopEvent] = []
         self.watchdog_trips = 0
-        self.disconnected = False
         self._channels = [self._make_channel(i) for i in range(2)]  # slow the first time (PID design)
         self._t_ns = self.clock.now_ns()  # motor time starts once the channels exist
         self._last_bang_ns = self._t_ns
@@ -437,88 +429,34 @@ class RoboteqEmulator:
 
     def disconnect(self) -> None:
         """Close the pty (both ends) as if the cable were pulled; the thread stops."""
-        with self._lock:
-            self.disconnected = True
-            self._running = False
-            for fd in (self._master, self._slave):
-                if fd is not None:
-                    with contextlib.suppress(OSError):
-                        os.close(fd)
-            self._master = self._slave = None
+        self.unplug()
 
-    # --- lifecycle --------------------------------------------------------------------------
-
-    def start(self) -> str:
-        """Open the pty, start answering, return the device path (the pty's slave side)."""
-        import termios
-        import tty
-
-        if self._thread is not None:
-            raise HardwareError("RoboteqEmulator.start: already started")
-        master, slave = os.openpty()
-        # raw mode on the slave: no line discipline echo, no CR/LF translation, bytes as sent
-        tty.setraw(slave, termios.TCSANOW)
-        self._master, self._slave = master, slave
-        self.device_path = os.ttyname(slave)
-        self._running = True
-        self._thread = threading.Thread(target=self._serve, name="roboteq-emulator", daemon=True)
-        self._thread.start()
+    def _on_start(self) -> None:
         log.info("Roboteq emulator on %s (%s, echo %s)", self.device_path, self.firmware.text, self.echo)
-        return self.device_path
-
-    def stop(self) -> None:
-        """Stop the thread and close the pty (idempotent)."""
-        self._running = False
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=2.0)
-        self._thread = None
-        if not self.disconnected:
-            self.disconnect()
-            self.disconnected = False
-
-    def __enter__(self) -> RoboteqEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # --- serving ----------------------------------------------------------------------------
 
-    def _serve(self) -> None:
-        while self._running:
-            master = self._master
-            if master is None:
-                break
-            # Motor state is stepped lazily (on each command, query and clock move), so the thread
-            # only needs to wake for input, for a delayed reply falling due, and every 20 ms to keep
-            # the real-time catch-up (done inside a reply) short.
-            wait = IDLE_WAKE_S if not self._telemetry else min(IDLE_WAKE_S, self._telemetry_period / 2)
-            if self._pending:
-                wait = max(0.0, min(wait, min(p[0] for p in self._pending) - time.monotonic()))
-            try:
-                ready, _, _ = select.select([master], [], [], wait)
-            except (OSError, ValueError):
-                break
-            with self._lock:
-                if not self._running or self._master is None:
-                    break
-                self._sync()
-                self._flush_pending()
-                self._send_telemetry()
-                if ready:
-                    try:
-                        data = os.read(master, 4096)
-                    except OSError:
-                        data = b""
-                    if not data:
-                        continue
-                    if self.echo:  # the controller echoes each character as it arrives
-                        self._write(data.replace(b"\n", b""))
-                    self._rx += data
-                    lines, self._rx = codec.split_command_lines(self._rx)
-                    for line in lines:
-                        self._handle_line(line)
+    def _wait_s(self) -> float:
+        # Motor state is stepped lazily (on each command, query and clock move), so the thread
+        # only needs to wake for input, for a delayed reply falling due, and every 20 ms to keep
+        # the real-time catch-up (done inside a reply) short.
+        wait = IDLE_WAKE_S if not self._telemetry else min(IDLE_WAKE_S, self._telemetry_period / 2)
+        if self._pending:
+            wait = max(0.0, min(wait, min(p[0] for p in self._pending) - time.monotonic()))
+        return wait
+
+    def _on_wake(self, data: bytes) -> None:
+        self._sync()
+        self._flush_pending()
+        self._send_telemetry()
+        if not data:
+            return
+        if self.echo:  # the controller echoes each character as it arrives
+            self._write(data.replace(b"\n", b""))
+        self._rx += data
+        lines, self._rx = codec.split_command_lines(self._rx)
+        for line in lines:
+            self._handle_line(line)
 
     def _send_telemetry(self) -> None:
         now = time.monotonic()
@@ -533,12 +471,6 @@ class RoboteqEmulator:
         self._pending = [p for p in self._pending if p[0] > now]
         for _, data in due:
             self._write(data)
-
-    def _write(self, data: bytes) -> None:
-        if self._master is None:
-            return
-        with contextlib.suppress(OSError):
-            os.write(self._master, data)
 
     def _reply(self, text: str) -> None:
         data = text.encode("ascii") + codec.CR
