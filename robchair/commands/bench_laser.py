@@ -13,13 +13,13 @@ agreement figure). Reported: median milliseconds per scan and the ratio; JSON in
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import statistics
 import time
-from pathlib import Path
 from typing import Any
+
+from robchair.commands.bench_output import write_results
 
 DEFAULT_OUT = "out/bench_laser.json"
 
@@ -109,21 +109,5 @@ def _run(args: argparse.Namespace) -> int:
         f"{faster} is {ratio:.1f}x faster; {100 * m['beams_with_return']:.0f} % of beams return, and the two "
         f"casters agree within 1 cm on {100 * m['agreement_1cm']:.1f} % of the beams not on the chair"
     )
-    print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    result = {
-        "scene": args.scene,
-        **m,
-        "faster": faster,
-        "ratio": ratio,
-        "load_average_before": load0,
-        "load_average_after": load1,
-        "cpus": os.cpu_count(),
-        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
-    tmp = out.with_suffix(".json.partial")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    write_results(args.out, {"scene": args.scene, **m, "faster": faster, "ratio": ratio}, load0, load1)
     return 0
