@@ -64,6 +64,9 @@ Where this differs from the reference drivers, and why:
 * Clearpath's ``!EX`` is fire-and-forget; here the latch is read back from ``?FF``.
 
 One thread talks to a driver (the runtime loop); it holds no lock of its own.
+
+The class is built in three layers: :mod:`hw.roboteq.transactions` (port, retries, fault path),
+:mod:`hw.roboteq.readings` (queries, diagnostics) and this module (lifecycle, motion, configuration).
 """
 
 from __future__ import annotations
@@ -71,27 +74,24 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
-from typing import Any, NoReturn, Protocol
+from typing import Any
 
 from hw.errors import (
     CommandError,
     DeviceClosedError,
-    DeviceDisconnectedError,
     DeviceFaultError,
     DeviceStateError,
-    DeviceTimeoutError,
     HardwareError,
-    ProtocolError,
 )
-from hw.interfaces import Device, LifecycleState, MotorFaults, MotorState, PIDConfig
+from hw.interfaces import LifecycleState, MotorState, PIDConfig
 from hw.roboteq import codec
 from hw.roboteq.link import ReplyLink
-from hw.roboteq.settings import RoboteqDiagnostics, RoboteqProtections
+from hw.roboteq.readings import RoboteqReadings
+from hw.roboteq.settings import RoboteqProtections
+from hw.roboteq.transactions import RELEASE_HINT, SerialLike
 
 log = logging.getLogger(__name__)
 
-RELEASE_HINT = "release it with `robchair run --release-stop` (driver: release())"
 PLAUSIBILITY_SLACK_COUNTS = 8
 # Firmware from which the speed loop drives a current loop (manual V2.1): the identified
 # voltage-to-speed plant then does not describe what the speed gains act on.
@@ -100,17 +100,7 @@ CASCADED_LOOP_FIRMWARE = (2, 1)
 S = LifecycleState
 
 
-class SerialLike(Protocol):
-    def write(self, data: bytes) -> int | None: ...
-
-    def read(self, size: int = 1) -> bytes: ...
-
-    def close(self) -> None: ...
-
-    def reset_input_buffer(self) -> None: ...
-
-
-class RoboteqMDC2230(Device):
+class RoboteqMDC2230(RoboteqReadings):
     """A Roboteq MDC2230 in closed-loop speed mode, one channel per wheel (1 = left, 2 = right).
 
     Args:
@@ -218,11 +208,6 @@ class RoboteqMDC2230(Device):
     def state(self) -> LifecycleState:
         """The lifecycle state (:class:`hw.interfaces.LifecycleState`)."""
         return self._state
-
-    @property
-    def discarded_lines(self) -> int:
-        """Received lines that answered nothing the driver asked (stale, unsolicited, other echoes)."""
-        return self._link.discarded_lines if self._link is not None else self._discarded_before
 
     @property
     def read_only(self) -> bool:
@@ -462,131 +447,6 @@ class RoboteqMDC2230(Device):
         self._check_plausible(stamp, (counts[0], counts[1]))
         return MotorState(stamp, (counts[0], counts[1]), (float(speeds[0]), float(speeds[1])), faults)
 
-    def read_encoder_counts(self) -> tuple[int, int]:
-        """``?C`` (signed 32-bit, quadrature x4) without the plausibility check (for inspection)."""
-        self._check_open()
-        a, b = self._ints(codec.query("C"), 2)
-        return a, b
-
-    def read_speeds_rpm(self) -> tuple[float, float]:
-        """``?S``: measured motor speeds, RPM."""
-        self._check_open()
-        a, b = self._ints(codec.query("S"), 2)
-        return float(a), float(b)
-
-    def read_faults_word(self) -> int:
-        """The raw ``?FF`` word (0..65535), without acting on it."""
-        self._check_open()
-        (word,) = self._ints(codec.query("FF"), 1, validate=_flag_word)
-        return word
-
-    def read_faults(self) -> MotorFaults:
-        """``?FF`` decoded; a set flag (an unknown bit included) stops the motors, then raises.
-
-        A controller that restarted during the session (the "default configuration loaded at
-        startup" flag appears) is a fault too.
-
-        Raises:
-            DeviceFaultError: after stopping. Read-only sessions only command zero (no ``!EX``).
-        """
-        word = self.read_faults_word()
-        faults = codec.decode_fault_flags(word)
-        names = faults.names()
-        if faults.startup_config and self._startup_config_at_start:
-            names.remove("startup_config")
-        if faults.startup_config and not self._startup_config_at_start:
-            self._fail(
-                DeviceFaultError(
-                    f"Roboteq restarted during the session (?FF={word}: default configuration loaded at "
-                    "startup); its configuration is lost: close and open again"
-                )
-            )
-        if names:
-            self._fail(DeviceFaultError(f"Roboteq reports fault flags {names} (?FF={word})" + self._hint()))
-        return faults
-
-    def read_status(self) -> codec.StatusFlags:
-        """``?FS`` decoded (no action is taken on it)."""
-        self._check_open()
-        (word,) = self._ints(codec.query("FS"), 1, validate=_flag_word)
-        return codec.decode_status_flags(word)
-
-    def read_motor_flags(self) -> tuple[codec.MotorFlags, codec.MotorFlags]:
-        """``?FM`` for both motors, decoded (no action is taken on them)."""
-        self._check_open()
-        a, b = self._ints(codec.query("FM"), 2, validate=_flag_word)
-        return codec.decode_motor_flags(a), codec.decode_motor_flags(b)
-
-    def read_voltages(self) -> tuple[float, float, float]:
-        """(internal V, battery V, 5 V output V) from ``?V``."""
-        self._check_open()
-        internal, battery, five_mv = self._ints(codec.query("V"), 3)
-        return internal / 10.0, battery / 10.0, five_mv / 1000.0
-
-    def read_amps(self) -> tuple[float, float]:
-        """Motor currents (left, right), A, from ``?A``."""
-        self._check_open()
-        a, b = self._ints(codec.query("A"), 2)
-        return a / 10.0, b / 10.0
-
-    def read_temperatures(self) -> tuple[float, float, float]:
-        """(MCU, channel 1 heatsink, channel 2 heatsink), degrees C, from ``?T``."""
-        self._check_open()
-        t = self._ints(codec.query("T"), 3)
-        return float(t[0]), float(t[1]), float(t[2])
-
-    def read_config(self, name: str) -> tuple[int, ...]:
-        """``~NAME``: a configuration value for every channel (or the one global value)."""
-        self._check_open()
-        n = 1 if name in codec.GLOBAL_CONFIG else 2
-        return self._ints(codec.get_config(name), n)
-
-    def counters(self) -> dict[str, int]:
-        """Retries, discarded lines and watchdog trips since the session started (no I/O)."""
-        return {
-            "retries": self.n_retries,
-            "discarded_lines": self.discarded_lines,
-            "watchdog_trips": self.watchdog_trips,
-        }
-
-    def read_diagnostics(self) -> RoboteqDiagnostics:
-        """Counters plus ``?V``, ``?A``, ``?T``, ``?FS``, ``?FF`` (five transactions: poll at about 1 Hz).
-
-        ``?FF``/``?FM`` are acted on by :meth:`read_state` every cycle; ``?FS`` (the controller's
-        mode) only here, at the diagnostics rate: a status bit the manual does not name stops.
-
-        Raises:
-            DeviceFaultError: ``?FS`` has a bit the manual does not name (after stopping).
-            DeviceTimeoutError, ProtocolError, DeviceDisconnectedError: the link failed (after stopping).
-        """
-        self._check_open()
-        status = self.read_status()
-        if status.unknown_bits and self._state is not S.ERROR:
-            self._fail(
-                DeviceFaultError(
-                    f"Roboteq status flags {status.names()} (?FS): a bit the manual does not name"
-                )
-            )
-        internal, battery, _ = self.read_voltages()
-        amps = self.read_amps()
-        temps = self.read_temperatures()
-        faults = codec.decode_fault_flags(self.read_faults_word())
-        return RoboteqDiagnostics(
-            stamp_ns=self._now_ns(),
-            state=self._state.value,
-            firmware=self.firmware.text if self.firmware else "",
-            retries=self.n_retries,
-            discarded_lines=self.discarded_lines,
-            watchdog_trips=self.watchdog_trips,
-            stop_reason=self.stop_reason,
-            faults=tuple(faults.names()),
-            status=tuple(status.names()),
-            battery_v=battery,
-            internal_v=internal,
-            motor_amps=amps,
-            temperatures_c=temps,
-        )
-
     def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None:
         """Write ``^KP/^KI/^KD`` per channel in the firmware's units and read them back.
 
@@ -651,29 +511,6 @@ class RoboteqMDC2230(Device):
 
     # --- session ------------------------------------------------------------------------------
 
-    def _open_port(self) -> None:
-        if not isinstance(self._port_arg, str):
-            self._port = self._port_arg
-            return
-        try:
-            import serial
-        except ImportError as exc:  # pragma: no cover - pyserial is a dependency
-            raise HardwareError("the Roboteq driver needs pyserial: pip install pyserial") from exc
-        try:
-            self._port = serial.Serial(
-                self._port_arg,
-                baudrate=self.baudrate,
-                bytesize=serial.EIGHTBITS,
-                parity=serial.PARITY_NONE,
-                stopbits=serial.STOPBITS_ONE,
-                timeout=0.005,
-                write_timeout=self.timeout_s,
-            )
-        except (serial.SerialException, OSError) as exc:
-            self._state = S.UNCONFIGURED
-            raise DeviceDisconnectedError(f"cannot open Roboteq port {self._port_arg!r}: {exc}") from exc
-        self._owns_port = True
-
     def _start_session(self) -> None:
         # zero first, without waiting: a controller left driving stops before anything else
         self._write_raw(codec.set_speed(1, 0).encode() + codec.set_speed(2, 0).encode() + b"# C" + codec.CR)
@@ -732,16 +569,6 @@ class RoboteqMDC2230(Device):
 
     # --- checks -------------------------------------------------------------------------------
 
-    def _check_open(self) -> None:
-        if self._state in (S.UNCONFIGURED, S.FINALIZED) or self._port is None:
-            raise DeviceClosedError(
-                f"{self.name} is closed ({self._state.value}): call open() (or configure()) first"
-            )
-        if self._dead:
-            raise DeviceDisconnectedError(
-                f"Roboteq port {self._port_arg!r} is gone ({self.stop_reason}); close and open again"
-            )
-
     def _check_motion(self, moving: bool) -> None:
         if not moving or self._state is S.ACTIVE:
             return
@@ -754,9 +581,6 @@ class RoboteqMDC2230(Device):
         raise DeviceStateError(
             f"{self.name} is {self._state.value}: call activate() before commanding motion"
         )
-
-    def _hint(self) -> str:
-        return f"; {RELEASE_HINT}" if self._writable else ""
 
     def _after_stall(self) -> None:
         """After a host stall longer than the watchdog, zero both channels before anything else."""
@@ -789,9 +613,6 @@ class RoboteqMDC2230(Device):
                     )
                 )
 
-    def _now_ns(self) -> int:
-        return int(self._clock.now_ns()) if self._clock is not None else time.monotonic_ns()
-
     # --- transactions -------------------------------------------------------------------------
 
     def _zero(self) -> None:
@@ -809,123 +630,9 @@ class RoboteqMDC2230(Device):
                 )
             )
 
-    def _ints(
-        self, cmd: codec.Command, n: int | None, validate: Callable[[tuple[int, ...]], None] | None = None
-    ) -> tuple[int, ...]:
-        def check(values: tuple[int, ...]) -> None:
-            if n is not None and len(values) != n:
-                raise ProtocolError(f"expected {n} values")
-            if validate is not None:
-                validate(values)
-
-        reply = self._transact(cmd, expected=check)
-        assert isinstance(reply, codec.Value)
-        return reply.ints()
-
-    def _command(self, cmd: codec.Command) -> None:
-        self._transact(cmd, expected=None)
-
-    def _transact(
-        self,
-        cmd: codec.Command,
-        expected: Callable[[tuple[int, ...]], None] | None,
-        probing: bool = False,
-    ) -> codec.Reply:
-        """Send ``cmd`` and return its reply, retrying; on final failure stop the motors and raise."""
-        link = self._link
-        assert link is not None
-        problems: list[str] = []
-        link.rx_bytes = 0
-        for attempt in range(self.retries + 1):
-            if attempt:
-                self.n_retries += 1
-            try:
-                outcome = link.attempt(cmd, expected)
-            except OSError as exc:  # pyserial's SerialException is an IOError
-                self._port_failed(exc)
-            if isinstance(outcome, str):
-                problems.append(outcome)
-                log.debug("Roboteq %s: %s (attempt %d)", cmd.text, outcome, attempt + 1)
-                continue
-            if cmd.kind == "!":
-                self._last_bang_ns = self._now_ns()
-            return outcome
-        kinds = {p.split(":")[0] for p in problems}
-        if probing and link.rx_bytes and kinds <= {"timeout", "garbled", "unattributed"}:
-            self._fail(
-                ProtocolError(
-                    f"{self._port_arg!r} received {link.rx_bytes} bytes that are not a Roboteq reply to "
-                    f"{cmd.text!r} (wrong device or baud rate? {self.baudrate} 8N1 expected): {problems[-1]}"
-                )
-            )
-        err_cls: type[HardwareError] = DeviceTimeoutError if kinds == {"timeout"} else ProtocolError
-        self._fail(
-            err_cls(f"Roboteq gave no valid answer to {cmd.text!r} in {len(problems)} tries: {problems}")
-        )
-
-    def _write_raw(self, data: bytes) -> None:
-        assert self._link is not None
-        try:
-            self._link.write(data)
-        except OSError as exc:
-            self._port_failed(exc)
-
-    def _flush(self) -> None:
-        assert self._link is not None
-        try:
-            self._link.flush()
-        except OSError as exc:
-            self._port_failed(exc)
-
-    # --- fault path ---------------------------------------------------------------------------
-
-    def _port_failed(self, exc: BaseException) -> NoReturn:
-        self._fail(DeviceDisconnectedError(f"Roboteq port {self._port_arg!r} failed (unplugged?): {exc}"))
-
-    def _best_effort_stop(self) -> bool:
-        """Write zero speeds (and ``!EX`` unless read-only) and wait one deadline for the acks.
-
-        Nothing is written to a device that never identified itself as a Roboteq.
-        """
-        if self._link is None or self._dead or not self._identified:
-            return False
-        cmds = [codec.set_speed(1, 0), codec.set_speed(2, 0)]
-        if self._writable:
-            cmds.append(codec.emergency_stop())
-        try:
-            assert self._link is not None
-            self.stop_acknowledged = self._link.send_stop(cmds)
-            return True
-        except Exception as exc:
-            log.debug("Roboteq: could not send the stop commands: %s", exc)
-            return False
-
-    def _fail(self, exc: HardwareError) -> NoReturn:
-        """Stop the motors first (zero speeds, ``!EX`` unless read-only), then -> error and raise."""
-        if isinstance(exc, DeviceDisconnectedError):
-            self._dead = True
-            sent = False
-        else:
-            sent = self._best_effort_stop()
-        self.stop_reason = str(exc)
-        if self._state in (S.INACTIVE, S.ACTIVE):
-            self._state = S.ERROR
-        if self._identified:
-            how = (
-                "stop sent" if sent else "stop could NOT be sent: the controller's watchdog stops the motors"
-            )
-            log.error("Roboteq stop (%s): %s", how, exc)
-        raise exc
-
 
 _FF_ESTOP = 1 << codec.FAULT_BITS.index("emergency_stop")
 _FF_STARTUP_CONFIG = 1 << codec.FAULT_BITS.index("startup_config")
-
-
-def _flag_word(values: tuple[int, ...]) -> None:
-    for v in values:
-        if not 0 <= v <= codec.FLAG_WORD_MAX:
-            raise ProtocolError(f"flag word {v} outside 0..{codec.FLAG_WORD_MAX}")
 
 
 def _check_watchdog(watchdog_ms: object) -> None:
