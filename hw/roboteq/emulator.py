@@ -40,11 +40,9 @@ Fault injection: :meth:`RoboteqEmulator.inject` drops, garbles or delays the nex
 from __future__ import annotations
 
 import collections
-import functools
 import logging
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 from hw.clock import ManualClock, MonotonicClock
@@ -52,7 +50,8 @@ from hw.errors import HardwareError, ProtocolError
 from hw.interfaces import Clock, MotorFaults
 from hw.pty_link import PtyServer
 from hw.roboteq import codec
-from hw.roboteq.gains import FIRMWARE_RANGE, gains_from_roboteq
+from hw.roboteq.emulated_commands import EmulatedCommandSet
+from hw.roboteq.emulated_motors import StopEvent
 from robchair.spec import RobChairSpec
 
 log = logging.getLogger(__name__)
@@ -64,8 +63,6 @@ DEFAULT_FIRMWARE = "Roboteq v1.3 MDC2230 07/24/2013"
 INJECT_KINDS = ("late-ack", "rejected", "unsolicited", "reboot", "unknown-flag", "garble", "unplug", "stall")
 LATE_ACK_S = 0.25
 TELEMETRY_PERIOD_S = 0.05
-# Power-on values of the per-channel configuration items the driver writes (manual defaults).
-POWER_ON_CONFIG = {"MAC": 10000, "MDEC": 10000, "ALIM": 300, "CLERD": 0}
 
 
 class SyncedClock(ManualClock):
@@ -92,48 +89,7 @@ class SyncedClock(ManualClock):
             f.sync()
 
 
-@dataclass
-class StopEvent:
-    """A moment the emulated controller stopped the motors, and why."""
-
-    t_ns: int
-    reason: str  # "command" (!S/!G 0 on both), "emergency_stop", "watchdog", "fault"
-
-
-@dataclass
-class _Channel:
-    pid: Any
-    plant: Any
-    gains_fw: list[int]  # [KP, KI, KD] in firmware units
-    setpoint_rpm: float = 0.0
-    command: float = 0.0  # PID output (command RPM into the plant)
-    speed_rpm: float = 0.0
-    ramp_rpm: float = 0.0  # the set point after the ^MAC/^MDEC ramp
-    ticks: float = 0.0  # unwrapped encoder position, ticks (float keeps the fraction)
-    config: dict[str, int] = field(default_factory=dict)
-    encoder_lost: bool = False  # the encoder came off: the loop sees 0 RPM and no counts
-    loop_error_s: float = 0.0  # how long the loop error has exceeded the ^CLERD threshold
-    loop_stopped: bool = False  # ^CLERD tripped: the channel is off until commanded to 0
-
-
-# ^CLERD level -> (seconds, RPM error) from the manual ("1: 250ms and Error > 100", ...)
-LOOP_ERROR_DETECTION = {1: (0.25, 100.0), 2: (0.5, 250.0), 3: (1.0, 500.0)}
-
-
-@functools.lru_cache(maxsize=16)
-def _plant_and_default_gains(
-    t_r: float, t_p: float, M_p: float, firmware_major: int
-) -> tuple[Any, tuple[int, int, int]]:
-    """Identified plant and the firmware gains of the SPEC 5 design (cached: the design is slow)."""
-    from hw.roboteq.gains import roboteq_gains
-    from robchair import control as c
-
-    plant = c.identify_from_step_metrics(t_r, t_p, M_p).plant
-    fw = roboteq_gains(c.design_pid(plant), firmware_major)
-    return plant, (fw.kp, fw.ki, fw.kd)
-
-
-class RoboteqEmulator(PtyServer):
+class RoboteqEmulator(EmulatedCommandSet, PtyServer):
     """An emulated MDC2230 answering on a pty.
 
     Args:
@@ -201,150 +157,6 @@ class RoboteqEmulator(PtyServer):
         self._last_bang_ns = self._t_ns
         if isinstance(self.clock, SyncedClock):
             self.clock.followers.append(self)
-
-    # --- plant ------------------------------------------------------------------------------
-
-    def _make_channel(self, index: int) -> _Channel:
-        c = self._control
-        step = self.spec.step_for_channel(index + 1)
-        plant, gains = _plant_and_default_gains(step.t_r, step.t_p, step.M_p, self.firmware.major)
-        ch = _Channel(pid=None, plant=c.DiscretePlant(plant, self.dt), gains_fw=list(gains))
-        ch.config = {
-            "MMOD": 1,
-            "EPPR": int(self.spec.encoder_ppr),
-            "MXRPM": int(self.spec.max_motor_rpm),
-            **POWER_ON_CONFIG,
-        }
-        self._rebuild_pid(ch)
-        return ch
-
-    def _rebuild_pid(self, ch: _Channel) -> None:
-        g_p, g_i, g_d = ch.gains_fw
-        kp, ki, kd = gains_from_roboteq(g_p, g_i, g_d, firmware_major=self.firmware.major)
-        mx = float(ch.config["MXRPM"])
-        integral = ch.pid.integral if ch.pid is not None else 0.0
-        ch.pid = self._control.DiscretePID(kp, ki, kd, self.dt, u_min=-mx, u_max=mx)
-        ch.pid.integral = integral  # new gains must not make a running motor jump
-
-    def _ticks_per_motor_rev(self, ch: _Channel) -> float:
-        # quadrature x4; an encoder on the wheel turns gear_ratio times slower than the motor.
-        # Speeds (!S, ?S) are motor-shaft RPM here whatever encoder_on says (the spec's default is
-        # "motor", where the controller's encoder RPM is the motor RPM).
-        per_rev = 4.0 * ch.config["EPPR"]
-        if getattr(self.spec, "encoder_on", "motor") == "wheel":
-            per_rev /= float(self.spec.gear_ratio)
-        return per_rev
-
-    def _sync(self) -> None:
-        """Advance both channels to the clock's time in controller steps (call with the lock held)."""
-        now = self.clock.now_ns()
-        while self._t_ns + self._dt_ns <= now:
-            self._t_ns += self._dt_ns
-            if (
-                self.rwd_ms > 0
-                and not self._wd_tripped
-                and self._t_ns - self._last_bang_ns > self.rwd_ms * 1_000_000
-                and any(ch.setpoint_rpm != 0.0 for ch in self._channels)
-            ):
-                self.watchdog_trips += 1
-                self._wd_tripped = True
-                self.stops.append(StopEvent(self._t_ns, "watchdog"))
-            for ch in self._channels:
-                target = 0.0 if self._wd_tripped else ch.setpoint_rpm
-                if self.estop or self.faults.any:
-                    ch.ramp_rpm = 0.0  # the power stage is off: no ramp
-                else:
-                    ch.ramp_rpm = self._ramp(ch, target)
-                target = ch.ramp_rpm
-                measured = 0.0 if ch.encoder_lost else ch.speed_rpm
-                self._detect_loop_error(ch, target, measured)
-                if ch.loop_stopped:
-                    u = 0.0
-                elif ch.config["MMOD"] == 1:
-                    u = ch.pid.update(target, measured)
-                else:  # open loop: the set point is the plant command
-                    u = target
-                ch.command = float(u)
-                ch.speed_rpm = float(ch.plant.step(ch.command))
-                if not ch.encoder_lost:
-                    ch.ticks += ch.speed_rpm / 60.0 * self.dt * self._ticks_per_motor_rev(ch)
-
-    def _detect_loop_error(self, ch: _Channel, target: float, measured: float) -> None:
-        """``^CLERD``: an error above the level's threshold for its time stops the channel (?FM f3)."""
-        level = LOOP_ERROR_DETECTION.get(ch.config["CLERD"])
-        if level is None or ch.loop_stopped or ch.config["MMOD"] != 1:
-            ch.loop_error_s = 0.0
-            return
-        seconds, rpm = level
-        ch.loop_error_s = ch.loop_error_s + self.dt if abs(target - measured) > rpm else 0.0
-        if ch.loop_error_s >= seconds:
-            index = self._channels.index(ch)
-            self.motor_flags[index] |= 1 << codec.MOTOR_BITS.index("loop_error")
-            ch.loop_stopped = True
-            self.stops.append(StopEvent(self._t_ns, "loop_error"))
-
-    def disconnect_encoder(self, channel: int) -> None:
-        """The encoder of ``channel`` comes off: no counts, 0 RPM seen by the loop."""
-        with self._lock:
-            self._sync()
-            self._channels[channel - 1].encoder_lost = True
-
-    def _ramp(self, ch: _Channel, target: float) -> float:
-        """Move the ramped set point towards ``target`` at ``^MAC`` (speeding up) or ``^MDEC``
-        (slowing down), in 0.1 RPM/s; 0 bypasses the ramp (manual)."""
-        now = ch.ramp_rpm
-        speeding_up = abs(target) > abs(now) and (now == 0.0 or (target > 0) == (now > 0))
-        rate = ch.config["MAC" if speeding_up else "MDEC"] / 10.0
-        if rate <= 0:
-            return target
-        step = rate * self.dt
-        return now + max(-step, min(step, target - now))
-
-    def _stop_all(self, reason: str) -> None:
-        for ch in self._channels:
-            ch.setpoint_rpm = 0.0
-        self.stops.append(StopEvent(self._t_ns, reason))
-
-    # --- observation (thread-safe, synced to the clock) ---------------------------------------
-
-    def sync(self) -> None:
-        """Advance the motors to the clock's current time now (thread-safe)."""
-        with self._lock:
-            self._sync()
-
-    @property
-    def setpoints_rpm(self) -> tuple[float, float]:
-        """The set points the motors follow now (zero while the watchdog holds them)."""
-        with self._lock:
-            self._sync()
-            if self._wd_tripped:
-                return (0.0, 0.0)
-            return (self._channels[0].setpoint_rpm, self._channels[1].setpoint_rpm)
-
-    @property
-    def speeds_rpm(self) -> tuple[float, float]:
-        with self._lock:
-            self._sync()
-            return (self._channels[0].speed_rpm, self._channels[1].speed_rpm)
-
-    @property
-    def encoder_counts(self) -> tuple[int, int]:
-        with self._lock:
-            self._sync()
-            return tuple(codec.wrap_int32(math.floor(ch.ticks)) for ch in self._channels)  # type: ignore[return-value]
-
-    def set_encoder_counts(self, left: int, right: int) -> None:
-        """Preset the counters (to test 32-bit wrap-around)."""
-        with self._lock:
-            self._channels[0].ticks = float(left)
-            self._channels[1].ticks = float(right)
-
-    def config(self, name: str, channel: int) -> int:
-        with self._lock:
-            ch = self._channels[channel - 1]
-            if name in ("KP", "KI", "KD"):
-                return ch.gains_fw[("KP", "KI", "KD").index(name)]
-            return ch.config[name]
 
     # --- fault injection --------------------------------------------------------------------
 
@@ -422,6 +234,11 @@ class RoboteqEmulator(PtyServer):
                 self.motor_flags[0] |= 1 << codec.MOTOR_BITS.index("motor_stall")
                 self._channels[0].setpoint_rpm = 0.0
                 self.stops.append(StopEvent(self._t_ns, "stall"))
+
+    def set_motor_flags(self, channel: int, flags: codec.MotorFlags) -> None:
+        """Set the ``?FM`` flags of one channel (loop error, stall, ...)."""
+        with self._lock:
+            self.motor_flags[channel - 1] = codec.encode_motor_flags(flags)
 
     def clear_faults(self) -> None:
         with self._lock:
@@ -512,182 +329,3 @@ class RoboteqEmulator(PtyServer):
         except (ProtocolError, KeyError, IndexError, ValueError, TypeError):
             answer = "-"
         self._reply(answer)
-
-    def _execute(self, cmd: codec.Command) -> str:
-        prefix = {"!": "bang", "?": "query", "^": "set", "~": "get"}[cmd.kind]
-        handler = getattr(self, f"_cmd_{prefix}_{cmd.name}", None)
-        if handler is None:
-            return "-"
-        if cmd.kind == "!":
-            # a valid runtime command after a watchdog trip: the motors resume their earlier set points
-            self._wd_tripped = False
-        return str(handler(*cmd.args))
-
-    # runtime commands -----------------------------------------------------------------------
-
-    def _ch(self, cc: int) -> _Channel:
-        if cc not in (1, 2):
-            raise ValueError(cc)
-        return self._channels[cc - 1]
-
-    def _set_point(self, cc: int, rpm: float) -> str:
-        ch = self._ch(cc)
-        if self.estop or self.faults.any:
-            ch.setpoint_rpm = 0.0
-            return "+"
-        mx = ch.config["MXRPM"]
-        moving = any(c.setpoint_rpm != 0.0 for c in self._channels)
-        ch.setpoint_rpm = max(-mx, min(mx, float(rpm)))
-        if rpm == 0:  # manual: f2, f3 and f4 of ?FM clear when the motor command returns to 0
-            self.motor_flags[cc - 1] &= ~0b1110
-            if ch.loop_stopped:
-                ch.loop_stopped, ch.loop_error_s = False, 0.0
-                ch.pid.integral = 0.0
-        if moving and all(c.setpoint_rpm == 0.0 for c in self._channels):
-            self.stops.append(StopEvent(self._t_ns, "command"))
-        return "+"
-
-    def _cmd_bang_S(self, cc: int, rpm: int) -> str:
-        return self._set_point(cc, rpm)
-
-    def _cmd_bang_G(self, cc: int, value: int) -> str:
-        if not -1000 <= value <= 1000:
-            return "-"
-        return self._set_point(cc, value / 1000.0 * self._ch(cc).config["MXRPM"])
-
-    def _cmd_bang_EX(self) -> str:
-        self.estop = True
-        self._stop_all("emergency_stop")
-        return "+"
-
-    def _cmd_bang_MG(self) -> str:
-        self.estop = False
-        return "+"
-
-    # queries --------------------------------------------------------------------------------
-
-    def _per_channel(self, name: str, values: list[int], args: tuple[int, ...]) -> str:
-        if args:
-            self._ch(args[0])  # validates the channel
-            return codec.format_value(name, values[args[0] - 1])
-        return codec.format_value(name, *values)
-
-    def _cmd_query_FID(self) -> str:
-        return codec.format_value("FID", self.firmware.text)
-
-    def _cmd_query_C(self, *args: int) -> str:
-        counts = [codec.wrap_int32(math.floor(ch.ticks)) for ch in self._channels]
-        return self._per_channel("C", counts, args)
-
-    def _cmd_query_S(self, *args: int) -> str:
-        return self._per_channel("S", [round(ch.speed_rpm) for ch in self._channels], args)
-
-    def _cmd_query_A(self, *args: int) -> str:
-        # Motor current in tenths of an amp. Model: current follows the PID's effort beyond the
-        # current speed (torque to accelerate) plus a no-load share proportional to speed.
-        amps = [abs(ch.command - ch.speed_rpm) * 0.02 + abs(ch.speed_rpm) * 0.002 for ch in self._channels]
-        return self._per_channel("A", [round(a * 10) for a in amps], args)
-
-    def _cmd_query_V(self, *args: int) -> str:
-        # internal volts x10 : battery volts x10 : 5 V output in millivolts
-        values = [round(self.battery_v * 10) - 3, round(self.battery_v * 10), 4980]
-        if args:
-            if args[0] not in (1, 2, 3):
-                raise ValueError(args[0])
-            return codec.format_value("V", values[args[0] - 1])
-        return codec.format_value("V", *values)
-
-    def _cmd_query_FF(self) -> str:
-        faults = self.faults
-        if self.estop and not faults.emergency_stop:
-            faults = MotorFaults(**{**faults.__dict__, "emergency_stop": True})
-        return codec.format_value("FF", codec.encode_fault_flags(faults))
-
-    def _cmd_query_T(self, *args: int) -> str:
-        # MCU, channel 1 and channel 2 heatsink temperatures, degrees C (warming with the motor current)
-        heat = [abs(ch.command - ch.speed_rpm) * 0.01 for ch in self._channels]
-        values = [31, 28 + round(heat[0]), 28 + round(heat[1])]
-        if args:
-            if args[0] not in (1, 2, 3):
-                raise ValueError(args[0])
-            return codec.format_value("T", values[args[0] - 1])
-        return codec.format_value("T", *values)
-
-    def _cmd_query_FS(self) -> str:
-        stall = any(w & 2 for w in self.motor_flags)
-        flags = codec.StatusFlags(
-            serial_mode=True,
-            power_stage_off=self.estop or self.faults.any,
-            stall_detected=stall,
-            unknown_bits=self.status_unknown_bits,
-        )
-        return codec.format_value("FS", codec.encode_status_flags(flags))
-
-    def _cmd_query_FM(self, *args: int) -> str:
-        return self._per_channel("FM", list(self.motor_flags), args)
-
-    def set_motor_flags(self, channel: int, flags: codec.MotorFlags) -> None:
-        """Set the ``?FM`` flags of one channel (loop error, stall, ...)."""
-        with self._lock:
-            self.motor_flags[channel - 1] = codec.encode_motor_flags(flags)
-
-    # configuration --------------------------------------------------------------------------
-
-    _PER_CHANNEL_CONFIG = ("MMOD", "EPPR", "MXRPM", "KP", "KI", "KD", "MAC", "MDEC", "ALIM", "CLERD")
-
-    def _cmd_set_config(self, name: str, *args: int) -> str:
-        if name == "RWD":
-            (ms,) = args
-            if not 0 <= ms <= 65000:
-                return "-"
-            self.rwd_ms = ms
-            return "+"
-        if name == "ECHOF":
-            (off,) = args
-            if off not in (0, 1):
-                return "-"
-            self.echo = off == 0
-            return "+"
-        cc, value = args
-        ch = self._ch(cc)
-        gain_range = FIRMWARE_RANGE[self.firmware.major]
-        lo, hi = codec.CONFIG_RANGE.get(name, gain_range)
-        if name == "MMOD":
-            lo, hi = 0, 1  # open loop and closed-loop speed are what this emulator models
-        if not lo <= value <= hi:
-            return "-"
-        if name in ("KP", "KI", "KD"):
-            ch.gains_fw[("KP", "KI", "KD").index(name)] = value
-            self._rebuild_pid(ch)
-        else:
-            ch.config[name] = value
-            if name == "MXRPM":
-                self._rebuild_pid(ch)
-        return "+"
-
-    def _cmd_get_config(self, name: str, *args: int) -> str:
-        if name == "RWD":
-            return codec.format_value("RWD", self.rwd_ms)
-        if name == "ECHOF":
-            return codec.format_value("ECHOF", 0 if self.echo else 1)
-        if name not in self._PER_CHANNEL_CONFIG:
-            return "-"
-        values = [self.config(name, i) for i in (1, 2)]
-        return self._per_channel(name, values, args)
-
-
-def _bind_config_handlers() -> None:
-    """Route ``^NAME``/``~NAME`` to the two generic config handlers and ``?NAME`` to its query."""
-    for name in codec.CONFIG:
-
-        def setter(self: RoboteqEmulator, *args: int, _n: str = name) -> str:
-            return self._cmd_set_config(_n, *args)
-
-        def getter(self: RoboteqEmulator, *args: int, _n: str = name) -> str:
-            return self._cmd_get_config(_n, *args)
-
-        setattr(RoboteqEmulator, f"_cmd_set_{name}", setter)
-        setattr(RoboteqEmulator, f"_cmd_get_{name}", getter)
-
-
-_bind_config_handlers()
