@@ -22,10 +22,8 @@ baseline. Wall-clock numbers depend on the machine's load: the JSON records the 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 from typing import Any
 
 DEFAULT_OUT = "out/bench_env.json"
@@ -171,22 +169,14 @@ def _run(args: argparse.Namespace) -> int:
             r["speedup_vs_one_env"] = m / single[c["id"]]
             line += f" {r['speedup_vs_one_env']:12.2f}"
         print(line)
-    print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     result = {
         "agent_hz": AGENT_HZ,
         "steps": args.steps,
         "repeats": args.repeats,
         "seed": args.seed,
         "rows": rows,
-        "load_average_before": load0,
-        "load_average_after": load1,
-        "cpus": os.cpu_count(),
-        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    tmp = out.with_suffix(".json.partial")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    from robchair.commands.bench_output import write_results
+
+    write_results(args.out, result, load0, load1)
     return 0

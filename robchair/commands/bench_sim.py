@@ -26,9 +26,7 @@ runner always did. The JSON records the load average before and after.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import time
 from pathlib import Path
 from typing import Any
 
@@ -217,9 +215,6 @@ def _run(args: argparse.Namespace) -> int:
                 verdict = "meets" if ratio >= 0.9 else "misses"
                 line += f"; {100 * ratio:.0f} % of the replaced runner ({verdict} 90 %)"
             print(line)
-    print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     result = {
         "scenario": args.scenario,
         "map_kind": args.map,
@@ -227,13 +222,8 @@ def _run(args: argparse.Namespace) -> int:
         "repeats": args.repeats,
         "targets": targets,
         "rows": rows,
-        "load_average_before": load0,
-        "load_average_after": load1,
-        "cpus": os.cpu_count(),
-        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    tmp = out.with_suffix(".json.partial")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    from robchair.commands.bench_output import write_results
+
+    write_results(args.out, result, load0, load1)
     return 0
