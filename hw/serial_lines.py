@@ -7,9 +7,11 @@ the emulators next to each driver, which answer the same ASCII line protocols by
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Protocol, runtime_checkable
 
 from hw.errors import DeviceIOError, HardwareError
+from hw.interfaces import Clock
 
 
 @runtime_checkable
@@ -49,6 +51,25 @@ def decode_line(raw: bytes) -> str | None:
     if not text.isprintable():
         return None
     return text
+
+
+def lines_until(transport: LineTransport, clock: Clock, timeout_s: float, poll_s: float) -> Iterator[bytes]:
+    """Yield the raw lines ``transport`` delivers until ``timeout_s`` of ``clock`` time has passed.
+
+    When nothing is waiting, sleeps ``poll_s`` on ``clock`` (simulated time in tests) before asking
+    again; the deadline is checked before every read, so a caller that keeps rejecting lines still
+    stops on time. The caller parses each line and returns (or breaks) on the one it waits for.
+    """
+    deadline = clock.now_ns() + round(timeout_s * 1e9)
+    while True:
+        before = clock.now_ns()
+        if before >= deadline:
+            return
+        raw = transport.readline()
+        if not raw:
+            clock.sleep_until_ns(before + round(poll_s * 1e9))
+            continue
+        yield raw
 
 
 class EmulatedLineBoard:

@@ -27,7 +27,7 @@ from typing import Any, Literal, Protocol, runtime_checkable
 from hw.clock import MonotonicClock
 from hw.errors import CommandError, DeviceFaultError, DeviceTimeoutError, HardwareError
 from hw.interfaces import Clock, Device
-from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
+from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line, lines_until
 
 log = logging.getLogger(__name__)
 
@@ -143,15 +143,7 @@ class SerialServo(Device, _AngleCheck):
         )
 
     def _await_reply(self) -> tuple[str, str] | None:
-        deadline = self._clock.now_ns() + round(self.reply_timeout_s * 1e9)
-        while True:
-            before = self._clock.now_ns()
-            if before >= deadline:
-                return None
-            raw = self.transport.readline()
-            if not raw:
-                self._clock.sleep_until_ns(before + round(self.poll_s * 1e9))
-                continue
+        for raw in lines_until(self.transport, self._clock, self.reply_timeout_s, self.poll_s):
             text = decode_line(raw)
             parts = text.split(" ", 2) if text is not None else []
             if len(parts) == 3 and parts[0] in ("A", "N") and parts[1] == str(self.servo_id):
@@ -159,6 +151,7 @@ class SerialServo(Device, _AngleCheck):
                     return parts[0], parts[2]
             self.ignored_lines += 1
             log.debug("%s: ignored line %r", self.name, raw)
+        return None
 
 
 class ArduinoServoEmulator(EmulatedLineBoard):

@@ -41,7 +41,7 @@ from typing import Any, Protocol, runtime_checkable
 from hw.clock import MonotonicClock
 from hw.errors import CommandError, DeviceTimeoutError, HardwareError, ProtocolError
 from hw.interfaces import Clock, Device, RangeReading
-from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line
+from hw.serial_lines import EmulatedLineBoard, LineTransport, decode_line, lines_until
 
 log = logging.getLogger(__name__)
 
@@ -224,19 +224,12 @@ class ArduinoEchoPins:
         self.transport.write(f"T {self.sonar_id}\n".encode("ascii"))
 
     def wait_echo_width_s(self, timeout_s: float) -> float | None:
-        deadline = self._clock.now_ns() + round(timeout_s * 1e9)
-        while True:
-            before = self._clock.now_ns()
-            if before >= deadline:
-                return None
-            raw = self.transport.readline()
-            if not raw:
-                self._clock.sleep_until_ns(before + round(self.poll_s * 1e9))
-                continue
+        for raw in lines_until(self.transport, self._clock, timeout_s, self.poll_s):
             width_us = self._parse(raw)
             if width_us is None:
                 continue
             return None if width_us == 0 else width_us / 1e6
+        return None
 
     def _parse(self, raw: bytes) -> int | None:
         text = decode_line(raw)
