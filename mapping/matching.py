@@ -51,6 +51,9 @@ class MatchParams:
             cells; below it they lie along one line and the match is degenerate.
         min_fitness: Smallest fraction of frame cells with a map cell within ``max_correspondence``.
         max_rmse: Largest inlier RMSE.
+        min_information: Smallest eigenvalue of the translation part of the ICP's information matrix per
+            inlier (unit normals: 0.5 when the walls face every way, 0 along a corridor, whose parallel
+            walls fix the offset across it and nothing along it); below it the match is degenerate.
         max_translation: Largest accepted correction per frame.
         max_rotation: Largest accepted heading correction per frame.
         map_radius: Map cells within this distance of the frame's cells are the target.
@@ -66,6 +69,7 @@ class MatchParams:
     min_spread_ratio: float = 0.15
     min_fitness: float = 0.6
     max_rmse: float = 0.05
+    min_information: float = 0.05
     max_translation: float = 0.2
     max_rotation: float = math.radians(4.0)
     map_radius: float = 0.5
@@ -83,6 +87,7 @@ class MatchParams:
             "min_spread_ratio": 0 <= self.min_spread_ratio <= 1,
             "min_fitness": 0 <= self.min_fitness <= 1,
             "max_rmse": self.max_rmse > 0,
+            "min_information": 0 <= self.min_information <= 0.5,
             "max_translation": self.max_translation > 0,
             "max_rotation": self.max_rotation > 0,
             "map_radius": self.map_radius >= 0,
@@ -270,6 +275,8 @@ class ScanMatcher:
             return result(False, "low fitness")
         if rmse > p.max_rmse:
             return result(False, "high rmse")
+        if reg.min_information < p.min_information:
+            return result(False, "degenerate geometry")
         if math.hypot(dx, dy) > p.max_translation or abs(dyaw) > p.max_rotation:
             return result(False, "correction too large")
         return result(True, "")
@@ -343,7 +350,9 @@ class _LineField:
         return idx, dist
 
 
-def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: MatchParams, cell_size: float) -> _Icp:
+def _point_to_line_icp(
+    src: NDArray[np.float64], tgt: NDArray[np.float64], p: MatchParams, cell_size: float
+) -> _Icp:
     """Planar point-to-line ICP (Gauss-Newton on x, y, yaw) of ``src`` onto the lines through ``tgt``.
 
     Correspondences come from a distance transform of the map cells (:class:`_LineField`), built once per

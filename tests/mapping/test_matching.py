@@ -125,3 +125,31 @@ def test_occupied_cells_give_the_centroid_of_their_points_in_the_band() -> None:
 def test_bad_parameters_are_refused() -> None:
     with pytest.raises(MappingError, match="min_fitness"):
         MatchParams(min_fitness=1.5)
+
+
+def _corridor(rng: np.random.Generator, n: int = 20000, length: float = 5.0) -> np.ndarray:
+    """Two parallel walls 1.5 m apart along x (y = +-0.75 m), 2 m high, from x = 0.5 m to ``length``."""
+    x = rng.uniform(0.5, length, n)
+    y = np.where(rng.random(n) < 0.5, -0.75, 0.75) + rng.normal(0.0, 0.005, n)
+    return np.column_stack([x, y, rng.uniform(0.0, 2.0, n)])
+
+
+def test_a_corridor_whose_walls_fix_nothing_along_it_is_rejected_as_degenerate() -> None:
+    rng = np.random.default_rng(3)
+    m = VHVMap(SPEC, 0.05)
+    m.insert(_corridor(rng))
+    # the odometry is 12 cm off along the corridor: nothing in the frame can tell, so no correction
+    frame = _corridor(rng) + [0.12, 0.0, 0.0]
+    matcher = ScanMatcher()
+    res = matcher.match(frame, m)
+    assert not res.accepted and res.reason == "degenerate geometry", res
+    assert matcher.rejections["degenerate geometry"] == 1
+    np.testing.assert_array_equal(matcher.t_map_odom, np.eye(4))
+
+
+def test_walls_facing_two_ways_are_not_degenerate(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    res = ScanMatcher(MatchParams(min_information=0.1)).match(second, m)
+    assert res.accepted, res
