@@ -28,7 +28,6 @@ import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
 
 import numba
 import numpy as np
@@ -54,8 +53,13 @@ class MatchParams:
         min_information: Smallest eigenvalue of the translation part of the ICP's information matrix per
             inlier (unit normals: 0.5 when the walls face every way, 0 along a corridor, whose parallel
             walls fix the offset across it and nothing along it); below it the match is degenerate.
-        max_translation: Largest accepted correction per frame.
+        max_translation: Largest accepted correction per frame (larger ones are rejected as outliers).
         max_rotation: Largest accepted heading correction per frame.
+        match_sd: Standard deviations ``(m, rad)`` of one accepted match's translation and heading: its
+            error on a 5 cm lattice (frame cells' centroids against map cells), not the ICP's own
+            fit, which is far smaller.
+        drift_sd: Standard deviations ``(m, rad)`` that the odometry's error may grow by from one frame
+            to the next.
         map_radius: Map cells within this distance of the frame's cells are the target.
         max_source: Most frame cells registered (an even subset beyond it), which bounds the cost.
         max_points: Most frame points reduced to cells (an even subset beyond it): a 512x424 frame has
@@ -72,6 +76,8 @@ class MatchParams:
     min_information: float = 0.05
     max_translation: float = 0.2
     max_rotation: float = math.radians(4.0)
+    match_sd: tuple[float, float] = (0.02, math.radians(0.5))
+    drift_sd: tuple[float, float] = (0.002, math.radians(0.05))
     map_radius: float = 0.5
     max_source: int = 800
     max_points: int = 20000
@@ -91,6 +97,8 @@ class MatchParams:
             "max_translation": self.max_translation > 0,
             "max_rotation": self.max_rotation > 0,
             "map_radius": self.map_radius >= 0,
+            "match_sd": min(self.match_sd) > 0,
+            "drift_sd": min(self.drift_sd) >= 0,
             "max_source": self.max_source >= self.min_cells,
             "max_points": self.max_points >= self.min_cells,
             "tolerance": self.tolerance > 0,
@@ -113,6 +121,11 @@ class MatchResult:
         rmse: ICP inlier RMSE, m.
         n_source, n_target: Frame cells and map cells used.
         ms: Wall time of the match, ms.
+        pivot: World ``(x, y)`` of the frame cells' centroid, m, about which ``sd`` is given.
+        sd: Standard deviations of the correction's translation (its worse axis) and heading about
+            ``pivot`` (m, rad): ``match_sd``'s lattice error spread by the geometry (the inverse of the
+            ICP's information matrix per inlier); a heading fixed by a small cluster of objects far away
+            gets a large one.
     """
 
     accepted: bool
@@ -125,6 +138,8 @@ class MatchResult:
     n_source: int = 0
     n_target: int = 0
     ms: float = 0.0
+    pivot: tuple[float, float] = (0.0, 0.0)
+    sd: tuple[float, float] = (math.inf, math.inf)
 
 
 def occupied_cell_centroids(
@@ -217,6 +232,7 @@ class ScanMatcher:
     t_map_odom: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     results: list[MatchResult] = field(default_factory=list)
     rejections: Counter[str] = field(default_factory=Counter)
+    _var: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.inf), repr=False)
 
     def match(self, points_odom: ArrayLike, vhv: VHVMap) -> MatchResult:
         """Register one frame (points in the ``odom`` frame) against the map; update ``t_map_odom``.
@@ -234,8 +250,24 @@ class ScanMatcher:
         res = self._match(points_odom, vhv)
         res = MatchResult(**{**res.__dict__, "ms": (time.perf_counter() - t0) * 1e3})
         self.results.append(res)
+        # the map -> odom error is a random walk between matches: its variance grows by drift_sd^2 a frame
+        self._var = self._var + np.square(self.params.drift_sd)
         if res.accepted:
-            self.t_map_odom = _se2(res.dx, res.dy, res.dyaw) @ self.t_map_odom
+            # each accepted match measures it (translation and heading about the pivot): a scalar Kalman
+            # update per axis, so a match whose geometry fixes the heading poorly moves it little
+            r = np.maximum(np.square(res.sd), np.square(self.params.match_sd))
+            finite = np.isfinite(self._var)
+            with np.errstate(invalid="ignore"):
+                gain = np.where(finite, self._var / (self._var + r), 1.0)
+                self._var = np.where(finite, self._var * (1.0 - gain), r)
+            # the correction about the pivot: translation t = d - (I - R) c, scaled, back about the origin
+            c = np.asarray(res.pivot)
+            rot = _se2(0.0, 0.0, res.dyaw)[:2, :2]
+            t = np.array([res.dx, res.dy]) - (c - rot @ c)
+            yaw = float(gain[1]) * res.dyaw
+            rot = _se2(0.0, 0.0, yaw)[:2, :2]
+            d = float(gain[0]) * t + (c - rot @ c)
+            self.t_map_odom = _se2(float(d[0]), float(d[1]), yaw) @ self.t_map_odom
         else:
             self.rejections[res.reason] += 1
         return res
@@ -269,7 +301,8 @@ class ScanMatcher:
         fit, rmse = reg.fitness, reg.rmse
 
         def result(accepted: bool, reason: str) -> MatchResult:
-            return MatchResult(accepted, reason, dx, dy, dyaw, fit, rmse, len(src), len(tgt))
+            return MatchResult(accepted, reason, dx, dy, dyaw, fit, rmse, len(src), len(tgt), 0.0,
+                               reg.pivot, reg.sd)  # fmt: skip
 
         if fit < p.min_fitness:
             return result(False, "low fitness")
@@ -291,6 +324,8 @@ class _Icp:
     rmse: float
     min_information: float
     iterations: int
+    pivot: tuple[float, float]
+    sd: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -323,7 +358,7 @@ class _LineField:
         """
         from scipy import ndimage
 
-        pad = int(math.ceil(margin / cell_size)) + 1
+        pad = math.ceil(margin / cell_size) + 1
         origin = tgt.min(axis=0) - pad * cell_size  # on the map's lattice: cell centres land on integers
         ij = np.floor((tgt - origin) / cell_size + 0.5).astype(np.int64)
         shape = tuple(int(v) for v in ij.max(axis=0) + pad + 1)
@@ -371,16 +406,22 @@ def _point_to_line_icp(
                   p.max_correspondence, p.max_iterations, p.tolerance, x, info, stats)  # fmt: skip
     n_in, sq, it = int(stats[0]), float(stats[1]), int(stats[2])
     rmse = math.sqrt(sq / n_in) if n_in else math.nan
+    min_info, sd = 0.0, (math.inf, math.inf)
     if n_in and info[2, 2] > 0:
         trans = info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]
         min_info = float(np.linalg.eigvalsh(trans)[0] / n_in)
-    else:
-        min_info = 0.0
+        try:
+            cov = np.linalg.inv(info / n_in)
+            lattice = p.match_sd[0]  # one cell centroid's error: correlated, so not divided by sqrt(n)
+            sd = (lattice * math.sqrt(max(cov[0, 0], cov[1, 1])), lattice * math.sqrt(max(cov[2, 2], 0.0)))
+        except np.linalg.LinAlgError:
+            pass
     # the correction about the centroid as one about the map origin: t' = centre + t - R centre
     c, s_ = math.cos(x[2]), math.sin(x[2])
     dx = centre[0] + x[0] - (c * centre[0] - s_ * centre[1])
     dy = centre[1] + x[1] - (s_ * centre[0] + c * centre[1])
-    return _Icp(float(dx), float(dy), float(x[2]), n_in / max(len(src), 1), rmse, min_info, it)
+    return _Icp(float(dx), float(dy), float(x[2]), n_in / max(len(src), 1), rmse, min_info, it,
+                (float(centre[0]), float(centre[1])), sd)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
