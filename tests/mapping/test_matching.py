@@ -139,7 +139,7 @@ def test_a_corridor_whose_walls_fix_nothing_along_it_is_rejected_as_degenerate()
     m = VHVMap(SPEC, 0.05)
     m.insert(_corridor(rng))
     # the odometry is 12 cm off along the corridor: nothing in the frame can tell, so no correction
-    frame = _corridor(rng) + [0.12, 0.0, 0.0]
+    frame = _corridor(rng) + np.array([0.12, 0.0, 0.0])
     matcher = ScanMatcher()
     res = matcher.match(frame, m)
     assert not res.accepted and res.reason == "degenerate geometry", res
@@ -153,3 +153,37 @@ def test_walls_facing_two_ways_are_not_degenerate(room) -> None:
     m.insert(first)
     res = ScanMatcher(MatchParams(min_information=0.1)).match(second, m)
     assert res.accepted, res
+
+
+def _boxes(
+    rng: np.random.Generator, centres: list[tuple[float, float]], side: float, n: int = 4000
+) -> np.ndarray:
+    """Points on the four vertical faces of square boxes of ``side`` m at ``centres``, 0-1 m high."""
+    out = []
+    for cx, cy in centres:
+        t = rng.uniform(-side / 2, side / 2, n)
+        face = rng.integers(0, 4, n)
+        x = np.where(face < 2, cx + np.where(face == 0, -1, 1) * side / 2, cx + t)
+        y = np.where(face < 2, cy + t, cy + np.where(face == 2, -1, 1) * side / 2)
+        out.append(np.column_stack([x, y, rng.uniform(0.2, 1.0, n)]))
+    return np.concatenate(out)
+
+
+def test_a_heading_fixed_only_by_a_small_far_cluster_moves_little_once_the_map_is_anchored(room) -> None:
+    first, second = room
+    rng = np.random.default_rng(5)
+    cluster = [(6.0, -0.4), (6.3, 0.3), (6.6, -0.1)]  # three 0.4 m boxes in a 1 m patch, 6 m away
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    m.insert(_boxes(rng, cluster, 0.4))
+    matcher = ScanMatcher()
+    assert matcher.match(second, m).accepted  # the room anchors map -> odom
+    before = np.array(matcher.t_map_odom)
+    # the cluster alone, seen with a heading 1.5 deg off (about the sensor at the origin)
+    res = matcher.match(_rot(_boxes(rng, cluster, 0.4), 0.0, 0.0, math.radians(1.5)), m)
+    assert res.accepted, res
+    assert res.sd[1] > math.radians(1.0)  # three boxes 1 m across fix the heading to a degree or worse
+    applied = math.atan2(matcher.t_map_odom[1, 0], matcher.t_map_odom[0, 0]) - math.atan2(
+        before[1, 0], before[0, 0]
+    )
+    assert abs(applied) < 0.25 * abs(res.dyaw)
