@@ -60,6 +60,10 @@ class MatchParams:
             fit, which is far smaller.
         drift_sd: Standard deviations ``(m, rad)`` that the odometry's error may grow by from one frame
             to the next.
+        initial_sd: Standard deviations ``(m, rad)`` of ``map -> odom`` before the first match: infinite
+            (the default) when nothing is known, so the first accepted match is applied in full; zero when
+            the map is defined by the odometry's start (a run that builds its map from its first frame),
+            so the corrections follow the odometry's error as it grows.
         map_radius: Map cells within this distance of the frame's cells are the target.
         max_source: Most frame cells registered (an even subset beyond it), which bounds the cost.
         max_points: Most frame points reduced to cells (an even subset beyond it): a 512x424 frame has
@@ -78,6 +82,7 @@ class MatchParams:
     max_rotation: float = math.radians(4.0)
     match_sd: tuple[float, float] = (0.02, math.radians(0.5))
     drift_sd: tuple[float, float] = (0.002, math.radians(0.05))
+    initial_sd: tuple[float, float] = (math.inf, math.inf)
     map_radius: float = 0.5
     max_source: int = 800
     max_points: int = 20000
@@ -99,6 +104,7 @@ class MatchParams:
             "map_radius": self.map_radius >= 0,
             "match_sd": min(self.match_sd) > 0,
             "drift_sd": min(self.drift_sd) >= 0,
+            "initial_sd": min(self.initial_sd) >= 0,
             "max_source": self.max_source >= self.min_cells,
             "max_points": self.max_points >= self.min_cells,
             "tolerance": self.tolerance > 0,
@@ -232,7 +238,10 @@ class ScanMatcher:
     t_map_odom: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     results: list[MatchResult] = field(default_factory=list)
     rejections: Counter[str] = field(default_factory=Counter)
-    _var: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.inf), repr=False)
+    _var: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan), repr=False)
+
+    def __post_init__(self) -> None:
+        self._var = np.square(np.asarray(self.params.initial_sd, np.float64))
 
     def match(self, points_odom: ArrayLike, vhv: VHVMap) -> MatchResult:
         """Register one frame (points in the ``odom`` frame) against the map; update ``t_map_odom``.

@@ -187,3 +187,16 @@ def test_a_heading_fixed_only_by_a_small_far_cluster_moves_little_once_the_map_i
         before[1, 0], before[0, 0]
     )
     assert abs(applied) < 0.25 * abs(res.dyaw)
+
+
+def test_a_map_defined_by_the_odometry_start_takes_a_sudden_jump_only_in_part(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    # map = odom at the start: one frame later the odometry cannot be 8 cm off, so the match is weighed
+    matcher = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    res = matcher.match(_rot(second, 0.08, 0.0, 0.0), m)
+    assert res.accepted and res.dx == pytest.approx(-0.08, abs=0.02)
+    assert 0.0 < -matcher.t_map_odom[0, 3] < 0.1 * -res.dx
+    with pytest.raises(MappingError, match="initial_sd"):
+        MatchParams(initial_sd=(-1.0, 0.0))
