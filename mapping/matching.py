@@ -9,17 +9,35 @@ correction is folded into ``map -> odom``.
 Method. The frame and the map are both reduced to their occupied 2D cells in a height band above the
 floor (the floor constrains only z, roll and pitch, which a planar pose does not have): the frame to the
 centroid of its points in each cell, the map to its cell centres. The frame's centroids are registered to
-the lines through the map's cells (each cell's normal from its nearest neighbours) by a planar
-point-to-line ICP: Gauss-Newton on (x, y, yaw) with Huber weights, nearest neighbours from scipy's
-``cKDTree``. Point-to-point ICP (Open3D's ``registration_icp``) on the same cells was measured first and
-stopped short of the answer (1.3 deg of a 2 deg offset): the map's cells lie on a 5 cm lattice, and
-point-to-point pulls towards the lattice's own offsets, while point-to-line lets the frame slide along
-walls. Matching cells rather than raw points makes the cost independent of the camera resolution.
+the lines through the map's cells (each cell's line fitted to the occupied cells of the 5 x 5 block around
+it) by a planar point-to-line ICP: Gauss-Newton on (x, y, yaw) about the frame's centroid, Huber weights.
+Point-to-point ICP (Open3D's ``registration_icp``) on the same cells was measured first and stopped short
+of the answer (1.3 deg of a 2 deg offset): the map's cells lie on a 5 cm lattice, and point-to-point pulls
+towards the lattice's own offsets, while point-to-line lets the frame slide along walls. Matching cells
+rather than raw points makes the cost independent of the camera resolution.
+
+Correspondences. The map cells near the frame are rastered once per frame and scipy's exact Euclidean
+distance transform (``ndimage.distance_transform_edt`` with ``return_indices``) gives every raster cell
+its nearest map cell, so a correspondence is an array look-up; the iterations are compiled (numba).
+Measured on a 512x424 synthetic room frame, CPU time of one match on one core (median): nearest
+neighbours from scipy's ``cKDTree`` queried every iteration and numpy iterations 35 ms; the distance
+transform with numpy iterations 15.5 ms; the distance transform with compiled iterations 4.1 ms (the
+raster and transform about 0.8 ms of it). The map changes with every inserted frame, so the raster is
+rebuilt per frame; it covers only the frame's cells plus ``map_radius``.
+
+Weighting. Each accepted match is a measurement of the ``map -> odom`` error with a standard deviation
+from the geometry (:attr:`MatchResult.sd`): the 5 cm lattice's error, spread by the inverse of the ICP's
+information matrix per inlier. A scalar Kalman filter per axis (translation, heading about the frame's
+centroid) weighs it against the error's own growth (``drift_sd`` a frame): a frame that sees only a few
+small objects far away, whose heading is poorly fixed, moves the heading little, and the noise of
+consecutive matches averages out instead of adding up.
 
 A match is rejected, and odometry kept, when: the frame has too few cells (empty, all NaN, a featureless
 floor); its cells lie along one line (a single straight wall fixes only the offset across it); the map
 has too few cells near it; the ICP fitness is below ``min_fitness`` or its inlier RMSE above
-``max_rmse``; or the correction exceeds the per-frame bounds. Rejections are counted by reason.
+``max_rmse``; the geometry is degenerate (parallel walls of a corridor: the smallest eigenvalue of the
+translation part of the information matrix below ``min_information``); or the correction exceeds the
+per-frame bounds (an outlier). Rejections are counted by reason.
 """
 
 from __future__ import annotations
