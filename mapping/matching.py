@@ -98,7 +98,7 @@ class MatchParams:
     min_information: float = 0.05
     max_translation: float = 0.2
     max_rotation: float = math.radians(4.0)
-    match_sd: tuple[float, float] = (0.02, math.radians(0.5))
+    match_sd: tuple[float, float] = (0.01, math.radians(0.25))
     drift_sd: tuple[float, float] = (0.002, math.radians(0.05))
     initial_sd: tuple[float, float] = (math.inf, math.inf)
     map_radius: float = 0.5
