@@ -77,7 +77,11 @@ class MatchParams:
             error on a 5 cm lattice (frame cells' centroids against map cells), not the ICP's own
             fit, which is far smaller.
         drift_sd: Standard deviations ``(m, rad)`` that the odometry's error may grow by from one frame
-            to the next.
+            to the next (when the caller gives no odometry pose).
+        drift_step: Odometry motion ``(m, rad)`` that ``drift_sd`` belongs to, when the caller gives the
+            odometry pose: the error's variance grows with the larger of the distance and the turn since
+            the last frame over these (a chair standing still adds none, so matching the same view over
+            and over cannot walk the map away).
         initial_sd: Standard deviations ``(m, rad)`` of ``map -> odom`` before the first match: infinite
             (the default) when nothing is known, so the first accepted match is applied in full; zero when
             the map is defined by the odometry's start (a run that builds its map from its first frame),
@@ -100,6 +104,7 @@ class MatchParams:
     max_rotation: float = math.radians(4.0)
     match_sd: tuple[float, float] = (0.01, math.radians(0.25))
     drift_sd: tuple[float, float] = (0.002, math.radians(0.05))
+    drift_step: tuple[float, float] = (0.02, math.radians(1.0))
     initial_sd: tuple[float, float] = (math.inf, math.inf)
     map_radius: float = 0.5
     max_source: int = 800
@@ -122,6 +127,7 @@ class MatchParams:
             "map_radius": self.map_radius >= 0,
             "match_sd": min(self.match_sd) > 0,
             "drift_sd": min(self.drift_sd) >= 0,
+            "drift_step": min(self.drift_step) > 0,
             "initial_sd": min(self.initial_sd) >= 0,
             "max_source": self.max_source >= self.min_cells,
             "max_points": self.max_points >= self.min_cells,
@@ -258,10 +264,12 @@ class ScanMatcher:
     rejections: Counter[str] = field(default_factory=Counter)
     _var: NDArray[np.float64] = field(default_factory=lambda: np.full(2, np.nan), repr=False)
 
+    _last_pose: NDArray[np.float64] | None = field(default=None, repr=False)
+
     def __post_init__(self) -> None:
         self._var = np.square(np.asarray(self.params.initial_sd, np.float64))
 
-    def match(self, points_odom: ArrayLike, vhv: VHVMap) -> MatchResult:
+    def match(self, points_odom: ArrayLike, vhv: VHVMap, odom_pose: ArrayLike | None = None) -> MatchResult:
         """Register one frame (points in the ``odom`` frame) against the map; update ``t_map_odom``.
 
         The caller then inserts ``t_map_odom @ points`` into the map (accepted or not).
@@ -269,6 +277,8 @@ class ScanMatcher:
         Args:
             points_odom: ``(N, 3)`` or ``(H, W, 3)`` xyz in ``odom``, m (NaN rows ignored).
             vhv: The map (world = ``map`` frame).
+            odom_pose: (4, 4) pose of the sensor (or base) in ``odom``: the error's growth then follows
+                the motion since the previous frame (``drift_step``); None: ``drift_sd`` every frame.
 
         Raises:
             MappingError: the points array is malformed.
@@ -278,7 +288,7 @@ class ScanMatcher:
         res = MatchResult(**{**res.__dict__, "ms": (time.perf_counter() - t0) * 1e3})
         self.results.append(res)
         # the map -> odom error is a random walk between matches: its variance grows by drift_sd^2 a frame
-        self._var = self._var + np.square(self.params.drift_sd)
+        self._var = self._var + np.square(self.params.drift_sd) * self._motion(odom_pose)
         if res.accepted:
             # each accepted match measures it (translation and heading about the pivot): a scalar Kalman
             # update per axis, so a match whose geometry fixes the heading poorly moves it little
@@ -298,6 +308,24 @@ class ScanMatcher:
         else:
             self.rejections[res.reason] += 1
         return res
+
+    def _motion(self, odom_pose: ArrayLike | None) -> float:
+        """Odometry motion since the previous frame in units of ``drift_step`` (1 without a pose)."""
+        if odom_pose is None:
+            return 1.0
+        t = np.asarray(odom_pose, np.float64)
+        if t.shape != (4, 4) or not np.isfinite(t).all():
+            raise MappingError(
+                f"ScanMatcher.match odom_pose: expected a finite (4, 4) transform, got {t.shape}"
+            )
+        last, self._last_pose = self._last_pose, t
+        if last is None:
+            return 0.0
+        d = math.hypot(*(t[:2, 3] - last[:2, 3]))
+        turn = abs(
+            math.remainder(math.atan2(t[1, 0], t[0, 0]) - math.atan2(last[1, 0], last[0, 0]), math.tau)
+        )
+        return max(d / self.params.drift_step[0], turn / self.params.drift_step[1])
 
     def _match(self, points_odom: ArrayLike, vhv: VHVMap) -> MatchResult:
         p = self.params

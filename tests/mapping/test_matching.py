@@ -200,3 +200,19 @@ def test_a_map_defined_by_the_odometry_start_takes_a_sudden_jump_only_in_part(ro
     assert 0.0 < -matcher.t_map_odom[0, 3] < 0.1 * -res.dx
     with pytest.raises(MappingError, match="initial_sd"):
         MatchParams(initial_sd=(-1.0, 0.0))
+
+
+def test_matching_the_same_view_while_standing_still_does_not_walk_the_map_away(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    pose = np.eye(4)
+    standing = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    per_frame = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    frame = _rot(second, 0.03, 0.0, 0.0)  # a view that matches 3 cm off, seen again and again
+    for _ in range(30):
+        assert standing.match(frame, m, pose).accepted
+        per_frame.match(frame, m)
+    # the odometry did not move: its error cannot have grown, so nothing was applied
+    np.testing.assert_array_equal(standing.t_map_odom, np.eye(4))
+    assert abs(per_frame.t_map_odom[0, 3]) > 0.005  # without the pose, the error grows every frame
