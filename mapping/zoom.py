@@ -24,6 +24,7 @@ starts from what is inserted from then on (the coarse map still answers there un
 from __future__ import annotations
 
 import math
+import time
 
 import numba
 import numpy as np
@@ -153,26 +154,46 @@ class ZoomMap:
         coarse_stats = self.coarse.insert(pts, sensor_origin)
         if self.fine is None or self._block is None:
             return coarse_stats, None
-        sub = self._in_region(pts)
-        # few heights per fine cell: the counting-sort path beats the dense (cell, height-bin) table
-        return coarse_stats, self.fine.insert(sub, sensor_origin, method="sort")
+        return coarse_stats, self._insert_fine(pts, sensor_origin)
 
-    def _in_region(self, pts: NDArray[np.floating]) -> NDArray[np.float64]:
+    def _insert_fine(self, pts: NDArray[np.floating], sensor_origin: ArrayLike | None) -> InsertStats:
+        """The in-region points into the fine map, in one compiled pass over the frame.
+
+        The thesis's pipeline as :meth:`VHVMap.insert`'s counting-sort path runs it (group the heights by
+        cell, sort each cell, cluster with the tolerance: the same clustering kernel), but the frame is
+        walked once: the region test and the fine cell of each point come from the same pass, only the
+        in-region points are grouped, over the fine grid's cells (the region), and nothing is copied.
+        """
+        from mapping import _vhv_kernels as K
+        from mapping.vhv import _merge_compiled
+
         assert self._block is not None and self.fine is not None
+        t0 = time.perf_counter()
+        fine = self.fine
         a0, a1, b0, b1 = self._block
-        out = np.empty((pts.shape[0], 3), np.float64)
-        n = _select_region(
-            pts,
-            self.coarse.spec.inv_cell_size,
-            self.fine.spec.inv_cell_size,
-            self.factor,
-            a0,
-            a1,
-            b0,
-            b1,
-            out,
+        nfx, nfy = fine.spec.shape
+        counts = np.zeros(nfx * nfy + 1, np.int64)
+        fkey = np.empty(pts.shape[0], np.int64)
+        hz = np.empty(pts.shape[0], np.float64)
+        n = _fine_cells(pts, self.coarse.spec.inv_cell_size, fine.spec.inv_cell_size, self.factor,
+                        a0, a1, b0, b1, nfy, counts, fkey, hz)  # fmt: skip
+        offsets = np.cumsum(counts)
+        hs = np.empty(n, np.float64)
+        _scatter(fkey, hz, n, offsets[:-1].copy(), hs)
+        key, bot, top = K.cluster_cells(hs, offsets, 0, 0, nfy, nfy, self.tolerance)
+        # the bookkeeping of VHVMap.insert: merge the frame's structures, count the frame
+        fine._key, fine._bottom, fine._top = _merge_compiled(
+            fine._key, fine._bottom, fine._top, key, bot, top, self.tolerance
         )
-        return out[:n]
+        fine._cache = None
+        fine.frames += 1
+        fine.points_inserted += n
+        if sensor_origin is not None:
+            o = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
+            fine.sensor_origins.append((float(o[0]), float(o[1]), float(o[2])))
+        return InsertStats(points_in=n, points_dropped_nonfinite=0, points_outside_grid=0, points_inserted=n,
+                           build_ms=(time.perf_counter() - t0) * 1e3, frame_structures=int(key.shape[0]),
+                           method="sort")  # fmt: skip
 
     # ------------------------------------------------------------------ queries
     def in_region(self, x: float, y: float) -> bool:
@@ -234,35 +255,44 @@ class ZoomMap:
 
 
 @numba.njit(cache=True, nogil=True)
-def _select_region(pts, ics, fics, f, a0, a1, b0, b1, out):  # type: ignore[no-untyped-def]
-    """Copy the finite points whose coarse cell lies in ``[a0, a1) x [b0, b1)`` into ``out`` (float64).
+def _fine_cells(pts, ics, fics, f, a0, a1, b0, b1, nfy, counts, fkey, hz):  # type: ignore[no-untyped-def]
+    """Fine-grid cell key and height of each finite point whose coarse cell lies in ``[a0, a1) x [b0, b1)``.
 
-    A point whose fine cell (``floor(u * fics)``) falls outside its coarse cell's ``f x f`` block by a
-    rounding error is moved by one ulp into the block. Returns the number of points copied.
+    Writes the keys (``i * nfy + j`` in the fine grid) to ``fkey`` and the heights to ``hz`` (the first
+    ``n`` entries), counts the points per fine cell into ``counts[key + 1]``; returns ``n``. A fine index
+    that a rounding error puts outside its coarse cell's ``f x f`` block is clamped into it (the point moved
+    by one ulp into the block).
     """
     n = 0
+    fa0 = a0 * f
+    fb0 = b0 * f
     for k in range(pts.shape[0]):
-        x = np.float64(pts[k, 0])
-        y = np.float64(pts[k, 1])
+        # floor(p) < a0 exactly when p < a0 (a0 an integer); NaN fails every comparison
+        px = np.float64(pts[k, 0]) * ics
+        if not (px >= a0 and px < a1):
+            continue
+        py = np.float64(pts[k, 1]) * ics
+        if not (py >= b0 and py < b1):
+            continue
         z = np.float64(pts[k, 2])
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+        if not np.isfinite(z) or not (np.isfinite(px) and np.isfinite(py)):
             continue
-        ca = np.floor(x * ics)
-        cb = np.floor(y * ics)
-        if ca < a0 or ca >= a1 or cb < b0 or cb >= b1:
-            continue
-        fa = np.floor(x * fics)
-        if fa < ca * f:
-            x = np.nextafter(x, np.inf)
-        elif fa > ca * f + (f - 1):
-            x = np.nextafter(x, -np.inf)
-        fb = np.floor(y * fics)
-        if fb < cb * f:
-            y = np.nextafter(y, np.inf)
-        elif fb > cb * f + (f - 1):
-            y = np.nextafter(y, -np.inf)
-        out[n, 0] = x
-        out[n, 1] = y
-        out[n, 2] = z
+        ca = np.floor(px)
+        cb = np.floor(py)
+        fa = min(max(np.floor(np.float64(pts[k, 0]) * fics), ca * f), ca * f + (f - 1))
+        fb = min(max(np.floor(np.float64(pts[k, 1]) * fics), cb * f), cb * f + (f - 1))
+        key = (int(fa) - fa0) * nfy + (int(fb) - fb0)
+        counts[key + 1] += 1
+        fkey[n] = key
+        hz[n] = z
         n += 1
     return n
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter(fkey, hz, n, fill, hs):  # type: ignore[no-untyped-def]
+    """Counting sort of the heights ``hz[:n]`` into ``hs`` by ``fkey`` (``fill``: each group's start)."""
+    for k in range(n):
+        c = fkey[k]
+        hs[fill[c]] = hz[k]
+        fill[c] += 1

@@ -376,7 +376,7 @@ class Perception:
         if self.matcher is not None:
             # the frame, placed by odometry in odom, is registered against the matched map first
             res = self.matcher.match(
-                transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"]
+                transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"], t_odom_sensor
             )
             poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor
             with self._lock:

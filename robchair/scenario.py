@@ -253,9 +253,10 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
         frames[cam.frame_id] = spec.mounts["kinect_link"].transform() @ cam.link_to_frame()
     matcher = None
     if o.get("matching", True) or o.get("pose") == "matched":
-        from mapping.matching import ScanMatcher
+        from mapping.matching import MatchParams, ScanMatcher
 
-        matcher = ScanMatcher()
+        # the run's map starts empty and its first frame goes in at the odometry's pose: map = odom then
+        matcher = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
     depth_range = chair.kinect.model.max_range_m if chair.kinect is not None else None
     perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
                             tolerance=MAP_TOLERANCE, matcher=matcher, pose=o.get("pose", POSE_DEFAULT),

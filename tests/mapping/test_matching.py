@@ -125,3 +125,94 @@ def test_occupied_cells_give_the_centroid_of_their_points_in_the_band() -> None:
 def test_bad_parameters_are_refused() -> None:
     with pytest.raises(MappingError, match="min_fitness"):
         MatchParams(min_fitness=1.5)
+
+
+def _corridor(rng: np.random.Generator, n: int = 20000, length: float = 5.0) -> np.ndarray:
+    """Two parallel walls 1.5 m apart along x (y = +-0.75 m), 2 m high, from x = 0.5 m to ``length``."""
+    x = rng.uniform(0.5, length, n)
+    y = np.where(rng.random(n) < 0.5, -0.75, 0.75) + rng.normal(0.0, 0.005, n)
+    return np.column_stack([x, y, rng.uniform(0.0, 2.0, n)])
+
+
+def test_a_corridor_whose_walls_fix_nothing_along_it_is_rejected_as_degenerate() -> None:
+    rng = np.random.default_rng(3)
+    m = VHVMap(SPEC, 0.05)
+    m.insert(_corridor(rng))
+    # the odometry is 12 cm off along the corridor: nothing in the frame can tell, so no correction
+    frame = _corridor(rng) + np.array([0.12, 0.0, 0.0])
+    matcher = ScanMatcher()
+    res = matcher.match(frame, m)
+    assert not res.accepted and res.reason == "degenerate geometry", res
+    assert matcher.rejections["degenerate geometry"] == 1
+    np.testing.assert_array_equal(matcher.t_map_odom, np.eye(4))
+
+
+def test_walls_facing_two_ways_are_not_degenerate(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    res = ScanMatcher(MatchParams(min_information=0.1)).match(second, m)
+    assert res.accepted, res
+
+
+def _boxes(
+    rng: np.random.Generator, centres: list[tuple[float, float]], side: float, n: int = 4000
+) -> np.ndarray:
+    """Points on the four vertical faces of square boxes of ``side`` m at ``centres``, 0-1 m high."""
+    out = []
+    for cx, cy in centres:
+        t = rng.uniform(-side / 2, side / 2, n)
+        face = rng.integers(0, 4, n)
+        x = np.where(face < 2, cx + np.where(face == 0, -1, 1) * side / 2, cx + t)
+        y = np.where(face < 2, cy + t, cy + np.where(face == 2, -1, 1) * side / 2)
+        out.append(np.column_stack([x, y, rng.uniform(0.2, 1.0, n)]))
+    return np.concatenate(out)
+
+
+def test_a_heading_fixed_only_by_a_small_far_cluster_moves_little_once_the_map_is_anchored(room) -> None:
+    first, second = room
+    rng = np.random.default_rng(5)
+    cluster = [(6.0, -0.4), (6.3, 0.3), (6.6, -0.1)]  # three 0.4 m boxes in a 1 m patch, 6 m away
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    m.insert(_boxes(rng, cluster, 0.4))
+    matcher = ScanMatcher()
+    assert matcher.match(second, m).accepted  # the room anchors map -> odom
+    before = np.array(matcher.t_map_odom)
+    # the cluster alone, seen with a heading 1.5 deg off (about the sensor at the origin)
+    res = matcher.match(_rot(_boxes(rng, cluster, 0.4), 0.0, 0.0, math.radians(1.5)), m)
+    assert res.accepted, res
+    assert res.sd[1] > math.radians(1.0)  # three boxes 1 m across fix the heading to a degree or worse
+    applied = math.atan2(matcher.t_map_odom[1, 0], matcher.t_map_odom[0, 0]) - math.atan2(
+        before[1, 0], before[0, 0]
+    )
+    assert abs(applied) < 0.25 * abs(res.dyaw)
+
+
+def test_a_map_defined_by_the_odometry_start_takes_a_sudden_jump_only_in_part(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    # map = odom at the start: one frame later the odometry cannot be 8 cm off, so the match is weighed
+    matcher = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    res = matcher.match(_rot(second, 0.08, 0.0, 0.0), m)
+    assert res.accepted and res.dx == pytest.approx(-0.08, abs=0.02)
+    assert 0.0 < -matcher.t_map_odom[0, 3] < 0.1 * -res.dx
+    with pytest.raises(MappingError, match="initial_sd"):
+        MatchParams(initial_sd=(-1.0, 0.0))
+
+
+def test_matching_the_same_view_while_standing_still_does_not_walk_the_map_away(room) -> None:
+    first, second = room
+    m = VHVMap(SPEC, 0.05)
+    m.insert(first)
+    pose = np.eye(4)
+    standing = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    per_frame = ScanMatcher(MatchParams(initial_sd=(0.0, 0.0)))
+    frame = _rot(second, 0.03, 0.0, 0.0)  # a view that matches 3 cm off, seen again and again
+    for _ in range(30):
+        assert standing.match(frame, m, pose).accepted
+        per_frame.match(frame, m)
+    # the odometry did not move: its error cannot have grown, so nothing was applied
+    np.testing.assert_array_equal(standing.t_map_odom, np.eye(4))
+    assert abs(per_frame.t_map_odom[0, 3]) > 0.005  # without the pose, the error grows every frame

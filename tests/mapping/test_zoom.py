@@ -102,3 +102,21 @@ def test_following_the_chair_keeps_the_overlap_and_drops_the_rest() -> None:
 def test_bad_zoom_arguments_are_refused(kwargs, match) -> None:
     with pytest.raises(MappingError, match=match):
         ZoomMap(COARSE, **kwargs)
+
+
+def test_the_fine_map_is_the_plain_vhv_map_of_the_points_inside_the_region() -> None:
+    rng = np.random.default_rng(4)
+    region = (0.0, -1.0, 2.0, 1.0)
+    z = ZoomMap(COARSE, tolerance=0.05, factor=5, region=region)
+    plain = VHVMap(z.fine.spec, 0.05)
+    for _ in range(3):
+        pts = np.column_stack([rng.uniform(-1.5, 3.5, 20000), rng.uniform(-2.5, 2.5, 20000),
+                               rng.choice([0.0, 0.04, 0.1, 0.5, 1.2], 20000)])  # fmt: skip
+        pts[::50, 2] = np.nan
+        fine_stats = z.insert(pts.astype(np.float32), sensor_origin=(0.0, 0.0, 1.0))[1]
+        inside = ((pts[:, 0] >= region[0]) & (pts[:, 0] < region[2]) & (pts[:, 1] >= region[1])
+                  & (pts[:, 1] < region[3]) & np.isfinite(pts[:, 2]))  # fmt: skip
+        plain.insert(pts[inside].astype(np.float32))
+        assert fine_stats is not None and fine_stats.points_inserted == int(inside.sum())
+    assert z.fine.structures().equals(plain.structures())
+    assert z.fine.frames == 3 and len(z.fine.sensor_origins) == 3
