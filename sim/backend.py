@@ -14,7 +14,9 @@ simulated sensors (:mod:`sim.kinect` and :mod:`sim.sonar`). The devices below im
 * :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
 
 Powers only a simulation has are domain-named methods of :class:`SimChair`: ``ground_truth_pose``,
-``ground_truth_transform``, ``contacts`` and ``teleport``.
+``ground_truth_transform``, ``contacts``, ``footprint_overlaps``, ``teleport``, ``restart`` (an exact
+reset) and ``set_floor_friction`` (with :meth:`sim.robot.SimRobot.set_payload_kg` and
+:meth:`sim.robot.SimRobot.scale_motor_plants` for domain randomisation).
 
 :func:`make_sim_backend` builds all of it from a config mapping (what :mod:`robchair.backends` passes).
 """
@@ -73,6 +75,7 @@ class SimChair:
         tyre_radius_error: Standard deviation of each tyre's true radius relative to the spec's
             (drawn from the seed; default 0.2 %, a tyre-pressure-sized error). The odometry assumes
             the spec's radius, so this is what makes the odometry drift as on the real chair; 0 = none.
+        laser: Build the simulated Hokuyo URG-04LX (:class:`sim.laser.LaserSim`) on ``laser_link``.
     """
 
     def __init__(
@@ -87,6 +90,7 @@ class SimChair:
         noise: bool = True,
         raycast_threads: int = 0,
         tyre_radius_error: float = 0.002,
+        laser: bool = False,
     ) -> None:
         self.spec = spec if spec is not None else load_spec()
         self.timing = {"physics": 0.0, "kinect_capture": 0.0, "sonar": 0.0}  # wall s per component
@@ -111,7 +115,8 @@ class SimChair:
             self.mirror: Any = None
             self.kinect: Any = None
             self.sonars: dict[str, Any] = {}
-            if sensor is not None or sonars:
+            self.laser: Any = None
+            if sensor is not None or sonars or laser:
                 from sim.raycast import MeshMirror
 
                 # the chair never sees itself: its sensors sit outside its body, and leaving it out
@@ -137,6 +142,18 @@ class SimChair:
                 )
             if sonars:
                 self.sonars = _make_sonars(self, np.random.default_rng(sonar_seed), noise)
+            if laser:
+                from sim.laser import LaserSim
+
+                robot = self.robot
+                self.laser = LaserSim(
+                    self.world.client,
+                    mirror=self.mirror,
+                    noise=noise,
+                    rng=np.random.default_rng(ss.spawn(1)[0]),
+                    pose=lambda: robot.link_transform("laser_link"),
+                    clock=SimClock(self),
+                )
         except BaseException:
             self.world.close()
             raise
@@ -218,6 +235,59 @@ class SimChair:
         for motor in (self.robot.left, self.robot.right):
             motor.reset()
         self.robot.set_motor_rpm(0.0, 0.0)
+
+    def restart(self, pose: Pose2D | tuple[float, float, float]) -> None:
+        """Restart the simulation at time 0 with the chair at rest at ``pose`` (x, y, yaw in ``map``).
+
+        An exact reset, unlike a restored physics snapshot: the chair's body is replaced by a new one
+        (:meth:`sim.robot.SimRobot.respawn`: joints, contact cache, mass, motors, servo targets and
+        the controller's tick phase all as built), the clock restarts at 0 and scripted people stand
+        where their walks begin. What the simulation does next depends on nothing that ran before.
+        Captures still in flight are waited for first.
+        """
+        x, y, yaw = (pose.x, pose.y, pose.theta) if isinstance(pose, Pose2D) else pose
+        for fut in self.captures_in_flight:
+            fut.result()
+        self.captures_in_flight.clear()
+        old = self.robot.body
+        self.robot.respawn((float(x), float(y), float(yaw)))
+        new = self.robot.body
+        if new != old:  # the sensors leave the chair's own body out by its id
+            for holder in (self.mirror, self.kinect, getattr(self.kinect, "mirror", None)):
+                ex = getattr(holder, "exclude_bodies", None)
+                if isinstance(ex, set):
+                    ex.discard(old)
+                    ex.add(new)
+        self._ghost_people()
+        self.world.steps = 0
+        if self.bodies.moving:
+            self.bodies.update(self.world.client, 0.0)
+
+    def footprint_overlaps(self) -> list[str]:
+        """Static scene objects the chair's collision shapes penetrate where it stands (no stepping).
+
+        Walking people, which pass through the chair, are left out.
+        """
+        import pybullet as p
+
+        c = self.world.client
+        p.performCollisionDetection(physicsClientId=c)
+        names = {v: k for k, v in self.bodies.ids.items()}
+        people = {body for body, _ in self.bodies.moving}
+        hit = {
+            names[pt[2]]
+            for pt in p.getContactPoints(bodyA=self.robot.body, physicsClientId=c)
+            if pt[2] in names and pt[2] not in people and pt[8] < 0.0
+        }
+        return sorted(hit)
+
+    def set_floor_friction(self, mu: float) -> None:
+        """The floor's lateral friction coefficient (what the tyres grip with)."""
+        import pybullet as p
+
+        if not (math.isfinite(mu) and mu > 0):
+            raise SimError(f"floor friction {mu!r}: expected a finite coefficient > 0")
+        p.changeDynamics(self.world.plane, -1, lateralFriction=float(mu), physicsClientId=self.world.client)
 
     def close(self) -> None:
         for fut in self.captures_in_flight:

@@ -485,8 +485,6 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._build_chair(self._decimation, self._camera_backend)
 
     def _build_chair(self, decimation: int, camera_backend: str) -> None:
-        import pybullet as p
-
         from sim.backend import SimChair
 
         model: Any = None
@@ -501,7 +499,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
                 width=max(1, base.width // decimation),
                 height=max(1, base.height // decimation),
             )
-        self._chair: Any = SimChair(
+        self.chair: Any = SimChair(
             self.spec_robot,
             self.scene,
             (0.0, 0.0, 0.0),
@@ -511,52 +509,31 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             camera_backend=camera_backend,
             noise=self.noise,
             tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
+            laser=self.laser_on,
         )
-        self.client = self._chair.world.client
-        self.robot = self._chair.robot
+        self.robot = self.chair.robot
         # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
         # to a decimated image it would be `decimation` times too wide and smear the floor into
         # obstacles. A decimated camera therefore renders clean geometry and gets the axial noise here
         # (see decimated_depth_noise); at full resolution the model's own noise applies unchanged.
         self._own_noise = self.noise and model is not None and decimation > 1
         if self._own_noise:
-            self._chair.kinect.noise = False
-        # every episode starts from this snapshot (contacts and solver caches included), so the same
-        # seed gives the same episode bit for bit, however many episodes ran before
-        self._state_id = p.saveState(physicsClientId=self.client)
-        dyn = p.getDynamicsInfo(self.robot.body, -1, physicsClientId=self.client)
-        self._inertial = (tuple(dyn[3]), tuple(dyn[4]))
+            self.chair.kinect.noise = False
         self._t_base_cam = self.spec_robot.mounts["kinect_link"].transform()
-        if self._chair.kinect is not None:
-            self._t_base_cam = self._t_base_cam @ self._chair.kinect.output_pose(np.eye(4))
-        self._scene_bodies = frozenset(self._chair.bodies.ids.values())
-        self._body_names = {v: k for k, v in self._chair.bodies.ids.items()}
-        self._nominal_plants = (self.robot.left.plant.plant, self.robot.right.plant.plant)
-        self._base_mass = float(dyn[0])
-        self._base_inertia = tuple(float(v) for v in dyn[2])
-        self._sonar_noise = {m: float(a.noise_std_m) for m, a in self._chair.sonars.items()}
-        self._laser: Any = None
-        if self.laser_on:
-            from sim.laser import LaserSim
-
-            self._laser = LaserSim(
-                self.client,
-                mirror=self._chair.mirror,
-                exclude_bodies=(self.robot.body,),  # used when no other sensor made the mirror
-                noise=self.noise,
-                accuracy_sigmas=LASER_ACCURACY_SIGMAS,
-            )
+        if self.chair.kinect is not None:
+            self._t_base_cam = self._t_base_cam @ self.chair.kinect.output_pose(np.eye(4))
+        self._laser: Any = self.chair.laser
+        if self._laser is not None:
             self._laser_ranges = np.zeros(self._laser.model.n_beams, dtype=np.float32)
-        self._people = tuple(body for body, _ in self._chair.bodies.moving)
         self._noise = EpisodeNoise()
         self._backend = episode_backend(
-            self._chair, self._noise, laser=self._laser, own_depth_noise=self._own_noise,
+            self.chair, self._noise, laser=self._laser, own_depth_noise=self._own_noise,
             laser_accuracy_sigmas=LASER_ACCURACY_SIGMAS,
         )  # fmt: skip
         self._frames: dict[str, np.ndarray] = {}
-        cam = self._backend.depth_camera
-        if cam is not None and cam.frame_id not in self.spec_robot.mounts:
-            self._frames[cam.frame_id] = self._t_base_cam
+        cam_frame = getattr(self._backend.depth_camera, "frame_id", None)
+        if cam_frame is not None and cam_frame not in self.spec_robot.mounts:
+            self._frames[cam_frame] = self._t_base_cam
         self.runtime = Runtime(
             self._backend,
             spec=self.spec_robot,
@@ -602,13 +579,13 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             "velocity": spaces.Box(-self._vel_high, self._vel_high, dtype=np.float32),
         }
         if self.sonars_on:
-            self.sonar_max_range = float(max(a.model.max_range_m for a in self._chair.sonars.values()))
+            self.sonar_max_range = float(max(a.model.max_range_m for a in self.chair.sonars.values()))
             obs["sonar"] = spaces.Box(0.0, self.sonar_max_range, shape=(6,), dtype=np.float32)
         if self._laser is not None:
             lm = self._laser.model
             obs["laser"] = spaces.Box(0.0, lm.range_max, shape=(lm.n_beams,), dtype=np.float32)
         if self.depth_image:
-            m = self._chair.kinect.model
+            m = self.chair.kinect.model
             self._depth_shape = (int(m.height), int(m.width))
             self._depth_max = float(m.max_range_m)
             self._depth = np.zeros(self._depth_shape, dtype=np.float32)
@@ -677,18 +654,6 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
                 f"{2 * (half + PASS_MARGIN):.2f} m wide joins them (near the goal: {name!r})"
             )
 
-    def _footprint_overlaps(self) -> list[str]:
-        """Scene objects the chair's collision shapes penetrate where it stands now (no stepping)."""
-        import pybullet as p
-
-        p.performCollisionDetection(physicsClientId=self.client)
-        hit = {
-            self._body_names[c[2]]
-            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
-            if c[2] in self._body_names and c[8] < 0.0
-        }
-        return sorted(hit)
-
     def _sample_start(self, rng: np.random.Generator, goal: npt.NDArray[np.float64] | None) -> Pose2D:
         cells = self._start_cells
         if goal is not None:
@@ -711,53 +676,25 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         return float(x), float(y)
 
     def _place_chair(self, start: Pose2D) -> None:
-        import pybullet as p
+        """Restart the simulation with the chair at rest at ``start`` and this episode's dynamics.
 
+        :meth:`sim.backend.SimChair.restart` is an exact reset (a new chair body, the clock at 0), so
+        an episode depends only on its seed and actions, never on the episodes before it.
+        """
         self._check_not_closed()
-        p.restoreState(self._state_id, physicsClientId=self.client)
-        q = p.getQuaternionFromEuler((0.0, 0.0, start.theta))
-        # PyBullet's base frame is the inertial frame: place base_link by composing the offset
-        pos, orn = p.multiplyTransforms((start.x, start.y, 0.0), q, *self._inertial)
-        p.resetBasePositionAndOrientation(self.robot.body, pos, orn, physicsClientId=self.client)
-        p.resetBaseVelocity(self.robot.body, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), physicsClientId=self.client)
-        world = self._chair.world
-        world.steps = 0  # scripted people restart their walks; stamps restart at 0
-        if self._chair.bodies.moving:
-            self._chair.bodies.update(self.client, 0.0)
-        static = [n for n in self._footprint_overlaps() if self._chair.bodies.ids[n] not in self._people]
+        chair = self.chair
+        chair.restart(start)
+        static = chair.footprint_overlaps()
         if static:
             raise NavigationEnvError(
                 f"start {(start.x, start.y, start.theta)}: the chair's footprint there overlaps "
                 + ", ".join(repr(n) for n in static)
             )
-        self._apply_dynamics(self.dynamics)
-        for motor in (self.robot.left, self.robot.right):
-            motor.reset()
-        self.robot.set_motor_rpm(0.0, 0.0)
-        for mount in self._chair.sonars:  # the runtime turns the sonar servos; each episode starts centred
-            self.robot.set_servo_deg(mount, 0.0)
-        self._chair.step(SETTLE_STEPS)
-
-    def _apply_dynamics(self, d: EpisodeDynamics) -> None:
-        """Give the simulated chair this episode's tyres, floor, payload, motors and sensor noise."""
-        import pybullet as p
-
-        from robchair.control import DiscretePlant
-
-        c = self.client
-        p.changeDynamics(self._chair.world.plane, -1, lateralFriction=d.floor_friction, physicsClientId=c)
-        mass = self._base_mass + d.payload_kg
-        inertia = [v * mass / self._base_mass for v in self._base_inertia]
-        p.changeDynamics(self.robot.body, -1, mass=mass, localInertiaDiagonal=inertia, physicsClientId=c)
-        for motor, nominal, kw, kx in zip(
-            (self.robot.left, self.robot.right),
-            self._nominal_plants,
-            d.motor_omega_n_scale,
-            d.motor_xi_scale,
-            strict=True,
-        ):
-            plant = replace(nominal, omega_n=nominal.omega_n * kw, xi=nominal.xi * kx)
-            motor.plant = DiscretePlant(plant, self.robot.motor_dt)
+        d = self.dynamics
+        chair.set_floor_friction(d.floor_friction)
+        chair.robot.set_payload_kg(d.payload_kg)
+        chair.robot.scale_motor_plants(d.motor_omega_n_scale, d.motor_xi_scale)
+        chair.step(SETTLE_STEPS)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -786,7 +723,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._place_chair(start)
         d = self.dynamics
         self._noise.rng, self._noise.scale = self._sensor_rng, float(d.sensor_noise_scale)
-        latency = min(round(d.command_latency_s * self._chair.world.physics_hz), self.substeps - 1)
+        latency = min(round(d.command_latency_s * self.chair.world.physics_hz), self.substeps - 1)
         motors: Any = self._backend.motors
         motors.new_episode(d.tyre_radius_scale, latency)
         self._path = []
@@ -794,7 +731,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         rt = self.runtime
         rt.reset(start, self._new_perception())
         if self.pose_source == "ground_truth":
-            rt.odometry = GroundTruthLocalisation(self._chair)  # type: ignore[assignment]
+            rt.odometry = GroundTruthLocalisation(self.chair)  # type: ignore[assignment]
         rt.start()
         # one cycle standing still: the runtime senses the start and the first observation shows it
         self._cycle(Command(0.0, 0.0))
@@ -880,7 +817,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     def _pose(self) -> Pose2D:
         """The pose the chair believes now (ground truth or the runtime's odometry, per ``pose_source``)."""
-        gt = self._chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
+        gt = self.chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
         self._path.append((gt.x, gt.y))
         if self.pose_source == "ground_truth":
             return gt
@@ -888,7 +825,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         return self.runtime.odometry.update(*self._backend.motors.read_state().encoder_counts)
 
     def _true_distance(self) -> float:
-        gt = self._chair.ground_truth_pose()
+        gt = self.chair.ground_truth_pose()
         return math.hypot(self.goal[0] - gt.x, self.goal[1] - gt.y)
 
     def own_occupancy(self) -> tuple[GridSpec, npt.NDArray[np.bool_]]:
@@ -903,14 +840,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     def contacts(self) -> list[str]:
         """Names of the scene objects the chair touches now (walking people included)."""
-        return sorted(self._chair.contacts())
+        return sorted(self.chair.contacts())
 
     def _read_perception(self) -> None:
         """What the runtime's perception stage and sensors gave in the last cycle, for the observation."""
         rt = self.runtime
         p = rt.perception
         self._map = p.map
-        self._occ = p.occupancy_2d()
+        self._occ = p.occupied_2d()
         if self.sonars_on and rt.last_sonars:
             rr = np.asarray([r for _, reading in rt.last_sonars for r in reading.ranges_m], dtype=np.float64)
             self._sonar_ranges = np.where(
@@ -965,7 +902,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             "pose": (gt.x, gt.y, gt.theta),
             "pose_estimate": (pose.x, pose.y, pose.theta),
             "goal": self.goal,
-            "sim_time": self._chair.world.time,
+            "sim_time": self.chair.world.time,
         }
         if terms is not None:
             info["reward_terms"] = terms
@@ -1019,7 +956,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             self.runtime.stop()
             self._backend.close()
         finally:
-            self._chair.close()
+            self.chair.close()
 
     def _check_not_closed(self) -> None:
         if self._closed:
@@ -1027,7 +964,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     def close(self) -> None:
         """Release the PyBullet client (idempotent)."""
-        chair = getattr(self, "_chair", None)
+        chair = getattr(self, "chair", None)
         if chair is not None and not self._closed:
             self._release_chair()
             self._closed = True
