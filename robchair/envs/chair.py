@@ -11,16 +11,22 @@ whose devices carry what an episode draws (domain randomisation, :mod:`sim.envs.
   a latent set point when it is due, and collects the scene objects the chair touches in any step;
 * sonar arrays, laser scanner and depth camera that draw their noise from the episode's stream, so
   the same seed gives the same episode however many episodes ran before.
+
+Beside them, what the environment reads of the runtime: :func:`shield_report` (``info["safety"]``)
+and :class:`GroundTruthLocalisation` (the physics' pose in place of odometry).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from hw.interfaces import DepthFrame, MotorState
+from robchair.kinematics import Pose2D
+from robchair.runtime import CycleResult
 from sim.backend import SONAR_MOUNTS, SimBackend, SimChair, SimMotorController, SimSonarArray
 from sim.envs.geometry import decimated_depth_noise
 
@@ -209,3 +215,40 @@ def episode_backend(
     )
     backend.open()
     return backend
+
+
+def shield_report(cycle: CycleResult) -> dict[str, Any]:
+    """``info["safety"]``: whether and why the safety layer changed the agent's command in a cycle.
+
+    Returns ``{"intervened": bool, "reason": str | None}``; the reason is the stop reason and its
+    detail (e.g. ``"obstacle_map: obstacle at 0.31 m ahead < stopping distance 0.35 m"``), or
+    ``"limited: ..."`` when a speed or acceleration limit changed the twist.
+    """
+    d = cycle.decision
+    if not cycle.intervened:
+        return {"intervened": False, "reason": None}
+    if d.stop is not None:
+        reason = f"{d.stop.value}: {d.detail}" if d.detail else d.stop.value
+    else:
+        reason = f"limited: {d.detail}" if d.detail else "limited: speed or acceleration limit"
+    return {"intervened": True, "reason": reason}
+
+
+class GroundTruthLocalisation:
+    """The physics' ground truth in place of wheel odometry (``pose_source="ground_truth"``).
+
+    Duck-types :class:`robchair.kinematics.Odometry` for the runtime: ``update`` ignores the
+    encoder counts and returns the simulated chair's true planar pose.
+    """
+
+    def __init__(self, chair: SimChair) -> None:
+        self.chair = chair
+        self.pose = chair.ground_truth_pose()
+        self.distance = 0.0
+
+    def update(self, *_counts: Any) -> Pose2D:
+        """The true pose now (the distance driven accumulates)."""
+        pose = self.chair.ground_truth_pose()
+        self.distance += math.hypot(pose.x - self.pose.x, pose.y - self.pose.y)
+        self.pose = pose
+        return pose
