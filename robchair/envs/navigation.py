@@ -37,7 +37,6 @@ re-exported here.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from typing import Any, SupportsFloat
 
 import gymnasium
@@ -48,7 +47,7 @@ from gymnasium.vector import AutoresetMode
 
 from mapping.grid import GridSpec
 from robchair.envs.arguments import AGENT_HZ, NavigationSettings, load_scene_arg
-from robchair.envs.chair import EpisodeNoise, GroundTruthLocalisation, episode_backend, shield_report
+from robchair.envs.chair import GroundTruthLocalisation, build_chair, place_chair, shield_report
 from robchair.envs.episodes import EpisodeSampler, check_reset_options, scene_grid
 from robchair.envs.observation import DISCRETE_ACTIONS, ObservationBuilder, action_space, action_to_twist
 from robchair.envs.render import top_down_picture
@@ -75,7 +74,6 @@ from sim.envs.rewards import RewardWeights, navigation_reward, reward_terms
 
 OCC_Z_MIN = 0.10  # m: above the floor's depth noise, like the runner's occupancy band
 SETTLE_STEPS = 12  # physics steps with zero command after placing the chair
-LASER_ACCURACY_SIGMAS = 3.0  # the datasheet's +- accuracy is this many standard deviations (sim.laser)
 
 
 class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], EzPickle):
@@ -277,16 +275,10 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     def _setup_scene(self) -> None:
         """Grid, free space, the simulated chair, its runtime and the spaces for ``self.scene``."""
         self.grid = scene_grid(self.scene, self.patch_cell)
-        anchor = self.fixed_start[:2] if self.fixed_start is not None else None
-        self.sampler = EpisodeSampler(
-            self.scene,
-            self.grid,
-            self.band,
-            self.spec_robot,
-            self.robot_radius,
-            self.goal_distance,
-            anchor=anchor,
-        )  # type: ignore[arg-type]
+        fs = self.fixed_start
+        anchor = (fs[0], fs[1]) if fs is not None else None
+        self.sampler = EpisodeSampler(self.scene, self.grid, self.band, self.spec_robot, self.robot_radius,
+                                      self.goal_distance, anchor=anchor)  # fmt: skip
         self.free_space: FreeSpace = self.sampler.free_space
         self._build_chair()
         x0, x1, y0, y1 = self.grid.extent
@@ -296,72 +288,23 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         chair = self.chair
         sonar_max = max((a.model.max_range_m for a in chair.sonars.values()), default=None)
         self.obs_builder = ObservationBuilder(
-            self.grid,
-            self.patch_shape,
-            self.patch_cell,
-            self.patch_behind,
-            self.drive,
-            max_goal,
+            self.grid, self.patch_shape, self.patch_cell, self.patch_behind, self.drive, max_goal,
             sonar_max_range=float(sonar_max) if sonar_max is not None else None,
             laser_model=chair.laser.model if chair.laser is not None else None,
             depth_model=chair.kinect.model if self.depth_image else None,
             elevation=self.elevation_map,
-        )
+        )  # fmt: skip
         self.observation_space = self.obs_builder.space  # type: ignore[assignment]
         self.max_goal_obs = self.obs_builder.max_goal_obs
 
     def _build_chair(self) -> None:
         """The simulated chair, its devices behind the hardware interfaces and the runtime over them."""
-        from sim.backend import SimChair
-
-        decimation = self.settings.kinect_decimation
-        model: Any = None
-        if self.sensor is not None:
-            from sim.kinect import get_model
-
-            base = get_model(self.sensor)
-            # fewer rays over the same field of view: the same camera at a lower resolution
-            model = replace(
-                base,
-                name=f"{base.name}/{decimation}",
-                width=max(1, base.width // decimation),
-                height=max(1, base.height // decimation),
-            )
-        self.chair: Any = SimChair(
-            self.spec_robot,
-            self.scene,
-            (0.0, 0.0, 0.0),
-            sensor=model,
-            sonars=self.sonars_on,
-            seed=0,
-            camera_backend=self.settings.camera_backend,
-            noise=self.noise,
-            tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
-            laser=self.laser_on,
-        )
+        st = self.settings
+        self.chair, self._noise, self._backend, self._frames = build_chair(
+            self.spec_robot, self.scene, sensor=self.sensor, decimation=st.kinect_decimation,
+            sonars=self.sonars_on, laser=self.laser_on, noise=self.noise, camera_backend=st.camera_backend,
+        )  # fmt: skip
         self.robot = self.chair.robot
-        # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
-        # to a decimated image it would be `decimation` times too wide and smear the floor into
-        # obstacles. A decimated camera therefore renders clean geometry and gets the axial noise
-        # (see decimated_depth_noise); at full resolution the model's own noise applies unchanged.
-        own_noise = self.noise and model is not None and decimation > 1
-        if own_noise:
-            self.chair.kinect.noise = False
-        self._noise = EpisodeNoise()
-        self._backend = episode_backend(
-            self.chair,
-            self._noise,
-            laser=self.chair.laser,
-            own_depth_noise=own_noise,
-            laser_accuracy_sigmas=LASER_ACCURACY_SIGMAS,
-        )
-        self._frames: dict[str, np.ndarray] = {}
-        cam_frame = getattr(self._backend.depth_camera, "frame_id", None)
-        if cam_frame is not None and cam_frame not in self.spec_robot.mounts:
-            t_cam = self.spec_robot.mounts["kinect_link"].transform() @ self.chair.kinect.output_pose(
-                np.eye(4)
-            )
-            self._frames[cam_frame] = t_cam
         self.runtime = Runtime(
             self._backend,
             spec=self.spec_robot,
@@ -389,27 +332,6 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     # ---- episode -----------------------------------------------------------------------------
 
-    def _place_chair(self, start: Pose2D) -> None:
-        """Restart the simulation with the chair at rest at ``start`` and this episode's dynamics.
-
-        :meth:`sim.backend.SimChair.restart` is an exact reset (a new chair body, the clock at 0), so
-        an episode depends only on its seed and actions, never on the episodes before it.
-        """
-        self._check_not_closed()
-        chair = self.chair
-        chair.restart(start)
-        static = chair.footprint_overlaps()
-        if static:
-            raise NavigationEnvError(
-                f"start {(start.x, start.y, start.theta)}: the chair's footprint there overlaps "
-                + ", ".join(repr(n) for n in static)
-            )
-        d = self.dynamics
-        chair.set_floor_friction(d.floor_friction)
-        chair.robot.set_payload_kg(d.payload_kg)
-        chair.robot.scale_motor_plants(d.motor_omega_n_scale, d.motor_xi_scale)
-        chair.step(SETTLE_STEPS)
-
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -436,7 +358,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         # one child stream for all sensor noise, drawn after start and goal so they stay put
         self._sensor_rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
         self.dynamics = d = self.randomization.sample(self.np_random)
-        self._place_chair(start)
+        self._check_not_closed()
+        place_chair(self.chair, start, d, SETTLE_STEPS)
         self._noise.rng, self._noise.scale = self._sensor_rng, float(d.sensor_noise_scale)
         latency = min(round(d.command_latency_s * self.chair.world.physics_hz), self.substeps - 1)
         motors: Any = self._backend.motors
