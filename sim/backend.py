@@ -111,6 +111,7 @@ class SimChair:
             scale = 1.0 + tyre_radius_error * np.random.default_rng(tyre_seed).standard_normal(2)
             self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
             self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
+            self._body_names = {v: k for k, v in self.bodies.ids.items()}  # scene bodies never change
             self._ghost_people()
             self.mirror: Any = None
             self.kinect: Any = None
@@ -211,7 +212,7 @@ class SimChair:
         import pybullet as p
 
         c = self.world.client
-        names = {v: k for k, v in self.bodies.ids.items()}
+        names = self._body_names
         hit = {
             names[pt[2]]
             for pt in p.getContactPoints(bodyA=self.robot.body, physicsClientId=c)
@@ -272,7 +273,7 @@ class SimChair:
 
         c = self.world.client
         p.performCollisionDetection(physicsClientId=c)
-        names = {v: k for k, v in self.bodies.ids.items()}
+        names = self._body_names
         people = {body for body, _ in self.bodies.moving}
         hit = {
             names[pt[2]]
