@@ -47,13 +47,25 @@ Near-surface rule (why surfaces do not flicker and tables are not erased)
 * Clamping gives hysteresis: a surface at the upper bound needs 9 consecutive frames of free evidence
   before it reads free.
 
+Dynamic decay (people who walk out of view)
+-------------------------------------------
+A cell is cleared only by rays that pass through it again; a person who walks out of the sensor's
+view leaves a trail nobody clears. With :attr:`EvidenceParams.dynamic_decay_s` and insertion stamps,
+an occupied slab of a frame that lands on space the map knew free (probability below
+``dynamic_void_probability``, DUFOMap's "void") or on a dynamic interval is *dynamic*: every piece
+under it keeps the stamp of its last hit. Before each update, dynamic occupied intervals whose last
+hit is older than ``dynamic_decay_s`` are dropped: they become unknown, not free (the spatio-temporal
+voxel layer's decay, restricted to what moved). Static surfaces are never seen free before they are
+hit, so they stay however long they are out of view; a person standing still keeps being hit.
+
 Storage (structure of arrays)
 -----------------------------
 Heights are integers on a lattice of ``height_resolution`` (1 cm by default): noisy observations of a
 surface then give identical bounds and merge instead of fragmenting. Per grid cell a dense table holds
-the start, count and reserved room of the cell's list in a pool of ``(lo, hi, log_odds)`` arrays
-(int32, int32, float32), sorted and disjoint; a frame rewrites only the cells it touches, in place
-when the list fits, else appended at the pool's end (the pool is compacted when half of it is dead).
+the start, count and reserved room of the cell's list in a pool of ``(lo, hi, log_odds, stamp)``
+arrays (int32, int32, float32, float64; stamp -inf unless dynamic), sorted and disjoint; a frame
+rewrites only the cells it touches, in place when the list fits, else appended at the pool's end (the
+pool is compacted when half of it is dead).
 
 The pure thesis method stays available as :class:`mapping.vhv.VHVMap` (accumulate only, no free
 space); :func:`make_map` chooses by name.
@@ -760,6 +772,11 @@ class ProbabilisticVHV:
     def n_voxels(self) -> int:
         """Standard voxels the occupied structures cover."""
         return self._occupied_view().n_voxels
+
+    @property
+    def now(self) -> float:
+        """The map's clock: the latest insertion stamp, seconds (-inf before any)."""
+        return self._now
 
     @property
     def n_intervals(self) -> int:
