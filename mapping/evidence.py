@@ -48,6 +48,10 @@ class EvidenceParams:
             where the map knew free space (DUFOMap's "void" rule: something moved in): a person who
             walks out of the sensor's view leaves no trail, since no later ray would clear it. Static
             surfaces are never seen free, so they do not decay. Needs insertion stamps (``stamp=``).
+        dynamic_max_dwell_s: only dynamic intervals hit for at most this long (from their first
+            dynamic hit to their last) decay; None: any. A person walking passes a cell within a second
+            or two, while a static surface that looked free at first (seen at grazing incidence, where a
+            fan's hull crosses it) keeps being hit as long as it is in view.
         dynamic_void_probability: a stored piece counts as known free for that rule when its
             probability is below this; None: ``free_threshold``. Lower values ask for more passes of
             free space (one pass gives ``prob_miss``), so that range noise at a surface's edge (a cell
@@ -70,6 +74,7 @@ class EvidenceParams:
     max_table_bytes: int = 64 << 20
     dynamic_decay_s: float | None = None
     dynamic_void_probability: float | None = None
+    dynamic_max_dwell_s: float | None = None
 
     def __post_init__(self) -> None:
         def prob(name: str, lo: float, hi: float) -> None:
@@ -103,6 +108,9 @@ class EvidenceParams:
         d = self.dynamic_decay_s
         if d is not None and not (isinstance(d, int | float) and math.isfinite(d) and d > 0):
             raise MappingError(f"EvidenceParams.dynamic_decay_s={d!r}: expected seconds > 0 or None")
+        w = self.dynamic_max_dwell_s
+        if w is not None and not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
+            raise MappingError(f"EvidenceParams.dynamic_max_dwell_s={w!r}: expected seconds >= 0 or None")
         if self.dynamic_void_probability is not None:
             prob("dynamic_void_probability", 0.0, 1.0)
         if int(self.max_table_bytes) < 1 << 16:

@@ -54,9 +54,11 @@ view leaves a trail nobody clears. With :attr:`EvidenceParams.dynamic_decay_s` a
 an occupied slab of a frame that lands on space the map knew free (probability below
 ``dynamic_void_probability``, DUFOMap's "void") or on a dynamic interval is *dynamic*: every piece
 under it keeps the stamp of its last hit. Before each update, dynamic occupied intervals whose last
-hit is older than ``dynamic_decay_s`` are dropped: they become unknown, not free (the spatio-temporal
-voxel layer's decay, restricted to what moved). Static surfaces are never seen free before they are
-hit, so they stay however long they are out of view; a person standing still keeps being hit.
+hit is older than ``dynamic_decay_s`` are dropped (when they were hit for at most
+``dynamic_max_dwell_s``: a person passes a cell within a second or two): they become unknown, not free
+(the spatio-temporal voxel layer's decay, restricted to what moved). Static surfaces are not seen free
+before they are hit, or keep being hit longer, so they stay however long they are out of view; a person
+standing still keeps being hit.
 
 Storage (structure of arrays)
 -----------------------------
@@ -170,7 +172,8 @@ class ProbabilisticVHV:
         self._plo = np.empty(cap, np.int32)
         self._phi = np.empty(cap, np.int32)
         self._pl = np.empty(cap, np.float32)
-        self._pt = np.empty(cap, np.float64)  # stamp of the last hit of a dynamic interval, else -inf
+        # stamps of the last and the first dynamic hit of a dynamic interval, else -inf
+        self._pt = np.empty((cap, 2), np.float64)
         self._track = p.dynamic_decay_s is not None
         self._now = -math.inf
         self._used = 0
@@ -626,7 +629,7 @@ class ProbabilisticVHV:
             self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt,
             okey, olo, ohi, fkey, flo, fhi,
             self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
-            self._track, self._now, self._l_void,
+            self._track, self._now, self._l_void, self._l_occ,
         )  # fmt: skip
         extra = int(E.relocation_slots(tkey, toff, self._ccap))
         if self._used + extra > self._plo.shape[0]:
@@ -645,13 +648,14 @@ class ProbabilisticVHV:
     def _decay(self) -> int:
         """Forget the dynamic occupied intervals not hit for ``dynamic_decay_s``; returns how many."""
         age = self.params.dynamic_decay_s
+        dwell = self.params.dynamic_max_dwell_s
         if age is None or not math.isfinite(self._now) or self._n_intervals == 0:
             return 0
         from mapping import _evidence_kernels as E
 
         n = int(
             E.decay(self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
-                    self._now, float(age), self._l_occ)
+                    self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ)
         )  # fmt: skip
         self._n_intervals -= n
         self._garbage += n
@@ -661,7 +665,7 @@ class ProbabilisticVHV:
         cap = max(2 * self._plo.shape[0], need)
         for name in ("_plo", "_phi", "_pl", "_pt"):
             old = getattr(self, name)
-            new = np.empty(cap, old.dtype)
+            new = np.empty((cap, *old.shape[1:]), old.dtype)
             new[: self._used] = old[: self._used]
             setattr(self, name, new)
 
@@ -672,7 +676,7 @@ class ProbabilisticVHV:
         cells = int(np.count_nonzero(self._ccount))
         cap = max(self._n_intervals + slack * cells + 1024, 1 << 16)
         lo, hi, lv = np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32)
-        lt = np.empty(cap, np.float64)
+        lt = np.empty((cap, 2), np.float64)
         # cells with no interval keep no room
         self._ccap[self._ccount == 0] = 0
         self._used = int(

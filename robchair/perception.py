@@ -66,8 +66,11 @@ SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up 
 # Probabilistic maps: a hit where free space was seen (a person walking in) is dynamic and forgotten this
 # long after its last hit, so a walker leaving the camera's view leaves no trail; "seen free" asks for
 # about five passes of free space (p < 0.15), so range noise at a static surface's edge does not count.
+# Only what was hit for at most DYNAMIC_MAX_DWELL_S decays (a person passes a cell within a second or
+# two): a wall first seen free at grazing incidence keeps being hit as long as it is in view.
 DYNAMIC_DECAY_S = 0.5
 DYNAMIC_VOID_PROBABILITY = 0.15
+DYNAMIC_MAX_DWELL_S = 2.0
 
 
 class PointMap(Protocol):
@@ -179,8 +182,9 @@ class Perception:
         map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
             ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
-            (default: the mapping core's defaults with the dynamic decay of :data:`DYNAMIC_DECAY_S` and
-            :data:`DYNAMIC_VOID_PROBABILITY`; depth frames carry their capture stamps as its clock).
+            (default: the mapping core's defaults with the dynamic decay of :data:`DYNAMIC_DECAY_S`,
+            :data:`DYNAMIC_VOID_PROBABILITY` and :data:`DYNAMIC_MAX_DWELL_S`; depth frames carry their
+            capture stamps as its clock).
 
     Raises:
         ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
@@ -225,7 +229,9 @@ class Perception:
             from mapping.probabilistic import EvidenceParams
 
             evidence_params = EvidenceParams(
-                dynamic_decay_s=DYNAMIC_DECAY_S, dynamic_void_probability=DYNAMIC_VOID_PROBABILITY
+                dynamic_decay_s=DYNAMIC_DECAY_S,
+                dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
+                dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
             )
         self.evidence_params = evidence_params
         self.clear_no_return = bool(clear_no_return)
@@ -406,7 +412,7 @@ class Perception:
         far = self._no_return_points(frame, r) if r else None
         from mapping.probabilistic import ProbabilisticVHV
 
-        stamp = {"stamp": frame.stamp_ns * 1e-9} if frame.stamp_ns is not None else {}
+        stamp = {"stamp": frame.stamp_ns * 1e-9}
         for m, t, is_main in main + others + placed:
             kw = stamp if isinstance(m, ProbabilisticVHV) and m.now <= stamp.get("stamp", m.now) else {}
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3], **kw)

@@ -82,6 +82,20 @@ def test_a_surface_nobody_saw_free_does_not_decay_out_of_view():
     assert _walker_then_look_away(_map(0.5), seen_free_first=False) == [100] * 30
 
 
+def test_something_seen_free_first_but_then_hit_longer_than_the_dwell_limit_stays_out_of_view():
+    spec = GridSpec(cell_size=0.05, size_x=8.0, size_y=8.0)
+    m = ProbabilisticVHV(spec, params=EvidenceParams(dynamic_decay_s=0.5, dynamic_max_dwell_s=1.0))
+    k = 0
+    for boxes, n in (([WALL], 10), ([WALL, WALKER], 45)):  # then hit for 1.5 s: a static object
+        for _ in range(n):
+            m.insert(_view(boxes), sensor_origin=O, stamp=k / HZ)
+            k += 1
+    for _ in range(30):
+        m.insert(_view([BEHIND], yaw=180.0), sensor_origin=O, stamp=k / HZ)
+        k += 1
+    assert _code(m, *WALKER_XY) == 100
+
+
 def test_a_surface_hit_by_every_frame_never_flickers_while_a_walker_crossing_is_cleared():
     m = _map(0.5)
     rng = np.random.default_rng(0)
@@ -109,5 +123,7 @@ def test_stamps_going_back_and_bad_decay_parameters_are_refused():
         m.insert_free(np.zeros((1, 3)), sensor_origin=O, stamp=float("nan"))
     with pytest.raises(MappingError, match="dynamic_decay_s=0"):
         EvidenceParams(dynamic_decay_s=0)
+    with pytest.raises(MappingError, match="dynamic_max_dwell_s=-1"):
+        EvidenceParams(dynamic_max_dwell_s=-1)
     with pytest.raises(MappingError, match="dynamic_void_probability"):
         EvidenceParams(dynamic_void_probability=1.5)
