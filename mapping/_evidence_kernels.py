@@ -332,7 +332,27 @@ def extract_free(  # type: ignore[no-untyped-def]
 
 @numba.jit(**_JIT)
 def update_cells(  # type: ignore[no-untyped-def]
-    cstart, ccount, plo, phi, pl, okey, olo, ohi, fkey, flo, fhi, l_hit, l_miss, l_min, l_max, merge_eps
+    cstart,
+    ccount,
+    plo,
+    phi,
+    pl,
+    pt,
+    okey,
+    olo,
+    ohi,
+    fkey,
+    flo,
+    fhi,
+    l_hit,
+    l_miss,
+    l_min,
+    l_max,
+    merge_eps,
+    track,
+    now,
+    l_void,
+    l_occ,
 ):
     """Apply one frame's evidence to the cells it touches.
 
@@ -343,8 +363,16 @@ def update_cells(  # type: ignore[no-untyped-def]
     log-odds merge. Nothing is created where neither stored nor frame evidence exists (unknown stays
     unknown).
 
+    With ``track``, ``pt`` (``(cap, 2)``) holds per interval the stamps of its last hit and of its first
+    dynamic hit when it is *dynamic* (``-inf`` both otherwise): an occupied slab that overlaps a stored
+    piece known free (``stored < l_void``) or already dynamic is a dynamic slab, and every piece under
+    it becomes dynamic with last stamp ``now`` and first stamp the earliest of the dynamic pieces still
+    occupied (``stored >= l_occ``) it overlaps (``now`` if none: a new passage). The whole body that
+    moved in becomes dynamic, also its parts over space nobody saw before. Other pieces keep their
+    stamps, and only pieces with equal stamps merge.
+
     Returns:
-        (tkey, toff, tlo, thi, tl): the new lists of the touched cells (CSR by cell, keys ascending).
+        (tkey, toff, tlo, thi, tl, tt): the new lists of the touched cells (CSR by cell, keys ascending).
     """
     no = okey.shape[0]
     nf = fkey.shape[0]
@@ -354,6 +382,10 @@ def update_cells(  # type: ignore[no-untyped-def]
     tlo = np.empty(cap, np.int32)
     thi = np.empty(cap, np.int32)
     tl = np.empty(cap, np.float32)
+    tt = np.empty((cap, 2), np.float64)
+    dyn = np.zeros(no if track else 0, np.bool_)
+    first = np.empty(no if track else 0, np.float64)
+    ninf = -np.inf
     nt = 0
     n = 0
     a = 0
@@ -386,7 +418,25 @@ def update_cells(  # type: ignore[no-untyped-def]
             t4 = np.empty(cap, np.float32)
             t4[:n] = tl[:n]
             tl = t4
+            t5 = np.empty((cap, 2), np.float64)
+            t5[:n] = tt[:n]
+            tt = t5
         cell0 = n
+        if track:
+            q = 0
+            for k in range(a, ae):
+                dyn[k] = False
+                first[k] = now
+                while q < ns and phi[s0 + q] <= olo[k]:
+                    q += 1
+                q2 = q
+                while q2 < ns and plo[s0 + q2] < ohi[k]:
+                    if pt[s0 + q2, 0] > ninf and pl[s0 + q2] >= l_occ:
+                        dyn[k] = True  # still the same body: it keeps its first stamp
+                        first[k] = min(first[k], pt[s0 + q2, 1])
+                    elif pl[s0 + q2] < l_void or pt[s0 + q2, 0] > ninf:
+                        dyn[k] = True
+                    q2 += 1
         p = 0
         x = -big
         while True:
@@ -409,10 +459,14 @@ def update_cells(  # type: ignore[no-untyped-def]
             s_lo = big
             s_hi = big
             s_l = np.float32(0.0)
+            s_t = ninf
+            s_f = ninf
             if p < ns:
                 s_lo = np.int64(plo[s0 + p])
                 s_hi = np.int64(phi[s0 + p])
                 s_l = pl[s0 + p]
+                s_t = pt[s0 + p, 0]
+                s_f = pt[s0 + p, 1]
             if s_lo == big and e_lo == big:
                 break
             start = max(x, min(s_lo, e_lo))
@@ -429,17 +483,32 @@ def update_cells(  # type: ignore[no-untyped-def]
                 end = min(end, e_lo)
             if end > start:
                 v = np.float32(0.0)
+                vt = ninf
+                vf = ninf
                 if in_s:
                     v = s_l
+                    vt = s_t
+                    vf = s_f
                 if in_e:
+                    if track and e_occ and dyn[a]:
+                        vt = now
+                        vf = first[a]
                     v = v + e_d
                     v = min(max(v, l_min), l_max)
-                if n > cell0 and np.int64(thi[n - 1]) == start and abs(tl[n - 1] - v) <= merge_eps:
+                if (
+                    n > cell0
+                    and np.int64(thi[n - 1]) == start
+                    and abs(tl[n - 1] - v) <= merge_eps
+                    and tt[n - 1, 0] == vt
+                    and tt[n - 1, 1] == vf
+                ):
                     thi[n - 1] = end
                 else:
                     tlo[n] = start
                     thi[n] = end
                     tl[n] = v
+                    tt[n, 0] = vt
+                    tt[n, 1] = vf
                     n += 1
             x = end
             if in_s and s_hi <= end:
@@ -454,7 +523,14 @@ def update_cells(  # type: ignore[no-untyped-def]
         tkey[nt] = key
         nt += 1
         toff[nt] = n
-    return tkey[:nt].copy(), toff[: nt + 1].copy(), tlo[:n].copy(), thi[:n].copy(), tl[:n].copy()
+    return (
+        tkey[:nt].copy(),
+        toff[: nt + 1].copy(),
+        tlo[:n].copy(),
+        thi[:n].copy(),
+        tl[:n].copy(),
+        tt[:n].copy(),
+    )
 
 
 @numba.jit(**_JIT)
@@ -469,7 +545,7 @@ def relocation_slots(tkey, toff, ccap):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def write_back(tkey, toff, tlo, thi, tl, cstart, ccount, ccap, plo, phi, pl, used):  # type: ignore[no-untyped-def]
+def write_back(tkey, toff, tlo, thi, tl, tt, cstart, ccount, ccap, plo, phi, pl, pt, used):  # type: ignore[no-untyped-def]
     """Store the new lists: in place when they fit, else at the pool's end with twice the room.
 
     Returns:
@@ -492,17 +568,20 @@ def write_back(tkey, toff, tlo, thi, tl, cstart, ccount, ccap, plo, phi, pl, use
             plo[s + k] = tlo[a + k]
             phi[s + k] = thi[a + k]
             pl[s + k] = tl[a + k]
+            pt[s + k, 0] = tt[a + k, 0]
+            pt[s + k, 1] = tt[a + k, 1]
         ccount[key] = cnt
     return used, freed, delta
 
 
 @numba.jit(**_JIT)
-def gather(cstart, ccount, plo, phi, pl, total):  # type: ignore[no-untyped-def]
-    """All intervals as flat arrays sorted by cell key then lo: (key, lo, hi, log-odds)."""
+def gather(cstart, ccount, plo, phi, pl, pt, total):  # type: ignore[no-untyped-def]
+    """All intervals as flat arrays sorted by cell key then lo: (key, lo, hi, log-odds, stamp)."""
     key = np.empty(total, np.int64)
     lo = np.empty(total, np.int32)
     hi = np.empty(total, np.int32)
     lv = np.empty(total, np.float32)
+    lt = np.empty((total, 2), np.float64)
     n = 0
     for c in range(ccount.shape[0]):
         cnt = ccount[c]
@@ -514,12 +593,14 @@ def gather(cstart, ccount, plo, phi, pl, total):  # type: ignore[no-untyped-def]
             lo[n] = plo[s + k]
             hi[n] = phi[s + k]
             lv[n] = pl[s + k]
+            lt[n, 0] = pt[s + k, 0]
+            lt[n, 1] = pt[s + k, 1]
             n += 1
-    return key[:n], lo[:n], hi[:n], lv[:n]
+    return key[:n], lo[:n], hi[:n], lv[:n], lt[:n]
 
 
 @numba.jit(**_JIT)
-def compact(cstart, ccount, ccap, plo, phi, pl, new_lo, new_hi, new_l, slack):  # type: ignore[no-untyped-def]
+def compact(cstart, ccount, ccap, plo, phi, pl, pt, new_lo, new_hi, new_l, new_t, slack):  # type: ignore[no-untyped-def]
     """Copy every cell's list into fresh pool arrays, contiguous, each with ``slack`` spare slots.
 
     Returns:
@@ -535,10 +616,47 @@ def compact(cstart, ccount, ccap, plo, phi, pl, new_lo, new_hi, new_l, slack):  
             new_lo[used + k] = plo[s + k]
             new_hi[used + k] = phi[s + k]
             new_l[used + k] = pl[s + k]
+            new_t[used + k, 0] = pt[s + k, 0]
+            new_t[used + k, 1] = pt[s + k, 1]
         cstart[c] = used
         ccap[c] = cnt + slack
         used += cnt + slack
     return used
+
+
+@numba.jit(**_JIT)
+def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
+    """Forget dynamic occupied intervals whose last hit is older than ``age``: they become unknown.
+
+    An interval is dropped when it is dynamic (finite stamps), ``now - last > age``, it was hit for
+    ``last - first <= max_dwell`` and its log-odds is at least ``l_occ``; each cell's list is compacted
+    in place (order kept).
+
+    Returns:
+        Number of intervals dropped.
+    """
+    dropped = 0
+    for c in range(ccount.shape[0]):
+        cnt = ccount[c]
+        if cnt == 0:
+            continue
+        s = cstart[c]
+        w = 0
+        for k in range(cnt):
+            t = pt[s + k, 0]
+            if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
+                continue
+            if w != k:
+                plo[s + w] = plo[s + k]
+                phi[s + w] = phi[s + k]
+                pl[s + w] = pl[s + k]
+                pt[s + w, 0] = t
+                pt[s + w, 1] = pt[s + k, 1]
+            w += 1
+        if w != cnt:
+            dropped += cnt - w
+            ccount[c] = w
+    return dropped
 
 
 @numba.jit(**_JIT)

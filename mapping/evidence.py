@@ -43,6 +43,19 @@ class EvidenceParams:
             cut out of the free space anyway.
         max_table_bytes: memory for the per-frame (cell, height bin) bit table; beyond it the free bins
             grow coarser (whole multiples of ``height_resolution``).
+        dynamic_decay_s: seconds after its last hit at which a *dynamic* occupied interval is forgotten
+            (becomes unknown, not free); None: nothing decays. An interval is dynamic when a hit lands
+            where the map knew free space (DUFOMap's "void" rule: something moved in): a person who
+            walks out of the sensor's view leaves no trail, since no later ray would clear it. Static
+            surfaces are never seen free, so they do not decay. Needs insertion stamps (``stamp=``).
+        dynamic_max_dwell_s: only dynamic intervals hit for at most this long (from their first
+            dynamic hit to their last) decay; None: any. A person walking passes a cell within a second
+            or two, while a static surface that looked free at first (seen at grazing incidence, where a
+            fan's hull crosses it) keeps being hit as long as it is in view.
+        dynamic_void_probability: a stored piece counts as known free for that rule when its
+            probability is below this; None: ``free_threshold``. Lower values ask for more passes of
+            free space (one pass gives ``prob_miss``), so that range noise at a surface's edge (a cell
+            seen free now and hit next frame) does not make the surface dynamic.
 
     Raises:
         MappingError: a value out of its range.
@@ -59,6 +72,9 @@ class EvidenceParams:
     surface_margin: float | None = None
     gap_fill: float = 0.02
     max_table_bytes: int = 64 << 20
+    dynamic_decay_s: float | None = None
+    dynamic_void_probability: float | None = None
+    dynamic_max_dwell_s: float | None = None
 
     def __post_init__(self) -> None:
         def prob(name: str, lo: float, hi: float) -> None:
@@ -89,6 +105,14 @@ class EvidenceParams:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise MappingError(f"EvidenceParams.{name}={v!r}: expected metres >= 0 or None")
+        d = self.dynamic_decay_s
+        if d is not None and not (isinstance(d, int | float) and math.isfinite(d) and d > 0):
+            raise MappingError(f"EvidenceParams.dynamic_decay_s={d!r}: expected seconds > 0 or None")
+        w = self.dynamic_max_dwell_s
+        if w is not None and not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
+            raise MappingError(f"EvidenceParams.dynamic_max_dwell_s={w!r}: expected seconds >= 0 or None")
+        if self.dynamic_void_probability is not None:
+            prob("dynamic_void_probability", 0.0, 1.0)
         if int(self.max_table_bytes) < 1 << 16:
             raise MappingError(f"EvidenceParams.max_table_bytes={self.max_table_bytes!r}: expected >= 65536")
 
@@ -102,6 +126,11 @@ class EvidenceParams:
             "max": _logit(self.clamp_max),
             "occupied": _logit(self.occupied_threshold),
             "free": _logit(self.free_threshold),
+            "void": _logit(
+                self.free_threshold
+                if self.dynamic_void_probability is None
+                else self.dynamic_void_probability
+            ),
         }
 
 
@@ -116,6 +145,8 @@ class EvidenceStats(InsertStats):
         cells_updated: cells whose intervals were rewritten.
         intervals: intervals stored in the map after the frame.
         truncated_points: points beyond ``max_range`` (free space up to the range, no hit).
+        decayed: dynamic occupied intervals forgotten before this frame's update
+            (:attr:`EvidenceParams.dynamic_decay_s`).
     """
 
     free_intervals: int = 0
@@ -124,6 +155,7 @@ class EvidenceStats(InsertStats):
     cells_updated: int = 0
     intervals: int = 0
     truncated_points: int = 0
+    decayed: int = 0
 
 
 @dataclass(frozen=True, eq=False)

@@ -47,13 +47,27 @@ Near-surface rule (why surfaces do not flicker and tables are not erased)
 * Clamping gives hysteresis: a surface at the upper bound needs 9 consecutive frames of free evidence
   before it reads free.
 
+Dynamic decay (people who walk out of view)
+-------------------------------------------
+A cell is cleared only by rays that pass through it again; a person who walks out of the sensor's
+view leaves a trail nobody clears. With :attr:`EvidenceParams.dynamic_decay_s` and insertion stamps,
+an occupied slab of a frame that lands on space the map knew free (probability below
+``dynamic_void_probability``, DUFOMap's "void") or on a dynamic interval is *dynamic*: every piece
+under it keeps the stamp of its last hit. Before each update, dynamic occupied intervals whose last
+hit is older than ``dynamic_decay_s`` are dropped (when they were hit for at most
+``dynamic_max_dwell_s``: a person passes a cell within a second or two): they become unknown, not free
+(the spatio-temporal voxel layer's decay, restricted to what moved). Static surfaces are not seen free
+before they are hit, or keep being hit longer, so they stay however long they are out of view; a person
+standing still keeps being hit.
+
 Storage (structure of arrays)
 -----------------------------
 Heights are integers on a lattice of ``height_resolution`` (1 cm by default): noisy observations of a
 surface then give identical bounds and merge instead of fragmenting. Per grid cell a dense table holds
-the start, count and reserved room of the cell's list in a pool of ``(lo, hi, log_odds)`` arrays
-(int32, int32, float32), sorted and disjoint; a frame rewrites only the cells it touches, in place
-when the list fits, else appended at the pool's end (the pool is compacted when half of it is dead).
+the start, count and reserved room of the cell's list in a pool of ``(lo, hi, log_odds, stamp)``
+arrays (int32, int32, float32, float64; stamp -inf unless dynamic), sorted and disjoint; a frame
+rewrites only the cells it touches, in place when the list fits, else appended at the pool's end (the
+pool is compacted when half of it is dead).
 
 The pure thesis method stays available as :class:`mapping.vhv.VHVMap` (accumulate only, no free
 space); :func:`make_map` chooses by name.
@@ -149,6 +163,7 @@ class ProbabilisticVHV:
         self._l_max = np.float32(lo["max"])
         self._l_occ = np.float32(lo["occupied"])
         self._l_free = np.float32(lo["free"])
+        self._l_void = np.float32(lo["void"])
         nx, ny = spec.shape
         self._cstart = np.zeros(nx * ny, np.int64)
         self._ccount = np.zeros(nx * ny, np.int32)
@@ -157,6 +172,10 @@ class ProbabilisticVHV:
         self._plo = np.empty(cap, np.int32)
         self._phi = np.empty(cap, np.int32)
         self._pl = np.empty(cap, np.float32)
+        # stamps of the last and the first dynamic hit of a dynamic interval, else -inf
+        self._pt = np.empty((cap, 2), np.float64)
+        self._track = p.dynamic_decay_s is not None
+        self._now = -math.inf
         self._used = 0
         self._garbage = 0
         self._n_intervals = 0
@@ -174,6 +193,7 @@ class ProbabilisticVHV:
         sensor_origin: ArrayLike | None = None,
         method: Method = "auto",
         max_range: float | None = None,
+        stamp: float | None = None,
     ) -> EvidenceStats:
         """Insert one cloud (world frame): occupied evidence at its structures, free evidence in front.
 
@@ -184,6 +204,8 @@ class ProbabilisticVHV:
             method: VHV build path ("auto", "bins", "sort", "numpy").
             max_range: metres; points farther from the sensor give no hit, only free space up to this
                 range along their ray (OctoMap's ``maxrange``). None: no limit.
+            stamp: capture time of the cloud, seconds (any epoch, non-decreasing); the clock of
+                :attr:`EvidenceParams.dynamic_decay_s`. None: the map's clock does not advance.
 
         Returns:
             :class:`EvidenceStats`.
@@ -194,6 +216,7 @@ class ProbabilisticVHV:
         """
         t0 = time.perf_counter()
         origin = self._check_origin(sensor_origin)
+        self._advance(stamp)
         pts = as_points(points)
         n_in = int(pts.shape[0])
         truncated = None
@@ -252,6 +275,17 @@ class ProbabilisticVHV:
         dh = max(abs(float(bot.min()) - sh), abs(float(top.max()) - sh))
         return math.sqrt(du * du + dv * dv + dh * dh) <= max_range
 
+    def _advance(self, stamp: float | None) -> None:
+        """Move the map's clock to ``stamp`` (seconds; None: keep it)."""
+        if stamp is None:
+            return
+        s = float(stamp)
+        if not math.isfinite(s):
+            raise MappingError(f"insert stamp={stamp!r}: expected a finite time in seconds")
+        if s < self._now - 1e-9:
+            raise MappingError(f"insert stamp={s!r}: earlier than the map's clock {self._now!r} s")
+        self._now = s
+
     def _insert_with_free(
         self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
     ) -> EvidenceStats:
@@ -306,6 +340,7 @@ class ProbabilisticVHV:
             cells_updated=stats["cells_updated"],
             intervals=self._n_intervals,
             truncated_points=n_free_only,
+            decayed=stats["decayed"],
         )
 
     def insert_frame(
@@ -314,6 +349,7 @@ class ProbabilisticVHV:
         sensor_origin: ArrayLike,
         max_range: float | None = None,
         no_return_ends: ArrayLike | None = None,
+        stamp: float | None = None,
     ) -> EvidenceStats:
         """One depth frame, for a perception stage: ``insert`` with a required sensor origin.
 
@@ -327,6 +363,7 @@ class ProbabilisticVHV:
                 without them nothing clears behind a walker seen against the sky or beyond the range.
                 Use them only where a no-return means "nothing within range": a depth camera also
                 misses black or specular surfaces and surfaces seen at grazing incidence.
+            stamp: capture time, seconds (see :meth:`insert`).
 
         Raises:
             MappingError: no sensor origin, or ends of the wrong shape.
@@ -334,7 +371,7 @@ class ProbabilisticVHV:
         if sensor_origin is None:
             raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
         if no_return_ends is None:
-            return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range)
+            return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range, stamp=stamp)
         ends = np.asarray(no_return_ends, dtype=np.float64)
         if ends.ndim != 2 or ends.shape[1] != 3:
             raise MappingError(f"insert_frame no_return_ends: expected (M, 3), got shape {ends.shape}")
@@ -344,15 +381,20 @@ class ProbabilisticVHV:
         mr = math.inf if max_range is None else float(max_range)
         if not (mr > 0 and not math.isnan(mr)):
             raise MappingError(f"insert_frame max_range={max_range!r}: expected a number of metres > 0")
+        self._advance(stamp)
         return self._insert_with_free(points_world, o, mr, ends)
 
-    def insert_free(self, targets: ArrayLike, sensor_origin: ArrayLike) -> EvidenceStats:
+    def insert_free(
+        self, targets: ArrayLike, sensor_origin: ArrayLike, stamp: float | None = None
+    ) -> EvidenceStats:
         """Free evidence only: space from the sensor up to (not into) the cells of ``targets`` is free.
 
         Used for readings that found nothing within their range (the targets are the range's end).
+        ``stamp``: capture time, seconds (see :meth:`insert`).
         """
         t0 = time.perf_counter()
         origin = self._check_origin(sensor_origin)
+        self._advance(stamp)
         if origin is None:
             raise MappingError("insert_free sensor_origin=None: free space needs the sensor position")
         tg = as_points(targets, "targets").astype(np.float64)
@@ -434,6 +476,7 @@ class ProbabilisticVHV:
         built: tuple[Any, ...] | None = None,
     ) -> dict[str, Any]:
         ev = self._evidence(pts, free_only, origin, method, built)
+        ev["decayed"] = self._decay()
         ncells = 0
         if ev["okey"].shape[0] or ev["fkey"].shape[0]:
             ncells = self._update(ev["okey"], ev["olo"], ev["ohi"], ev["fkey"], ev["flo"], ev["fhi"])
@@ -582,17 +625,18 @@ class ProbabilisticVHV:
     ) -> int:
         from mapping import _evidence_kernels as E
 
-        tkey, toff, tlo, thi, tl = E.update_cells(
-            self._cstart, self._ccount, self._plo, self._phi, self._pl,
+        tkey, toff, tlo, thi, tl, tt = E.update_cells(
+            self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt,
             okey, olo, ohi, fkey, flo, fhi,
             self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
+            self._track, self._now, self._l_void, self._l_occ,
         )  # fmt: skip
         extra = int(E.relocation_slots(tkey, toff, self._ccap))
         if self._used + extra > self._plo.shape[0]:
             self._grow(self._used + extra)
         used, freed, delta = E.write_back(
-            tkey, toff, tlo, thi, tl, self._cstart, self._ccount, self._ccap,
-            self._plo, self._phi, self._pl, self._used,
+            tkey, toff, tlo, thi, tl, tt, self._cstart, self._ccount, self._ccap,
+            self._plo, self._phi, self._pl, self._pt, self._used,
         )  # fmt: skip
         self._used = int(used)
         self._garbage += int(freed)
@@ -601,11 +645,27 @@ class ProbabilisticVHV:
             self._compact()
         return int(tkey.shape[0])
 
+    def _decay(self) -> int:
+        """Forget the dynamic occupied intervals not hit for ``dynamic_decay_s``; returns how many."""
+        age = self.params.dynamic_decay_s
+        dwell = self.params.dynamic_max_dwell_s
+        if age is None or not math.isfinite(self._now) or self._n_intervals == 0:
+            return 0
+        from mapping import _evidence_kernels as E
+
+        n = int(
+            E.decay(self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
+                    self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ)
+        )  # fmt: skip
+        self._n_intervals -= n
+        self._garbage += n
+        return n
+
     def _grow(self, need: int) -> None:
         cap = max(2 * self._plo.shape[0], need)
-        for name in ("_plo", "_phi", "_pl"):
+        for name in ("_plo", "_phi", "_pl", "_pt"):
             old = getattr(self, name)
-            new = np.empty(cap, old.dtype)
+            new = np.empty((cap, *old.shape[1:]), old.dtype)
             new[: self._used] = old[: self._used]
             setattr(self, name, new)
 
@@ -616,14 +676,16 @@ class ProbabilisticVHV:
         cells = int(np.count_nonzero(self._ccount))
         cap = max(self._n_intervals + slack * cells + 1024, 1 << 16)
         lo, hi, lv = np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32)
+        lt = np.empty((cap, 2), np.float64)
         # cells with no interval keep no room
         self._ccap[self._ccount == 0] = 0
         self._used = int(
             E.compact(
-                self._cstart, self._ccount, self._ccap, self._plo, self._phi, self._pl, lo, hi, lv, slack
+                self._cstart, self._ccount, self._ccap, self._plo, self._phi, self._pl, self._pt,
+                lo, hi, lv, lt, slack,
             )
-        )
-        self._plo, self._phi, self._pl = lo, hi, lv
+        )  # fmt: skip
+        self._plo, self._phi, self._pl, self._pt = lo, hi, lv, lt
         self._garbage = 0
 
     # ------------------------------------------------------------------ queries
@@ -632,8 +694,8 @@ class ProbabilisticVHV:
             from mapping import _evidence_kernels as E
 
             self._cache["flat"] = E.gather(
-                self._cstart, self._ccount, self._plo, self._phi, self._pl, self._n_intervals
-            )
+                self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt, self._n_intervals
+            )[:4]
         flat: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.float32]] = (
             self._cache["flat"]
         )
@@ -714,6 +776,11 @@ class ProbabilisticVHV:
     def n_voxels(self) -> int:
         """Standard voxels the occupied structures cover."""
         return self._occupied_view().n_voxels
+
+    @property
+    def now(self) -> float:
+        """The map's clock: the latest insertion stamp, seconds (-inf before any)."""
+        return self._now
 
     @property
     def n_intervals(self) -> int:

@@ -63,6 +63,14 @@ DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
 NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
 SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
+# Probabilistic maps: a hit where free space was seen (a person walking in) is dynamic and forgotten this
+# long after its last hit, so a walker leaving the camera's view leaves no trail; "seen free" asks for
+# about five passes of free space (p < 0.15), so range noise at a static surface's edge does not count.
+# Only what was hit for at most DYNAMIC_MAX_DWELL_S decays (a person passes a cell within a second or
+# two): a wall first seen free at grazing incidence keeps being hit as long as it is in view.
+DYNAMIC_DECAY_S = 0.5
+DYNAMIC_VOID_PROBABILITY = 0.15
+DYNAMIC_MAX_DWELL_S = 2.0
 
 
 class PointMap(Protocol):
@@ -174,7 +182,9 @@ class Perception:
         map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
             ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
-            (default: the mapping core's defaults).
+            (default: the mapping core's defaults with the dynamic decay of :data:`DYNAMIC_DECAY_S`,
+            :data:`DYNAMIC_VOID_PROBABILITY` and :data:`DYNAMIC_MAX_DWELL_S`; depth frames carry their
+            capture stamps as its clock).
 
     Raises:
         ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
@@ -215,6 +225,14 @@ class Perception:
         self.spec = spec
         self.map_kind = map_kind
         self.tolerance = float(tolerance)
+        if evidence_params is None and map_kind == "probabilistic":
+            from mapping.probabilistic import EvidenceParams
+
+            evidence_params = EvidenceParams(
+                dynamic_decay_s=DYNAMIC_DECAY_S,
+                dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
+                dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
+            )
         self.evidence_params = evidence_params
         self.clear_no_return = bool(clear_no_return)
         self.depth_max_range_m = depth_max_range_m
@@ -392,8 +410,12 @@ class Perception:
         others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
         r = self._camera_range if self.clear_no_return else None
         far = self._no_return_points(frame, r) if r else None
+        from mapping.probabilistic import ProbabilisticVHV
+
+        stamp = {"stamp": frame.stamp_ns * 1e-9}
         for m, t, is_main in main + others + placed:
-            s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
+            kw = stamp if isinstance(m, ProbabilisticVHV) and m.now <= stamp.get("stamp", m.now) else {}
+            s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3], **kw)
             if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
                 s = s[0]
             free_ms = 0.0
@@ -403,7 +425,7 @@ class Perception:
                 # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
                 # floor within the range lost its return on something (or grazing the floor), not in air
                 fw = transform_points(t, far, np.float32)
-                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
+                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3], **kw)
                 free_ms = float(getattr(f, "build_ms", 0.0))
             if is_main and s is not None:
                 with self._lock:
