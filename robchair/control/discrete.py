@@ -222,15 +222,33 @@ class DiscretePlant:
         self.C = cc.ravel()
         self._q_row = ad[n, :n]
         self._q_b = float(bd[n])
+        if n != 2:
+            raise ControlError(f"DiscretePlant: expected a second-order realisation, got {n} states")
+        # The 1 kHz loop runs 2 x (PID + plant) per tick in the simulator and the emulators: scalar float
+        # arithmetic on the 2-state system is ~10x cheaper than numpy's 2x2 products per call.
+        self._a00, self._a01, self._a10, self._a11 = (float(v) for v in self.A.ravel())
+        self._b0, self._b1 = float(self.B[0]), float(self.B[1])
+        self._c0, self._c1 = float(self.C[0]), float(self.C[1])
+        self._q0, self._q1 = float(self._q_row[0]), float(self._q_row[1])
         self.integral = 0.0
         # Steady state per unit input of the continuous realisation: x_ss = -A^-1 B.
         self._x_per_u = -np.linalg.solve(np.asarray(sysc.A, float), np.asarray(sysc.B, float).ravel())
         self.reset()
 
     @property
+    def x(self) -> np.ndarray:
+        """State vector x[k], shape (2,) (a copy)."""
+        return np.array([self._x0, self._x1])
+
+    @x.setter
+    def x(self, value: npt.ArrayLike) -> None:
+        v = np.asarray(value, dtype=float).ravel()
+        self._x0, self._x1 = float(v[0]), float(v[1])
+
+    @property
     def output(self) -> float:
         """Current output y[k] (before the next input is applied)."""
-        return float(self.C @ self.x)
+        return self._c0 * self._x0 + self._c1 * self._x1
 
     def reset(self, y0: float = 0.0) -> None:
         """Put the plant at rest at output ``y0`` (the steady state for a constant input y0 / K).
@@ -242,9 +260,11 @@ class DiscretePlant:
 
     def step(self, u: float) -> float:
         """Hold input ``u`` for one sample; return the output at the end of the sample."""
-        self.integral += float(self._q_row @ self.x) + self._q_b * u
-        self.x = self.A @ self.x + self.B * u
-        return float(self.C @ self.x)
+        x0, x1 = self._x0, self._x1
+        self.integral += self._q0 * x0 + self._q1 * x1 + self._q_b * u
+        self._x0 = self._a00 * x0 + self._a01 * x1 + self._b0 * u
+        self._x1 = self._a10 * x0 + self._a11 * x1 + self._b1 * u
+        return self._c0 * self._x0 + self._c1 * self._x1
 
     def simulate(self, u: npt.ArrayLike) -> np.ndarray:
         """Step through a whole input sequence; returns the outputs after each sample."""
