@@ -24,6 +24,7 @@ AGENT_HZ = 10
 SENSORS = ("kinect2", "kinect1")
 POSE_SOURCES = ("ground_truth", "odometry")
 MAP_MEMORIES = ("episode", "frame")
+MAP_KINDS = ("thesis", "probabilistic")  # the episode map: accumulate only, or evidence (three-valued)
 ACTION_TYPES = ("continuous", "discrete")
 ROOM_SPLITS = ("train", "eval")
 CAMERA_BACKENDS = ("raycast", "pybullet")
@@ -90,6 +91,7 @@ class NavigationSettings:
     goal_tolerance: float = 0.3
     pose_source: str = "ground_truth"
     map_memory: str = "episode"
+    map_kind: str = "thesis"
     patch_shape: tuple[int, int] = PATCH_SHAPE
     patch_cell: float = PATCH_CELL
     patch_behind: float = PATCH_BEHIND
@@ -126,6 +128,8 @@ class NavigationSettings:
             fail(f"pose_source={self.pose_source!r}: expected one of {POSE_SOURCES}")
         if self.map_memory not in MAP_MEMORIES:
             fail(f"map_memory={self.map_memory!r}: expected one of {MAP_MEMORIES}")
+        if self.map_kind not in MAP_KINDS:
+            fail(f"map_kind={self.map_kind!r}: expected one of {MAP_KINDS}")
         lo, hi = pose_arg(self.goal_distance, 2, "goal_distance")
         if not 0 <= lo <= hi:
             fail(f"goal_distance={self.goal_distance!r}: expected 0 <= min <= max")

@@ -119,7 +119,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     | key       | space                                 | meaning                                          |
     |-----------|---------------------------------------|--------------------------------------------------|
-    | occupancy | Box(0, 1, patch_shape, uint8)         | egocentric occupancy patch, 1 = occupied         |
+    | occupancy | Box(0, 1 or 2, patch_shape, uint8)    | egocentric occupancy patch, 1 = occupied         |
     | goal      | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m), bearing (rad), robot frame    |
     | velocity  | Box(-1.5 x limits, 1.5 x limits)      | measured (v m/s, w rad/s) from the wheel speeds  |
     | sonar     | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max      |
@@ -130,7 +130,13 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     The occupancy patch (default 64x64 cells of 10 cm) has row ``i`` forward (row 0 is 1.6 m behind
     ``base_link``) and column ``j`` to the left (centred), see :func:`egocentric_patch`. A cell is
     occupied when the episode's map holds a structure overlapping [0.10 m, chair height]: a table top
-    counts, the floor does not. Cells never observed are 0. The map keeps every frame of the episode
+    counts, the floor does not. With ``map_kind="thesis"`` (default; the ``-v0``/``-v1`` ids) the map is
+    the thesis's accumulate-only VHV map and cells never observed are 0. With ``map_kind="probabilistic"``
+    (the ``-v2`` ids) it is :class:`mapping.probabilistic.ProbabilisticVHV` (free space along the rays,
+    people who walk past cleared) and the patch is three-valued: 0 free (free evidence over at least
+    half the band), 1 occupied, 2 unknown (never seen, or outside the map). A planar laser and the
+    sonars clear thin slabs only, so with the light sensors most of the band stays unknown; the
+    Kinect's rays make it free. The map keeps every frame of the episode
     (``map_memory="episode"``; people who walk leave trails) or only the latest one (``"frame"``). The
     map and the observed goal/bearing use ``pose_source``: the physics' ground truth (default) or the
     chair's wheel odometry.
@@ -248,7 +254,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self.substeps = PHYSICS_HZ // s.agent_hz
         self.goal_distance = s.goal_distance
         self.goal_tolerance = s.goal_tolerance
-        self.pose_source, self.map_memory = s.pose_source, s.map_memory
+        self.pose_source, self.map_memory, self.map_kind = s.pose_source, s.map_memory, s.map_kind
         self.patch_shape, self.patch_cell, self.patch_behind = s.patch_shape, s.patch_cell, s.patch_behind
         self.max_speed = float(s.max_speed) if s.max_speed is not None else self.drive.max_speed
         self.max_yaw_rate = float(s.max_yaw_rate) if s.max_yaw_rate is not None else self.drive.max_yaw_rate
@@ -262,6 +268,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._setup_scene()
         self._map: Any = None
         self._occ: npt.NDArray[np.bool_] | None = None
+        self._codes: npt.NDArray[np.int8] | None = None  # OccupancyGrid codes of a probabilistic map
         self._sensor_rng = np.random.default_rng(0)
         self._path: list[tuple[float, float]] = []
         self.start_pose = Pose2D()
@@ -292,7 +299,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             sonar_max_range=float(sonar_max) if sonar_max is not None else None,
             laser_model=chair.laser.model if chair.laser is not None else None,
             depth_model=chair.kinect.model if self.depth_image else None,
-            elevation=self.elevation_map,
+            elevation=self.elevation_map, three_valued=self.map_kind == "probabilistic",
         )  # fmt: skip
         self.observation_space = self.obs_builder.space  # type: ignore[assignment]
         self.max_goal_obs = self.obs_builder.max_goal_obs
@@ -315,19 +322,17 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._closed = False
 
     def _new_perception(self) -> Perception:
-        """The runtime's perception stage for an episode: one thesis VHV map of the scene's grid for
-        every sensor (accumulate only; the observation is its occupancy in the height band)."""
-        from mapping.vhv import VHVMap
-
+        """The runtime's perception stage for an episode: one map of the scene's grid for every sensor,
+        of ``map_kind`` (the thesis's accumulate-only VHV map, or the probabilistic one with free space,
+        clearing and unknown); the observation is its occupancy in the height band."""
         return Perception(
             self.spec_robot,
-            map=VHVMap(self.grid, tolerance=self.patch_cell),
             grid=self.grid,
             sonar_map=None,
             band=self.band,
             frames=self._frames,
             tolerance=self.patch_cell,
-            map_kind="thesis",
+            map_kind=self.map_kind,
         )
 
     # ---- episode -----------------------------------------------------------------------------
@@ -424,13 +429,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         clock.contacts = set()
         p = self.runtime.perception
         if self.map_memory == "frame":  # the map holds only what this cycle senses
-            from mapping.vhv import VHVMap
-
-            p.map = p.sonar_map = VHVMap(self.grid, tolerance=self.patch_cell)
+            p.map = p.sonar_map = p.new_map()
         cycle = self.runtime.step(command)
         rt = self.runtime
         self._map = p.map
         self._occ = p.occupied_2d()
+        self._codes = p.occupancy_2d() if self.map_kind == "probabilistic" else None
         self.obs_builder.take_readings(rt.last_sonars, rt.last_scan, rt.last_depth_frame)
         return cycle, set(clock.contacts)
 
@@ -481,7 +485,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
         assert self._occ is not None
         rpm = self._backend.motors.read_state().speed_rpm
-        return self.obs_builder.observation(self._occ, self._map, pose, self.goal, rpm)
+        return self.obs_builder.observation(self._occ, self._map, pose, self.goal, rpm, codes=self._codes)
 
     def _info(
         self, pose: Pose2D, collided: bool, reached: bool, terms: dict[str, float] | None

@@ -21,6 +21,9 @@ SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the c
 ELEVATION_MAX = 2.5  # m, top of the elevation observation's box
 #: Discrete actions as normalised (v, w) (times ``max_speed`` m/s and ``max_yaw_rate`` rad/s):
 #: 0 stop, 1 forward slow, 2 forward fast, 3 turn left on the spot, 4 turn right on the spot.
+#: Cell values of the three-valued ``occupancy`` patch (``map_kind="probabilistic"``); outside the
+#: map is unknown.
+PATCH_FREE, PATCH_OCCUPIED, PATCH_UNKNOWN = 0, 1, 2
 DISCRETE_ACTIONS = ((0.0, 0.0), (0.3, 0.0), (0.7, 0.0), (0.0, 0.5), (0.0, -0.5))
 
 
@@ -67,6 +70,8 @@ class ObservationBuilder:
         laser_model: the laser's :class:`sim.laser.LaserModel` (None: no laser observation).
         depth_model: the Kinect model of the ``depth`` observation (None: none).
         elevation: add the ``elevation`` observation.
+        three_valued: the ``occupancy`` patch is three-valued (:data:`PATCH_FREE`, :data:`PATCH_OCCUPIED`,
+            :data:`PATCH_UNKNOWN`) from a probabilistic map's codes; otherwise 1 = occupied, else 0.
     """
 
     def __init__(
@@ -82,6 +87,7 @@ class ObservationBuilder:
         laser_model: Any = None,
         depth_model: Any = None,
         elevation: bool = False,
+        three_valued: bool = False,
     ) -> None:
         self.grid = grid
         self.patch = (patch_shape, patch_cell, patch_behind)
@@ -90,11 +96,14 @@ class ObservationBuilder:
         self.sonar_max_range = sonar_max_range
         self.laser_model = laser_model
         self.elevation = bool(elevation)
+        self.three_valued = bool(three_valued)
         self.vel_high = np.array(
             [SPEED_OBS_FACTOR * drive.max_speed, SPEED_OBS_FACTOR * drive.max_yaw_rate], np.float32
         )
         obs: dict[str, spaces.Space[Any]] = {
-            "occupancy": spaces.Box(0, 1, shape=patch_shape, dtype=np.uint8),
+            "occupancy": spaces.Box(
+                0, PATCH_UNKNOWN if three_valued else 1, shape=patch_shape, dtype=np.uint8
+            ),
             "goal": spaces.Box(
                 np.array([0.0, -math.pi], np.float32),
                 np.array([self.max_goal_obs, math.pi], np.float32),
@@ -151,6 +160,7 @@ class ObservationBuilder:
         pose: Pose2D,
         goal: tuple[float, float],
         wheel_rpm: tuple[float, float],
+        codes: npt.NDArray[np.int8] | None = None,
     ) -> dict[str, np.ndarray]:
         """The observation at ``pose`` (the pose the chair believes).
 
@@ -160,12 +170,26 @@ class ObservationBuilder:
             pose: the chair's pose estimate.
             goal: the goal (x, y) in the map frame.
             wheel_rpm: the measured motor speeds (left, right), RPM.
+            codes: with ``three_valued``, the map's ``nav_msgs/OccupancyGrid`` codes in the height band
+                (int8, grid shape: 100 occupied, 0 free, -1 unknown).
+
+        Raises:
+            NavigationEnvError: ``three_valued`` without ``codes``.
         """
         shape, cell, behind = self.patch
         dist, bearing = goal_in_robot_frame(pose, goal)
         v, w = self.drive.twist_from_rpm(*wheel_rpm)  # what the encoders say
+        if self.three_valued:
+            if codes is None:
+                raise NavigationEnvError("a three-valued occupancy observation needs the map's codes")
+            values = np.where(codes == 100, PATCH_OCCUPIED, np.where(codes == 0, PATCH_FREE, PATCH_UNKNOWN))
+            patch = egocentric_values(
+                values.astype(np.uint8), self.grid, pose, shape, cell, behind, PATCH_UNKNOWN
+            )
+        else:
+            patch = egocentric_patch(occupied, self.grid, pose, shape, cell, behind)
         obs: dict[str, np.ndarray] = {
-            "occupancy": egocentric_patch(occupied, self.grid, pose, shape, cell, behind),
+            "occupancy": patch,
             "goal": np.array([min(dist, self.max_goal_obs), bearing], dtype=np.float32),
             "velocity": np.clip(np.array([v, w], dtype=np.float32), -self.vel_high, self.vel_high),
         }

@@ -51,6 +51,15 @@ _REGISTRATIONS: dict[str, dict[str, object]] = {
     "RobChair/NavigationDynamic-v1": {"scene": "rooms", "walkers": 2, **_LIGHT},
     "RobChair/NavigationDiscrete-v1": {"scene": "office", "action_type": "discrete", **_LIGHT},
 }
+# v2: the v1 configurations with the probabilistic map (free space, people cleared, a three-valued
+# occupancy patch: 0 free, 1 occupied, 2 unknown)
+_REGISTRATIONS.update(
+    {
+        _id.replace("-v1", "-v2"): {**_kw, "map_kind": "probabilistic"}
+        for _id, _kw in list(_REGISTRATIONS.items())
+        if _id.endswith("-v1")
+    }
+)
 
 ENV_IDS = tuple(_REGISTRATIONS)
 
