@@ -41,7 +41,11 @@ from gymnasium.utils import EzPickle
 from gymnasium.vector import AutoresetMode
 
 from mapping.grid import GridSpec
-from robchair.kinematics import DiffDrive, Odometry, Pose2D
+from robchair.envs.chair import EpisodeNoise, episode_backend
+from robchair.kinematics import DiffDrive, Pose2D
+from robchair.perception import Perception
+from robchair.runtime import CycleResult, Runtime, RuntimeConfig
+from robchair.sources import Command
 from robchair.spec import RobChairSpec, load_spec
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import (
@@ -83,6 +87,42 @@ LASER_ACCURACY_SIGMAS = 3.0  # the datasheet's +- accuracy is this many standard
 # --------------------------------------------------------------------------------------------
 # the environment
 # --------------------------------------------------------------------------------------------
+
+
+def shield_report(cycle: CycleResult) -> dict[str, Any]:
+    """``info["safety"]``: whether and why the safety layer changed the agent's command in a cycle.
+
+    Returns ``{"intervened": bool, "reason": str | None}``; the reason is the stop reason and its
+    detail (e.g. ``"obstacle_map: ..."``), or ``"limited: ..."`` when a speed or acceleration limit
+    changed the twist.
+    """
+    d = cycle.decision
+    if not cycle.intervened:
+        return {"intervened": False, "reason": None}
+    if d.stop is not None:
+        reason = f"{d.stop.value}: {d.detail}" if d.detail else d.stop.value
+    else:
+        reason = f"limited: {d.detail}" if d.detail else "limited: speed or acceleration limit"
+    return {"intervened": True, "reason": reason}
+
+
+class GroundTruthLocalisation:
+    """The physics' ground truth in place of wheel odometry (``pose_source="ground_truth"``).
+
+    Duck-types :class:`robchair.kinematics.Odometry` for the runtime: ``update`` ignores the
+    encoder counts and returns the simulated chair's true planar pose.
+    """
+
+    def __init__(self, chair: Any) -> None:
+        self.chair = chair
+        self.pose = chair.ground_truth_pose()
+        self.distance = 0.0
+
+    def update(self, *_counts: Any) -> Pose2D:
+        pose = self.chair.ground_truth_pose()
+        self.distance += math.hypot(pose.x - self.pose.x, pose.y - self.pose.y)
+        self.pose = pose
+        return pose
 
 
 def _load_scene_arg(scene: Scene | str | Path) -> Scene:
@@ -253,6 +293,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         walkers: int = 0,
         depth_image: bool = False,
         elevation_map: bool = False,
+        safety: bool = True,
     ) -> None:
         from sim.world import PHYSICS_HZ
 
@@ -287,6 +328,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             walkers=walkers,
             depth_image=depth_image,
             elevation_map=elevation_map,
+            safety=safety,
         )
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -357,6 +399,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if depth_image and sensor is None:
             raise NavigationEnvError("depth_image=True needs a Kinect (sensor='kinect2' or 'kinect1')")
         self.action_type = action_type
+        self.safety_enabled = bool(safety)
         self.depth_image, self.elevation_map = bool(depth_image), bool(elevation_map)
         from sim import rooms as _rooms
 
@@ -410,12 +453,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self.start_pose = Pose2D()
         self.goal = (0.0, 0.0)
         self._prev_distance = 0.0
-        self._odom = Odometry(self.spec_robot)
         self._sonar_ranges = np.zeros(6, dtype=np.float32)
         self.dynamics = EpisodeDynamics()
         self._ended = False
-        self._counts0 = (0, 0)
-        self._latency_steps = 0
 
     # ---- construction ------------------------------------------------------------------------
 
@@ -508,7 +548,37 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             )
             self._laser_ranges = np.zeros(self._laser.model.n_beams, dtype=np.float32)
         self._people = tuple(body for body, _ in self._chair.bodies.moving)
+        self._noise = EpisodeNoise()
+        self._backend = episode_backend(
+            self._chair, self._noise, laser=self._laser, own_depth_noise=self._own_noise,
+            laser_accuracy_sigmas=LASER_ACCURACY_SIGMAS,
+        )  # fmt: skip
+        self._frames: dict[str, np.ndarray] = {}
+        cam = self._backend.depth_camera
+        if cam is not None and cam.frame_id not in self.spec_robot.mounts:
+            self._frames[cam.frame_id] = self._t_base_cam
+        self.runtime = Runtime(
+            self._backend,
+            spec=self.spec_robot,
+            config=RuntimeConfig(rate_hz=float(self.agent_hz), camera_every=1, sonar_every=1),
+            perception=self._new_perception(),
+            safety_enabled=self.safety_enabled,
+        )
         self._closed = False
+
+    def _new_perception(self) -> Perception:
+        """The runtime's perception stage for an episode: one map of the scene's grid for every sensor."""
+        from mapping.vhv import VHVMap
+
+        return Perception(
+            self.spec_robot,
+            map=VHVMap(self.grid, tolerance=self.patch_cell),
+            grid=self.grid,
+            sonar_map=None,
+            band=self.band,
+            frames=self._frames,
+            tolerance=self.patch_cell,
+        )
 
     def _define_spaces(self) -> None:
         if self.action_type == "discrete":
@@ -664,6 +734,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         for motor in (self.robot.left, self.robot.right):
             motor.reset()
         self.robot.set_motor_rpm(0.0, 0.0)
+        for mount in self._chair.sonars:  # the runtime turns the sonar servos; each episode starts centred
+            self.robot.set_servo_deg(mount, 0.0)
         self._chair.step(SETTLE_STEPS)
 
     def _apply_dynamics(self, d: EpisodeDynamics) -> None:
@@ -686,25 +758,6 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         ):
             plant = replace(nominal, omega_n=nominal.omega_n * kw, xi=nominal.xi * kx)
             motor.plant = DiscretePlant(plant, self.robot.motor_dt)
-        for mount, arr in self._chair.sonars.items():
-            arr.noise_std_m = self._sonar_noise[mount] * d.sensor_noise_scale
-        self._latency_steps = min(
-            round(d.command_latency_s * self._chair.world.physics_hz), self.substeps - 1
-        )
-
-    def _command_rpm(self, v: float, w: float) -> tuple[float, float]:
-        """Motor set points for the twist (v, w): the controller regulates the motor speed, so a
-        tyre ``k`` times the spec's radius drives the chair ``k`` times faster than commanded; the
-        physics keeps the spec's radius and gets set points ``k`` times higher instead."""
-        left, right = self.drive.motor_rpm(v, w)
-        kl, kr = self.dynamics.tyre_radius_scale
-        return left * kl, right * kr
-
-    def _encoder_counts(self) -> tuple[int, int]:
-        """The encoders as the chair's odometry sees them (the wheel turns ``1 / k`` as far)."""
-        (cl, cr), (l0, r0) = self.robot.encoder_counts(), self._counts0
-        kl, kr = self.dynamics.tyre_radius_scale
-        return l0 + round((cl - l0) / kl), r0 + round((cr - r0) / kr)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -731,16 +784,21 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._sensor_rng = np.random.default_rng(int(self.np_random.integers(0, 2**63 - 1)))
         self.dynamics = self.randomization.sample(self.np_random)
         self._place_chair(start)
-        from mapping.vhv import VHVMap
-
-        self._map = VHVMap(self.grid, tolerance=self.patch_cell)
-        self._odom = Odometry(self.spec_robot, start)
-        self._counts0 = self.robot.encoder_counts()
-        self._odom.update(*self._encoder_counts())
+        d = self.dynamics
+        self._noise.rng, self._noise.scale = self._sensor_rng, float(d.sensor_noise_scale)
+        latency = min(round(d.command_latency_s * self._chair.world.physics_hz), self.substeps - 1)
+        motors: Any = self._backend.motors
+        motors.new_episode(d.tyre_radius_scale, latency)
         self._path = []
         self._steps = 0
+        rt = self.runtime
+        rt.reset(start, self._new_perception())
+        if self.pose_source == "ground_truth":
+            rt.odometry = GroundTruthLocalisation(self._chair)  # type: ignore[assignment]
+        rt.start()
+        # one cycle standing still: the runtime senses the start and the first observation shows it
+        self._cycle(Command(0.0, 0.0))
         pose = self._pose()
-        self._sense(pose)
         self._prev_distance = self._true_distance()
         return self._observation(pose), self._info(pose, False, False, None)
 
@@ -758,31 +816,36 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             )
         self._check_not_closed()
         v, w = self._twist(action)
-        rpm = self._command_rpm(v, w)
-        world = self._chair.world
-        odom_every = world.physics_hz // ODOM_HZ
-        contacts: set[str] = set()
-        for k in range(self.substeps):
-            if k == self._latency_steps:  # the command reaches the controller after the latency
-                self.robot.set_motor_rpm(*rpm)
-            self._chair.step(1)
-            if world.steps % odom_every == 0:
-                self._odom.update(*self._encoder_counts())
-            contacts |= self._touching()
+        cycle, contacts = self._cycle(Command(v, w))
         collided = bool(contacts)
         self._steps += 1
         pose = self._pose()
-        self._sense(pose)
         distance = self._true_distance()
         reached = distance <= self.goal_tolerance
         terms = reward_terms(self._prev_distance, distance, collided, reached, self.weights)
         self._prev_distance = distance
         obs = self._observation(pose)
         info = self._info(pose, collided, reached, terms)
+        info["safety"] = shield_report(cycle)
+        info["command"] = (cycle.command.v, cycle.command.w)
+        info["command_applied"] = (cycle.decision.v, cycle.decision.w)
         if collided:
             info["contacts"] = sorted(contacts)
         self._ended = bool(collided or reached)
         return obs, float(sum(terms.values())), self._ended, False, info
+
+    def _cycle(self, command: Command) -> tuple[CycleResult, set[str]]:
+        """One runtime cycle (sense, safety, write, one agent period of physics); contacts during it."""
+        clock: Any = self._backend.clock
+        clock.contacts = set()
+        if self.map_memory == "frame":  # the map holds only what this cycle senses
+            from mapping.vhv import VHVMap
+
+            p = self.runtime.perception
+            p.map = p.sonar_map = VHVMap(self.grid, tolerance=self.patch_cell)
+        cycle = self.runtime.step(command)
+        self._read_perception()
+        return cycle, set(clock.contacts)
 
     def _next_floor(self, seed: Any) -> None:
         """Put the chair on the floor of ``seed`` (None: drawn from ``np_random`` in the split's range)."""
@@ -795,7 +858,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if int(seed) == self.room_seed:
             return
         self.scene = generate_floor(int(seed), self.rooms_config).scene
-        self._chair.close()
+        self._release_chair()
         self._setup_scene()
         self.room_seed = int(seed)
 
@@ -816,29 +879,17 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     # ---- state -------------------------------------------------------------------------------
 
     def _pose(self) -> Pose2D:
-        """The pose the chair believes (ground truth or odometry, per ``pose_source``)."""
-        gt = self.robot.pose2d()  # raises SimulationDivergedError on a non-finite pose
+        """The pose the chair believes now (ground truth or the runtime's odometry, per ``pose_source``)."""
+        gt = self._chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
         self._path.append((gt.x, gt.y))
-        return gt if self.pose_source == "ground_truth" else self._odom.pose
+        if self.pose_source == "ground_truth":
+            return gt
+        # bring the runtime's odometry up to the encoders now (the next cycle's update adds nothing)
+        return self.runtime.odometry.update(*self._backend.motors.read_state().encoder_counts)
 
     def _true_distance(self) -> float:
-        gt = self.robot.pose2d()
+        gt = self._chair.ground_truth_pose()
         return math.hypot(self.goal[0] - gt.x, self.goal[1] - gt.y)
-
-    def _touching_people(self) -> set[int]:
-        """Walking people the chair overlaps.
-
-        :class:`sim.backend.SimChair` lets scripted people pass through the chair (they are teleported,
-        a contact would fling the chair), so the physics reports no contact; their geometry still
-        overlaps the chair's, which ``getClosestPoints`` (not subject to collision filters) measures.
-        """
-        import pybullet as p
-
-        return {
-            b
-            for b in self._people
-            if p.getClosestPoints(self.robot.body, b, 0.0, physicsClientId=self.client)
-        }
 
     def own_occupancy(self) -> tuple[GridSpec, npt.NDArray[np.bool_]]:
         """The chair's own 2D map of this episode: cells holding structure in its height band.
@@ -850,106 +901,36 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             raise NavigationEnvError("own_occupancy() called before reset()")
         return self.grid, self._occ.copy()
 
-    def _touching(self) -> set[str]:
-        """Names of the scene bodies (walking people included) the chair touches after this sub-step."""
-        import pybullet as p
-
-        names = self._body_names
-        hit = {
-            names[c[2]]
-            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
-            if c[2] in names
-        }
-        if self._people:
-            hit |= {names[b] for b in self._touching_people()}
-        return hit
-
     def contacts(self) -> list[str]:
         """Names of the scene objects the chair touches now (walking people included)."""
-        import pybullet as p
+        return sorted(self._chair.contacts())
 
-        names = {v: k for k, v in self._chair.bodies.ids.items()}
-        hit = {
-            names[c[2]]
-            for c in p.getContactPoints(bodyA=self.robot.body, physicsClientId=self.client)
-            if c[2] in names
-        }
-        hit |= {names[b] for b in self._touching_people()}
-        return sorted(hit)
-
-    def _sense(self, pose: Pose2D) -> None:
-        """Read the sensors and insert their points into the episode's map (placed at ``pose``)."""
-        gt = self.pose_source == "ground_truth"
-        chair = self._chair
-        if self.map_memory == "frame":
-            from mapping.vhv import VHVMap
-
-            self._map = VHVMap(self.grid, tolerance=self.patch_cell)
-        stamp = chair.world.now_ns()
-        if chair.kinect is not None:
-            t_gt = chair.kinect_pose()
-            frame = chair.kinect.capture(t_gt, stamp_ns=stamp, rng=self._sensor_rng)
-            pts = frame.points
-            if self._own_noise:
-                pts = decimated_depth_noise(
-                    pts, chair.kinect.model, self._sensor_rng, self.dynamics.sensor_noise_scale
-                )
-            if self.depth_image:  # the camera's depth (its x, REP-103); 0 where it saw nothing
-                z = np.asarray(pts[..., 0], dtype=np.float64)
-                self._depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self._depth_max).astype(np.float32)
-            t = chair.kinect.output_pose(t_gt) if gt else planar_transform(pose) @ self._t_base_cam
-            pts = pts.reshape(-1, 3).astype(np.float64) @ t[:3, :3].T + t[:3, 3]
-            self._map.insert(pts, sensor_origin=t[:3, 3])
-        if chair.sonars:
-            from mapping.sonar import array_points
-
-            ranges = []
-            for mount, arr in chair.sonars.items():
-                t_arr = self.robot.link_transform(mount)
-                r = arr.measure(t_arr, 0.0, rng=self._sensor_rng)
-                ranges.extend(r)
-                _, spts = array_points(r)
-                if len(spts):
-                    if not gt:
-                        joint = math.radians(self.robot.servo_deg(mount))
-                        t_arr = planar_transform(pose) @ self.spec_robot.mounts[mount].transform(joint)
-                    self._map.insert(spts @ t_arr[:3, :3].T + t_arr[:3, 3], sensor_origin=t_arr[:3, 3])
-            rr = np.asarray(ranges, dtype=np.float64)
+    def _read_perception(self) -> None:
+        """What the runtime's perception stage and sensors gave in the last cycle, for the observation."""
+        rt = self.runtime
+        p = rt.perception
+        self._map = p.map
+        self._occ = p.occupancy_2d()
+        if self.sonars_on and rt.last_sonars:
+            rr = np.asarray([r for _, reading in rt.last_sonars for r in reading.ranges_m], dtype=np.float64)
             self._sonar_ranges = np.where(
                 np.isfinite(rr), np.clip(rr, 0.0, self.sonar_max_range), self.sonar_max_range
             ).astype(np.float32)
-        if self._laser is not None:
-            self._sense_laser(pose, gt)
-        from mapping.derived import occupancy_2d
-
-        self._occ = occupancy_2d(self._map, *self.band)
-
-    def _sense_laser(self, pose: Pose2D, gt: bool) -> None:
-        """One Hokuyo scan (REP-117 ranges) into the observation and its hits into the map."""
-        laser = self._laser
-        laser.accuracy_sigmas = LASER_ACCURACY_SIGMAS / max(self.dynamics.sensor_noise_scale, 1e-6)
-        r = laser.ranges(self.robot.link_transform("laser_link"), rng=self._sensor_rng).astype(np.float64)
-        m = laser.model
-        # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
-        rr = np.where(np.isposinf(r), m.range_max, np.where(np.isneginf(r), 0.0, r))
-        self._laser_ranges = np.clip(rr, 0.0, m.range_max).astype(np.float32)  # noise may pass range_max
-        hit = np.isfinite(r)
-        if hit.any():
-            a = m.angles()[hit]
-            local = np.stack([r[hit] * np.cos(a), r[hit] * np.sin(a), np.zeros(int(hit.sum()))], axis=1)
-            t = (
-                self.robot.link_transform("laser_link")
-                if gt
-                else planar_transform(pose) @ self.spec_robot.mounts["laser_link"].transform()
-            )
-            self._map.insert(local @ t[:3, :3].T + t[:3, 3], sensor_origin=t[:3, 3])
+        if self._laser is not None and rt.last_scan is not None:
+            r = np.asarray(rt.last_scan.ranges, dtype=np.float64)
+            m = self._laser.model
+            # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
+            rr = np.where(np.isposinf(r), m.range_max, np.where(np.isneginf(r), 0.0, r))
+            self._laser_ranges = np.clip(rr, 0.0, m.range_max).astype(np.float32)
+        if self.depth_image and rt.last_depth_frame is not None:
+            z = np.asarray(rt.last_depth_frame.points[..., 0], dtype=np.float64)
+            self._depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self._depth_max).astype(np.float32)
 
     def _observation(self, pose: Pose2D) -> dict[str, np.ndarray]:
         assert self._occ is not None
         dist, bearing = goal_in_robot_frame(pose, self.goal)
-        kl, kr = self.dynamics.tyre_radius_scale
-        ml, mr = self.robot.wheel_speed_rpm()
-        v, w = self.drive.twist_from_rpm(ml / kl, mr / kr)  # what the encoders say
+        ml, mr = self._backend.motors.read_state().speed_rpm
+        v, w = self.drive.twist_from_rpm(ml, mr)  # what the encoders say
         obs: dict[str, np.ndarray] = {
             "occupancy": egocentric_patch(
                 self._occ, self.grid, pose, self.patch_shape, self.patch_cell, self.patch_behind
@@ -1032,6 +1013,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         pic = np.ascontiguousarray(np.transpose(img, (1, 0, 2))[::-1])
         return np.repeat(np.repeat(pic, px, axis=0), px, axis=1)
 
+    def _release_chair(self) -> None:
+        """Stop the runtime, close the devices, then the chair's physics."""
+        try:
+            self.runtime.stop()
+            self._backend.close()
+        finally:
+            self._chair.close()
+
     def _check_not_closed(self) -> None:
         if self._closed:
             raise NavigationEnvError("the environment is closed")
@@ -1040,7 +1029,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         """Release the PyBullet client (idempotent)."""
         chair = getattr(self, "_chair", None)
         if chair is not None and not self._closed:
-            chair.close()
+            self._release_chair()
             self._closed = True
 
 

@@ -38,6 +38,16 @@ def env():
     e.close()
 
 
+@pytest.fixture(scope="module")
+def unsafe_env():
+    """As ``env`` with the safety layer off: the agent's command reaches the motors unchanged."""
+    from robchair.envs.navigation import RobChairNavigationEnv
+
+    e = RobChairNavigationEnv(randomization=False, safety=False)
+    yield e
+    e.close()
+
+
 def _run(env, seed, actions, options=None):
     obs, _ = env.reset(seed=seed, options=options)
     out = [obs]
@@ -245,8 +255,9 @@ def test_sampled_start_and_goal_lie_in_free_space_at_the_asked_distance(env):
             assert env.free_space.clearance[i, j] >= env.robot_radius
 
 
-def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(env):
+def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(unsafe_env):
     # facing the corridor's left wall at y = 1.2; the footrest is 0.58 m ahead of base_link
+    env = unsafe_env
     env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
     for _ in range(40):
         _, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0], np.float32))
@@ -259,6 +270,35 @@ def test_driving_straight_at_a_wall_terminates_with_the_collision_penalty(env):
     assert reward < -9.0
     # the chair stopped at the wall: base_link at about 1.2 - 0.58 from the corridor's centre line
     assert 0.5 < info["pose"][1] < 0.7
+
+
+def test_the_safety_layer_stops_the_agent_in_front_of_a_wall_and_says_why(env):
+    # facing the corridor's left wall at y = 1.2 at full speed: the shield stops the chair before it
+    env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
+    stops = []
+    for _ in range(40):
+        _, _, terminated, _, info = env.step(np.array([1.0, 0.0], np.float32))
+        assert not terminated and not info["collision"]
+        assert set(info["safety"]) == {"intervened", "reason"}
+        if info["command_applied"][0] == 0.0 and info["command"][0] > 0.0:
+            stops.append(info["safety"])
+    assert stops, "the safety layer never stopped the forward command"
+    assert all(s["intervened"] for s in stops)
+    assert all(s["reason"].startswith(("obstacle_map", "obstacle_sonar")) for s in stops)
+    # stopped short of the wall: the footrest (0.58 m ahead of base_link) stays off y = 1.2
+    assert info["pose"][1] + 0.58 < 1.2
+    assert env.contacts() == []
+
+
+def test_without_the_safety_layer_the_same_action_reaches_the_motors_unchanged(unsafe_env):
+    unsafe_env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (9.0, 0.0)})
+    for _ in range(40):
+        _, _, terminated, _, info = unsafe_env.step(np.array([1.0, 0.0], np.float32))
+        assert info["safety"] == {"intervened": False, "reason": None}
+        assert info["command_applied"] == info["command"]
+        if terminated:
+            break
+    assert info["collision"]
 
 
 def test_a_person_walking_into_the_standing_chair_ends_the_episode_as_a_collision():
@@ -326,7 +366,9 @@ def test_map_memory_decides_whether_a_wall_left_behind_stays_in_the_patch(env, m
     assert occ[:10].any() == (memory == "episode")
 
 
-def test_driving_toward_the_goal_earns_progress_reward(env):
+def test_driving_toward_the_goal_earns_progress_reward(unsafe_env):
+    # the drive's own response to full speed (the safety layer's acceleration limit is tested apart)
+    env = unsafe_env
     env.reset(seed=0, options={"start": (0.0, 0.0, 0.0), "goal": (4.0, 0.0)})
     progress, rewards, distances = [], [], []
     for _ in range(10):

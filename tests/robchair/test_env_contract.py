@@ -78,15 +78,15 @@ def test_a_contact_within_a_sub_step_is_reported_by_name():
     from robchair.envs.navigation import RobChairNavigationEnv
     from sim.scene import Motion, Scene, SceneObject
 
-    # a runner crosses the standing chair's footprint at 4 m/s within one 1 s agent step: overlapping
-    # at t = 0.5 s, clear of it again at the end of the step
+    # a runner crosses the standing chair's footprint at 4 m/s within the first 1 s agent step (after
+    # reset's one cycle standing still): overlapping at t = 1.5 s, clear of it at the step's end (2 s)
     runner = SceneObject(
         name="runner",
         shape="cylinder",
-        xyz=(0.2, -2.5, 0.85),
+        xyz=(0.2, -6.5, 0.85),
         radius=0.25,
         length=1.7,
-        motion=Motion(waypoints=((0.2, -2.5), (0.2, 9.5)), speed=4.0, loop=False),
+        motion=Motion(waypoints=((0.2, -6.5), (0.2, 9.5)), speed=4.0, loop=False),
     )
     walls = tuple(
         SceneObject(name=f"wall_{k}", shape="box", xyz=xyz, size=size)
