@@ -241,8 +241,8 @@ class PurePursuit:
     """
 
     lookahead: float = 0.6
-    cruise: float = 0.5
-    max_yaw_rate: float = 0.8
+    cruise: float = 0.55
+    max_yaw_rate: float = 1.2
     turn_in_place: float = math.radians(60.0)
     decel: float = 0.4
     tight: float = 0.6
