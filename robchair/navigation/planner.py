@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -44,31 +44,45 @@ class PlannerConfig:
             width plus a margin).
         comfort: Distance, m, beyond the inflation over which the cost falls to 1.
         comfort_weight: Extra cost factor at the inflation's edge.
+        soft_weight: Extra cost of a cell within the inflation of a *soft* obstacle (one only a
+            less precise sensor reports, see :func:`cost_map`).
     """
 
     inflation: float = 0.37
     comfort: float = 0.6
     comfort_weight: float = 4.0
+    soft_weight: float = 3.0
 
 
-def cost_map(occupied: npt.NDArray[np.bool_], cell: float, cfg: PlannerConfig) -> npt.NDArray[np.float64]:
+def cost_map(
+    occupied: npt.NDArray[np.bool_],
+    cell: float,
+    cfg: PlannerConfig,
+    soft: npt.NDArray[np.bool_] | None = None,
+) -> npt.NDArray[np.float64]:
     """Per-cell traversal cost (``inf`` = forbidden) of an occupancy grid.
 
     Args:
         occupied: ``(nx, ny)`` bool grid.
         cell: Cell size, m.
         cfg: Inflation and comfort settings.
+        soft: ``(nx, ny)`` bool grid of soft obstacles (e.g. the wide cones of sonar echoes):
+            passable at ``cfg.soft_weight`` extra cost within ``cfg.inflation`` of them.
 
     Returns:
         ``(nx, ny)`` float64: ``inf`` within ``cfg.inflation`` of an occupied cell, else
-        ``1 + comfort_weight * max(0, 1 - (d - inflation) / comfort)``.
+        ``1 + comfort_weight * max(0, 1 - (d - inflation) / comfort)`` (+ ``soft_weight`` near a
+        soft obstacle).
     """
     from scipy import ndimage
 
+    cost = np.ones(occupied.shape)
+    if soft is not None and soft.any():
+        cost += cfg.soft_weight * (ndimage.distance_transform_edt(~soft) * cell < cfg.inflation)
     if not occupied.any():
-        return np.ones(occupied.shape)
+        return cost
     d = ndimage.distance_transform_edt(~occupied) * cell
-    cost = 1.0 + cfg.comfort_weight * np.clip(1.0 - (d - cfg.inflation) / cfg.comfort, 0.0, 1.0)
+    cost += cfg.comfort_weight * np.clip(1.0 - (d - cfg.inflation) / cfg.comfort, 0.0, 1.0)
     cost[d < cfg.inflation] = np.inf
     return cost
 
@@ -110,6 +124,7 @@ def plan_path(
     start: tuple[float, float],
     goal: tuple[float, float],
     cfg: PlannerConfig = PlannerConfig(),
+    soft: npt.NDArray[np.bool_] | None = None,
 ) -> list[tuple[float, float]] | None:
     """Cheapest route (world x, y points, start first) from ``start`` to ``goal``, or None.
 
@@ -122,6 +137,7 @@ def plan_path(
         start: Chair position (m).
         goal: Goal position (m).
         cfg: Planner settings.
+        soft: Soft obstacles (see :func:`cost_map`).
 
     Raises:
         PlanningError: a point outside the grid.
@@ -132,7 +148,7 @@ def plan_path(
         i, j = grid.world_to_index(p[0], p[1])
         if not bool(grid.contains_index(i, j)):
             raise PlanningError(f"{name} {tuple(p)} lies outside the planning grid {grid.extent}")
-    cost = cost_map(occupied, grid.cell_size, cfg)
+    cost = cost_map(occupied, grid.cell_size, cfg, soft)
     si, sj = (int(v) for v in grid.world_to_index(start[0], start[1]))
     gi, gj = (int(v) for v in grid.world_to_index(goal[0], goal[1]))
     s = (si, sj) if np.isfinite(cost[si, sj]) else _nearest_finite(cost, si, sj)
@@ -425,24 +441,28 @@ class BaselinePolicy:
         start: tuple[float, float],
         goal: tuple[float, float],
     ) -> list[tuple[float, float]] | None:
-        """Plan on the own map, then on the laser's obstacles, then with the least inflation."""
+        """Plan on the hard obstacles with the rest of the own map soft, then with the least inflation."""
         from scipy import ndimage
 
-        marks = self._marks if self._marks is not None else np.zeros(grid.shape, dtype=bool)
-        laser = self._laser_hits if self._laser_hits is not None else np.zeros(grid.shape, dtype=bool)
-        tight = PlannerConfig(
-            inflation=self._half_width + 0.01,
-            comfort=self.cfg.comfort,
-            comfort_weight=self.cfg.comfort_weight,
-        )
-        for blocked, cfg in ((occ | marks, self.cfg), (laser | marks, self.cfg), (laser | marks, tight)):
-            route = plan_path(blocked, grid, start, goal, cfg)
+        blocked = self._hard(grid, occ)
+        soft = occ & ~blocked
+        tight = replace(self.cfg, inflation=self._half_width + 0.01)
+        for cfg in (self.cfg, tight):
+            route = plan_path(blocked, grid, start, goal, cfg, soft)
             if route is not None:
                 self._dist = (
                     ndimage.distance_transform_edt(~blocked) * grid.cell_size if blocked.any() else None
                 )
                 return route
         return None
+
+    def _hard(self, grid: GridSpec, occ: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+        """Hard obstacles: the laser's returns (the own map before any) and the stop cells."""
+        laser = self._laser_hits
+        hard = laser.copy() if laser is not None and laser.any() else occ.copy()
+        if self._marks is not None:
+            hard |= self._marks
+        return hard
 
     def _clearance(self, grid: GridSpec, pose: tuple[float, float, float], reach: float = 1.2) -> float:
         """Least distance (m) to a planning obstacle along the route from the chair to ``reach`` m ahead."""
@@ -493,7 +513,7 @@ class BaselinePolicy:
         if self._backup > 0:
             self._backup -= 1
             return np.array([-self.backup_speed / self.env.max_speed, 0.0], dtype=np.float32)
-        blocked = occ | self._marks if self._marks is not None else occ
+        blocked = self._hard(grid, occ)
         if (
             self.route is None
             or self._since >= self.replan_every
