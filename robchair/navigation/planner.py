@@ -345,6 +345,10 @@ class BaselinePolicy:
         stuck_steps: Consecutive obstacle stops that trigger the recovery.
         backup_steps: Agent steps of reversing in a recovery.
         backup_speed: Reversing speed, m/s.
+        map_range: Laser returns beyond this range (m) are not accumulated (a heading error
+            displaces far returns most).
+        map_max_yaw_rate: No laser returns are accumulated while the chair turns faster than
+            this (rad/s, the measured yaw rate).
     """
 
     def __init__(
@@ -356,6 +360,8 @@ class BaselinePolicy:
         stuck_steps: int = 3,
         backup_steps: int = 6,
         backup_speed: float = 0.15,
+        map_range: float = 3.0,
+        map_max_yaw_rate: float = 0.3,
     ) -> None:
         self.env = getattr(env, "unwrapped", env)
         if getattr(self.env, "action_type", "continuous") != "continuous":
@@ -367,6 +373,8 @@ class BaselinePolicy:
         self.stuck_steps = int(stuck_steps)
         self.backup_steps = int(backup_steps)
         self.backup_speed = float(backup_speed)
+        self.map_range = float(map_range)
+        self.map_max_yaw_rate = float(map_max_yaw_rate)
         self._front = float(body.centre_x + body.depth / 2)
         self._rear = float(body.centre_x - body.depth / 2)
         self._half_width = float(body.width / 2)
@@ -396,8 +404,11 @@ class BaselinePolicy:
             self._laser_hits = np.zeros(grid.shape, dtype=bool)
         if self._beams is None or not isinstance(obs, dict) or "laser" not in obs:
             return
+        vel = obs.get("velocity")
+        if vel is not None and abs(float(vel[1])) > self.map_max_yaw_rate:
+            return  # the scan's time within the step is not the pose's: a turning chair smears walls
         r = np.asarray(obs["laser"], dtype=float)
-        ok = (r > 0.05) & (r < 0.98 * self._laser_max)
+        ok = (r > 0.05) & (r < min(self.map_range, 0.98 * self._laser_max))
         x, y, th = pose
         c, s = math.cos(th), math.sin(th)
         lx, ly = (
@@ -441,19 +452,32 @@ class BaselinePolicy:
         start: tuple[float, float],
         goal: tuple[float, float],
     ) -> list[tuple[float, float]] | None:
-        """Plan on the hard obstacles with the rest of the own map soft, then with the least inflation."""
+        """Plan on the hard obstacles with the rest of the own map soft.
+
+        Two inflations: the planner's, and half the chair's width plus 1 cm (a narrow doorway the
+        follower passes aligned and slowly); the second route is taken when the first does not exist
+        or is much longer (a detour through unseen space around a doorway that is only narrow). With
+        no route at all the stop cells are forgotten (the chair may have boxed itself in with them).
+        """
         from scipy import ndimage
 
-        blocked = self._hard(grid, occ)
-        soft = occ & ~blocked
         tight = replace(self.cfg, inflation=self._half_width + 0.01)
-        for cfg in (self.cfg, tight):
-            route = plan_path(blocked, grid, start, goal, cfg, soft)
+        for attempt in range(2):
+            blocked = self._hard(grid, occ)
+            soft = occ & ~blocked
+            route = plan_path(blocked, grid, start, goal, self.cfg, soft)
+            narrow = plan_path(blocked, grid, start, goal, tight, soft)
+            if narrow is not None and (route is None or path_length(narrow) < 0.7 * path_length(route)):
+                route = narrow
             if route is not None:
                 self._dist = (
                     ndimage.distance_transform_edt(~blocked) * grid.cell_size if blocked.any() else None
                 )
                 return route
+            if attempt == 0 and self._marks is not None and self._marks.any():
+                self._marks[:] = False
+            else:
+                break
         return None
 
     def _hard(self, grid: GridSpec, occ: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
