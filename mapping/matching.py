@@ -54,6 +54,8 @@ class MatchParams:
         max_rotation: Largest accepted heading correction per frame.
         map_radius: Map cells within this distance of the frame's cells are the target.
         max_source: Most frame cells registered (an even subset beyond it), which bounds the cost.
+        max_points: Most frame points reduced to cells (an even subset beyond it): a 512x424 frame has
+            ten to a hundred points per 5 cm cell, so a subset gives the same cell centroids cheaper.
     """
 
     band: tuple[float, float] = (0.15, 1.8)
@@ -67,6 +69,7 @@ class MatchParams:
     max_rotation: float = math.radians(4.0)
     map_radius: float = 0.5
     max_source: int = 800
+    max_points: int = 60000
 
     def __post_init__(self) -> None:
         lo, hi = self.band
@@ -82,6 +85,7 @@ class MatchParams:
             "max_rotation": self.max_rotation > 0,
             "map_radius": self.map_radius >= 0,
             "max_source": self.max_source >= self.min_cells,
+            "max_points": self.max_points >= self.min_cells,
         }
         for name, ok in checks.items():
             if not ok:
@@ -153,14 +157,32 @@ def _centroids(xy: NDArray[np.float64], cell_size: float) -> NDArray[np.float64]
     return np.column_stack([sx, sy]) / counts[hit, None]
 
 
-def map_cell_centres(vhv: VHVMap, band: tuple[float, float]) -> NDArray[np.float64]:
-    """Centres ``(K, 2)`` (world x, y) of the map's cells holding a structure that overlaps ``band``."""
+def map_cell_centres(
+    vhv: VHVMap, band: tuple[float, float], window: tuple[float, float, float, float] | None = None
+) -> NDArray[np.float64]:
+    """Centres ``(K, 2)`` (world x, y) of the map's cells holding a structure that overlaps ``band``.
+
+    Args:
+        vhv: The map.
+        band: ``(z_min, z_max)``, m.
+        window: ``(x_min, y_min, x_max, y_max)`` world box, m: only cells in it (None: every cell).
+    """
+    ny = vhv.spec.shape[1]
+    keys = vhv.cell_keys
     s = vhv.structures()
-    hit = (s.top >= band[0]) & (s.bottom <= band[1])
+    lo, hi = 0, len(keys)
+    if window is not None and len(keys):
+        # the keys are sorted by i, then j: the window's rows are one slice
+        (i0, j0), (i1, j1) = (np.asarray(vhv.spec.world_to_index(u, v), np.int64) for u, v in
+                              ((window[0], window[1]), (window[2], window[3])))  # fmt: skip
+        lo, hi = np.searchsorted(keys, [int(i0) * ny, (int(i1) + 1) * ny])
+    i, j = s.i[lo:hi], s.j[lo:hi]
+    hit = (s.top[lo:hi] >= band[0]) & (s.bottom[lo:hi] <= band[1])
+    if window is not None and len(keys):
+        hit &= (j >= j0) & (j <= j1)
     if not hit.any():
         return np.empty((0, 2))
-    ny = vhv.spec.shape[1]
-    key = np.unique(s.i[hit].astype(np.int64) * ny + s.j[hit])
+    key = np.unique(i[hit].astype(np.int64) * ny + j[hit])
     u, v = vhv.spec.index_to_world(key // ny, key % ny)
     return np.column_stack([u, v])
 
@@ -214,6 +236,8 @@ class ScanMatcher:
         p = self.params
         cs = vhv.spec.cell_size
         pts = as_points(points_odom)
+        if pts.shape[0] > p.max_points:  # an even subset: the cell centroids barely change
+            pts = pts[:: math.ceil(pts.shape[0] / p.max_points)]
         # the map -> odom transform is planar: the height band can be cut before it is applied
         xy = pts[_in_band(pts, p.band), :2].astype(np.float64)
         xy = xy @ self.t_map_odom[:2, :2].T + self.t_map_odom[:2, 3]
@@ -223,9 +247,9 @@ class ScanMatcher:
         sd = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(src.T)), 0.0, None))
         if sd[0] < p.min_spread_ratio * sd[1]:
             return MatchResult(False, "frame cells along one line", n_source=len(src))
-        tgt = map_cell_centres(vhv, p.band)
+        lo, hi = src.min(axis=0) - p.map_radius, src.max(axis=0) + p.map_radius
+        tgt = map_cell_centres(vhv, p.band, (lo[0], lo[1], hi[0], hi[1]))
         if len(tgt):
-            lo, hi = src.min(axis=0) - p.map_radius, src.max(axis=0) + p.map_radius
             tgt = tgt[np.all((tgt >= lo) & (tgt <= hi), axis=1)]
         if len(tgt) < p.min_cells:
             return MatchResult(False, "too few map cells", n_source=len(src), n_target=len(tgt))
@@ -258,13 +282,21 @@ class _Icp:
     min_information: float
 
 
-def _line_normals(tgt: NDArray[np.float64], tree: Any, k: int = 7) -> NDArray[np.float64]:
-    """Unit normals (K, 2) of the map cells: the minor axis of each cell's k nearest neighbours."""
+def _local_lines(
+    tgt: NDArray[np.float64], tree: Any, k: int = 7
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The line through each map cell's k nearest neighbours: their centroid (K, 2) and unit normal (K, 2).
+
+    The centroid, not the cell centre: a wall lying on a cell border fills the cells on both sides, and
+    lines through the cell centres would sit half a cell to either side of it; a frame pulled onto one
+    of them and inserted there would move the wall by half a cell, frame after frame.
+    """
     _, nn = tree.query(tgt, k=min(k, len(tgt)))
-    nb = tgt[nn] - tgt[nn].mean(axis=1, keepdims=True)
+    mean = tgt[nn].mean(axis=1)
+    nb = tgt[nn] - mean[:, None, :]
     cov = np.einsum("kni,knj->kij", nb, nb)
     _, vec = np.linalg.eigh(cov)
-    return vec[:, :, 0]
+    return mean, vec[:, :, 0]
 
 
 def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: MatchParams) -> _Icp:
@@ -272,7 +304,7 @@ def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: Ma
     from scipy.spatial import cKDTree
 
     tree = cKDTree(tgt)
-    normals = _line_normals(tgt, tree)
+    anchors, normals = _local_lines(tgt, tree)
     x = np.zeros(3)
     info = np.zeros((3, 3))
     inl = np.zeros(len(src), bool)
@@ -290,7 +322,7 @@ def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: Ma
         if inl.sum() < 3:
             break
         n = normals[idx[inl]]
-        q = tgt[idx[inl]]
+        q = anchors[idx[inl]]
         m = moved[inl]
         res = np.einsum("ki,ki->k", n, m - q)
         # d(moved)/d(yaw) = perpendicular of the rotated source point (before translation)
@@ -298,7 +330,10 @@ def _point_to_line_icp(src: NDArray[np.float64], tgt: NDArray[np.float64], p: Ma
         jac = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * rot[:, 0] - n[:, 0] * rot[:, 1]])
         w = 1.0 / np.maximum(1.0, np.abs(res) / 0.02)  # Huber weights beyond 2 cm
         info = jac.T @ (jac * w[:, None])
-        step = np.linalg.lstsq(info, -(jac.T @ (w * res)), rcond=None)[0]
+        try:
+            step = np.linalg.solve(info, -(jac.T @ (w * res)))
+        except np.linalg.LinAlgError:  # singular: the least-squares step
+            step = np.linalg.lstsq(info, -(jac.T @ (w * res)), rcond=None)[0]
         x += step
         if np.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-5:
             if fine:

@@ -376,7 +376,7 @@ def _grid_args(spec: GridSpec) -> tuple[float, int, int, int, int, int, int, int
 
 def _dense_budget_bytes(pts: NDArray[np.floating]) -> int:
     # The dense (cell, bin) min/max table may use as much memory as the input array itself, so that
-    # peak extra memory stays <= 2x the input (issue 2 target); small clouds may use 4 MiB, which is
+    # peak extra memory stays <= 2x the input (the SPEC memory target); small clouds may use 4 MiB, which is
     # nothing next to the interpreter and keeps them on the fast path.
     return max(int(pts.nbytes), 4 << 20)
 

@@ -44,7 +44,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hw.interfaces import Backend, Clock, PIDConfig
+from robchair.config import ConfigSource, ConfigTable
 from robchair.errors import ConfigError
+from robchair.spec import RobChairSpec
 
 
 class BackendConfigError(ConfigError):
@@ -92,27 +94,44 @@ class ManagedBackend(Backend):
                 fn()
 
 
-def get_backend(name: str, config: Mapping[str, Any] | None = None, *, loop_rate_hz: float = 10.0) -> Backend:
+def get_backend(
+    name: str, config: Mapping[str, Any] | ConfigTable | None = None, *, loop_rate_hz: float = 10.0
+) -> Backend:
     """Build the backend called ``name`` from ``config`` (unopened).
 
     Args:
         name: a key of :data:`BACKENDS`.
-        config: the backend's keys (see the module docstring); unknown keys are refused.
+        config: the backend's keys (see the module docstring); unknown keys are refused. A
+            :class:`robchair.config.ConfigTable` (e.g. the ``[emulated]`` table of a run config) makes
+            the messages name its file and line; a plain mapping is addressed as ``<name>.<key>``.
         loop_rate_hz: rate of the loop that will drive it; sets the default controller watchdog
             (:data:`WATCHDOG_PERIODS` periods) when ``watchdog_ms`` is not configured.
 
     Raises:
-        BackendConfigError: unknown name, unknown key or bad value (one line naming it).
+        BackendConfigError: unknown name, unknown key or bad value, one line in the
+            :mod:`robchair.config` dialect (``emulated.speed: unknown key (value 1); expected one of ...``).
     """
     if name not in BACKENDS:
-        raise BackendConfigError(f"backend {name!r}: expected one of {', '.join(BACKENDS)}")
+        raise ConfigSource(error=BackendConfigError).invalid("backend", name, f"one of {', '.join(BACKENDS)}")
     if not (math.isfinite(loop_rate_hz) and loop_rate_hz > 0):
-        raise BackendConfigError(f"loop_rate_hz = {loop_rate_hz!r}: expected a finite number > 0")
-    cfg = dict(config or {})
-    cfg.setdefault("watchdog_ms", default_watchdog_ms(loop_rate_hz))
+        raise ConfigSource(error=BackendConfigError).invalid(
+            "loop_rate_hz", loop_rate_hz, "a finite number > 0"
+        )
+    table = backend_table(config, name)
+    data = dict(table.data)
+    data.setdefault("watchdog_ms", default_watchdog_ms(loop_rate_hz))
     module, factory = BACKENDS[name].split(":")
-    fn: Callable[[dict[str, Any]], Backend] = getattr(importlib.import_module(module), factory)
-    return fn(cfg)
+    fn: Callable[[ConfigTable], Backend] = getattr(importlib.import_module(module), factory)
+    return fn(ConfigTable(data, table.source, table.where))
+
+
+def backend_table(config: Mapping[str, Any] | ConfigTable | None, name: str) -> ConfigTable:
+    """``config`` as a :class:`ConfigTable` raising :class:`BackendConfigError` (path ``name``)."""
+    if isinstance(config, ConfigTable):
+        src = config.source
+        source = ConfigSource(src.name, src.text, BackendConfigError)
+        return ConfigTable(config.data, source, config.where)
+    return ConfigTable(dict(config or {}), ConfigSource(error=BackendConfigError), name)
 
 
 def default_watchdog_ms(loop_rate_hz: float) -> int:
@@ -120,35 +139,14 @@ def default_watchdog_ms(loop_rate_hz: float) -> int:
     return max(1, round(WATCHDOG_PERIODS * 1000.0 / loop_rate_hz))
 
 
-def _check_keys(cfg: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    unknown = set(cfg) - allowed
-    if unknown:
-        raise BackendConfigError(
-            f"{where} backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}"
-        )
-
-
-def _number(cfg: Mapping[str, Any], key: str, default: float, where: str, *, positive: bool = True) -> float:
-    v = cfg.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or (positive and v <= 0):
-        raise BackendConfigError(f"{where} backend config: {key}={v!r}: expected a finite number > 0")
-    return float(v)
-
-
-def _int(cfg: Mapping[str, Any], key: str, default: int, where: str) -> int:
-    v = cfg.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise BackendConfigError(f"{where} backend config: {key}={v!r}: expected an integer")
-    return v
-
-
-def _spec(cfg: Mapping[str, Any]) -> Any:
+def _spec(cfg: ConfigTable) -> RobChairSpec:
     from robchair.spec import load_spec
 
-    return load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
+    path = cfg.string("spec", None)
+    return load_spec(path) if path else load_spec()
 
 
-def design_pid_configs(spec: Any) -> tuple[PIDConfig, PIDConfig]:
+def design_pid_configs(spec: RobChairSpec) -> tuple[PIDConfig, PIDConfig]:
     """The SPEC 5 pole-placement PID of each motor (left = channel 1, right = channel 2)."""
     out = []
     for ch in (1, 2):
@@ -166,7 +164,19 @@ def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
     return PIDConfig(d.kp, d.ki, d.kd)
 
 
-def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float) -> tuple[Any, ...]:
+def _addresses(cfg: ConfigTable) -> tuple[int, ...]:
+    """``sonar_addresses``: six 7-bit I2C addresses (left array 1-2-3, then right array 1-2-3)."""
+    v = cfg.raw("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
+    ok = isinstance(v, list | tuple) and len(v) == 6
+    ok = ok and all(isinstance(a, int) and not isinstance(a, bool) and 0x03 <= a <= 0x77 for a in v)
+    if not ok:
+        raise cfg.invalid("sonar_addresses", "a list of 6 integers in [3, 119] (7-bit I2C addresses)", v)
+    return tuple(v)
+
+
+def _sonar_arrays(
+    bus: Any, addresses: Sequence[int], clock: Clock, max_range_m: float, spec: RobChairSpec
+) -> tuple[Any, ...]:
     from hw.sonar_array import RangerSonarArray, SonarFiringGroup
     from hw.srf08 import SRF08
 
@@ -180,60 +190,70 @@ def _sonar_arrays(bus: Any, addresses: Sequence[int], clock: Clock, max_range_m:
             SRF08(bus, a, name=f"{name}/sonar{i + 1}", clock=clock, max_range_m=max_range_m)
             for i, a in enumerate(addresses[3 * k : 3 * k + 3])
         ]
-        arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock))
+        # no servo: the arrays face along their mounts (the servo's centre angle)
+        fixed = spec.sonar_arrays.servo_centre_deg
+        arrays.append(RangerSonarArray(rangers, None, name=name, clock=clock, fixed_angle_deg=fixed))
     SonarFiringGroup(arrays, clock=clock)
     return tuple(arrays)
 
 
-def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
-    """The real drivers over protocol emulators (the ``emulated`` entry)."""
-    from hw.clock import MonotonicClock
+
+def _roboteq(port: str, cfg: ConfigTable, spec: RobChairSpec, clock: Clock, **extra: Any) -> Any:
+    """The Roboteq driver on ``port`` with the table's link settings and the spec's drive, PID and
+    controller-side protections (ramps, amps limit, loop-error detection)."""
     from hw.roboteq.driver import RoboteqMDC2230
-    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
     from hw.roboteq.settings import RoboteqProtections
 
-    where = "emulated"
-    _check_keys(cfg, _EMULATED_KEYS, where)
+    return RoboteqMDC2230(
+        port,
+        timeout_s=cfg.number("timeout_s", 0.1, gt=0),
+        retries=cfg.integer("retries", 2, ge=0),
+        watchdog_ms=cfg.integer("watchdog_ms", 1000, ge=1),
+        encoder_ppr=int(spec.encoder_ppr),
+        max_rpm=int(spec.max_motor_rpm),
+        gear_ratio=float(spec.gear_ratio),
+        encoder_on=spec.encoder_on,
+        protections=RoboteqProtections.from_spec(spec),
+        pid=design_pid_configs(spec),
+        clock=clock,
+        release_on_open=cfg.boolean("release_stop", False),
+        **extra,
+    )
+
+def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
+    """The real drivers over protocol emulators (the ``emulated`` entry)."""
+    from hw.clock import MonotonicClock
+    from hw.roboteq.emulator import DEFAULT_FIRMWARE, RoboteqEmulator, SyncedClock
+
+    cfg = backend_table(config, "emulated")
+    cfg.keys(_EMULATED_KEYS)
     spec = _spec(cfg)
-    clock: Clock = MonotonicClock() if cfg.get("realtime", False) else SyncedClock()
+    clock: Clock = MonotonicClock() if cfg.boolean("realtime", False) else SyncedClock()
     emu = RoboteqEmulator(
         spec,
-        firmware=str(cfg.get("firmware", DEFAULT_FIRMWARE)),
-        echo=bool(cfg.get("echo", True)),
+        firmware=cfg.string("firmware", DEFAULT_FIRMWARE),
+        echo=cfg.boolean("echo", True),
         clock=clock,
-        rate_hz=_number(cfg, "rate_hz", 1000.0, where),
+        rate_hz=cfg.number("rate_hz", 1000.0, gt=0),
     )
     path = emu.start()
     on_close: list[Callable[[], None]] = [emu.stop]
     try:
-        motors = RoboteqMDC2230(
-            path,
-            timeout_s=_number(cfg, "timeout_s", 0.1, where),
-            retries=_int(cfg, "retries", 2, where),
-            watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
-            encoder_ppr=int(spec.encoder_ppr),
-            max_rpm=int(spec.max_motor_rpm),
-            gear_ratio=float(spec.gear_ratio),
-            encoder_on=spec.encoder_on,
-            protections=RoboteqProtections.from_spec(spec),
-            pid=design_pid_configs(spec),
-            clock=clock,
-            release_on_open=bool(cfg.get("release_stop", False)),
-        )
+        motors = _roboteq(path, cfg, spec, clock)
         arrays: tuple[Any, ...] = ()
         extras: dict[str, Any] = {"roboteq_emulator": emu}
-        if cfg.get("sonars", True):
+        if cfg.boolean("sonars", True):
             from hw.emulators.srf08 import SRF08Bus
 
-            heard = cfg.get("sonar_range_m")
-            r = math.inf if heard is None else _number(cfg, "sonar_range_m", 1.0, where)
+            r = cfg.number("sonar_range_m", math.inf, gt=0)
             bus = SRF08Bus(clock, lambda _addr, _t: r, addresses=DEFAULT_SONAR_ADDRESSES)
             extras["srf08_bus"] = bus
             arrays = _sonar_arrays(
                 bus,
                 DEFAULT_SONAR_ADDRESSES,
                 clock,
-                _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where),
+                cfg.number("sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, gt=0),
+                spec,
             )
     except BaseException:
         emu.stop()
@@ -243,54 +263,36 @@ def make_emulated_backend(cfg: dict[str, Any]) -> Backend:
     )
 
 
-def make_real_backend(cfg: dict[str, Any]) -> Backend:
+def make_real_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     """The Roboteq on a serial port and the SRF08 arrays on I2C (the ``real`` entry)."""
     from hw.clock import MonotonicClock
-    from hw.roboteq.driver import RoboteqMDC2230
-    from hw.roboteq.settings import RoboteqProtections
 
-    where = "real"
-    _check_keys(cfg, _REAL_KEYS, where)
-    port = cfg.get("port")
-    if not isinstance(port, str) or not port:
-        raise BackendConfigError(
-            "real backend config: port is required (the Roboteq's serial device, e.g. /dev/ttyACM0)"
-        )
+    cfg = backend_table(config, "real")
+    cfg.keys(_REAL_KEYS)
+    if "port" not in cfg:
+        raise cfg.source.missing(cfg.field("port"), "the Roboteq's serial device, e.g. /dev/ttyACM0")
+    port = cfg.string("port")
     spec = _spec(cfg)
     clock = MonotonicClock()
-    motors = RoboteqMDC2230(
-        port,
-        baudrate=_int(cfg, "baudrate", 115200, where),
-        timeout_s=_number(cfg, "timeout_s", 0.1, where),
-        retries=_int(cfg, "retries", 2, where),
-        watchdog_ms=_int(cfg, "watchdog_ms", 1000, where),
-        encoder_ppr=int(spec.encoder_ppr),
-        max_rpm=int(spec.max_motor_rpm),
-        gear_ratio=float(spec.gear_ratio),
-        encoder_on=spec.encoder_on,
-        protections=RoboteqProtections.from_spec(spec),
-        pid=design_pid_configs(spec),
-        clock=clock,
-        release_on_open=bool(cfg.get("release_stop", False)),
-    )
+    motors = _roboteq(port, cfg, spec, clock, baudrate=cfg.integer("baudrate", 115200, gt=0))
     arrays: tuple[Any, ...] = ()
     on_close: list[Callable[[], None]] = []
     joystick = None
     try:
-        if cfg.get("i2c_bus") is not None:
+        if "i2c_bus" in cfg:
             from hw.srf08 import open_bus
 
-            bus = open_bus(_int(cfg, "i2c_bus", 1, where))
+            bus = open_bus(cfg.integer("i2c_bus", ge=0))
             on_close.append(bus.close)
-            addresses = cfg.get("sonar_addresses", DEFAULT_SONAR_ADDRESSES)
+            addresses = _addresses(cfg)
             arrays = _sonar_arrays(
-                bus, addresses, clock, _number(cfg, "sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, where)
+                bus, addresses, clock, cfg.number("sonar_max_range_m", DEFAULT_SONAR_MAX_RANGE_M, gt=0), spec
             )
-        if cfg.get("joystick_port") is not None:
+        if "joystick_port" in cfg:
             from hw.joystick import SerialJoystick
             from hw.serial_lines import open_serial
 
-            transport = open_serial(str(cfg["joystick_port"]))
+            transport = open_serial(cfg.string("joystick_port"))
             on_close.append(transport.close)
             joystick = SerialJoystick(transport, clock=clock)
     except BaseException:

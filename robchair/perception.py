@@ -10,10 +10,27 @@ T_base_sensor(mount)`` (:mod:`robchair.frames`), then ``map.insert(points_world,
   a sonar map; the fused arc gives the *sonar distance*; the servo is turned toward the nearest echo;
 * laser scans: points (N, 3) in the scanner's frame, into the map.
 
-The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))`` (a
-:class:`mapping.vhv.VHVMap` by default; a probabilistic map is one ``map=`` argument away). Further
-*layers* (e.g. the simulation's map placed with ground-truth poses) receive the same frames placed
-with their own pose source.
+The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))``. By default
+it is a :class:`mapping.probabilistic.ProbabilisticVHV` (``map_kind="probabilistic"``: occupied and free
+evidence per vertical interval, so people who walk past are cleared and unknown is told apart from
+free); ``map_kind="thesis"`` gives the thesis's accumulate-only :class:`mapping.vhv.VHVMap`. Sonar
+readings go into a probabilistic map through its ``insert_sonar`` (free inside the zone's cone up to
+the fused range, occupied at the range; a reading with no echo gives free space up to
+:data:`SONAR_FREE_RANGE_M`), into a thesis map as the cone points only. Further *layers* (e.g. the
+simulation's map placed with ground-truth poses) receive the same frames placed with their own pose
+source; :meth:`Perception.new_map` makes them of the same kind.
+
+Scan-to-map matching (REP-105). With a :class:`mapping.matching.ScanMatcher`, each depth frame placed
+by odometry in ``odom`` is registered against the *matched* map before it is inserted; the matcher keeps
+``map -> odom`` (a rejected match keeps the previous one, i.e. odometry, and is counted by reason) and
+the frame goes into the matched map at ``T_map_odom x T_odom_sensor``. ``pose`` chooses which map is
+the main one (``odometry``, ``matched`` or ``ground-truth``); the others are kept beside it in
+:attr:`Perception.pose_maps`, so a run can compare them.
+
+Zoom. With ``zoom_half_width``, a :class:`mapping.zoom.ZoomMap` square of that half-width around the
+chair (moving with it) is mapped ``zoom_factor`` times finer, fed by the same points in the same insert
+as the main map (it shares the main VHV map as its coarse level); the corridor distance of the safety
+layer also asks it (:meth:`Perception.zoom_distance_m`), at the fine resolution.
 
 Depth frames go through a small pipeline so that capturing and mapping overlap the rest of the loop:
 a camera offering ``submit_read()`` (the simulated Kinect) captures up to ``camera.max_inflight``
@@ -24,6 +41,7 @@ threaded run and a serial one give the same maps and decisions bit for bit.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections import deque
@@ -37,10 +55,14 @@ import numpy as np
 from hw.interfaces import DepthFrame, SonarArrayReading
 from robchair.frames import se3_planar, transform_points
 from robchair.kinematics import Pose2D
-from robchair.spec import RobChairSpec
+from robchair.spec import RobChairSpec, SonarArrays
 
-SERVO_CENTRE_DEG = 90.0  # hw convention: servo 0..180 deg, 90 = the array faces its mount's x axis
+POSE_SOURCES = ("odometry", "matched", "ground-truth")
+SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
+MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
+NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
+SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
 
 
 class PointMap(Protocol):
@@ -71,19 +93,29 @@ class Corridor:
         return max(0.0, float(xy[inside, 0].min()) - self.front_x)
 
 
-def sonar_obstacle_points(reading: SonarArrayReading, mount: Any, n_arc: int = 9) -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _zone_tables(outer_sonar_deg: float) -> Any:
+    from mapping.sonar import zone_tables
+
+    return zone_tables(outer_sonar_deg)
+
+
+def sonar_obstacle_points(
+    reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9
+) -> np.ndarray:
     """Points (N, 2) in ``base_link`` where the fused obstacle of one array reading may lie.
 
     Five-zone fusion (thesis 5.2) gives the distance ``d`` and the bearing interval holding the
-    obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative).
+    obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative). The
+    outer sonars' angle and the servo's centre come from ``arrays`` (``spec.sonar_arrays``).
     """
     from mapping.sonar import fuse_array
 
     r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-    res = fuse_array(r1, r2, r3)
+    res = fuse_array(r1, r2, r3, tables=_zone_tables(arrays.outer_sonar_deg))
     if not res.has_obstacle:
         return np.zeros((0, 2))
-    yaw0 = mount.rpy[2] + math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+    yaw0 = mount.rpy[2] + arrays.joint_angle(reading.servo_angle_deg)
     bearings = np.radians(np.linspace(res.alpha_deg, res.alpha_deg + res.theta_deg, n_arc)) + yaw0
     x0, y0 = mount.xyz[0], mount.xyz[1]
     return np.stack([x0 + res.distance_m * np.cos(bearings), y0 + res.distance_m * np.sin(bearings)], axis=1)
@@ -147,6 +179,26 @@ class Perception:
         threaded: insert frames into the maps on a background thread.
         frames: extra sensor frames ``{frame_id: T_base_frame (4, 4)}`` beyond the spec's mounts.
         tolerance: merge tolerance of the default VHV maps, m.
+        matcher: a :class:`mapping.matching.ScanMatcher` to correct depth frames by scan-to-map matching
+            (None: no matching; ``pose="matched"`` makes a default one).
+        pose: the pose the main map is built with: ``"odometry"``, ``"matched"`` or ``"ground-truth"``.
+        ground_truth: ``() -> T_world_base`` (4, 4), the pose source of ``pose="ground-truth"``.
+        zoom_half_width: half-width, m, of the fine square around the chair (None: no zoom).
+        zoom_factor: refinement of the zoom (fine cell = grid cell / factor).
+        clear_no_return: a depth pixel without a return gives free space along its ray up to the
+            camera's ``max_range_m`` in maps that keep free space (OctoMap's max-range rays): open
+            space above the horizon and beyond the range clears people who walked there. A return
+            lost on a surface too close or too dark is cleared through too (the sonars cover the
+            close range; the safety layer's distances come from the frames' points, not the map).
+        depth_max_range_m: the depth camera's maximum range, m (None: its ``max_range_m`` attribute,
+            if it has one; without a range, no-return pixels give nothing).
+        map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
+            ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
+        evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
+            (default: the mapping core's defaults).
+
+    Raises:
+        ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
     """
 
     def __init__(
@@ -161,16 +213,65 @@ class Perception:
         threaded: bool = False,
         frames: dict[str, np.ndarray] | None = None,
         tolerance: float = 0.05,
+        matcher: Any = None,
+        pose: str = "odometry",
+        ground_truth: Callable[[], np.ndarray] | None = None,
+        zoom_half_width: float | None = None,
+        zoom_factor: int = 5,
+        map_kind: str = MAP_KINDS[0],
+        evidence_params: Any = None,
+        clear_no_return: bool = True,
+        depth_max_range_m: float | None = None,
     ) -> None:
         from mapping.grid import GridSpec
         from mapping.vhv import VHVMap
+        from robchair.errors import ConfigError
 
+        if pose not in POSE_SOURCES:
+            raise ConfigError(f"pose = {pose!r}: expected one of {', '.join(POSE_SOURCES)}")
+        if pose == "ground-truth" and ground_truth is None:
+            raise ConfigError("pose = 'ground-truth' needs a ground-truth pose source (a simulated chair)")
+        if map_kind not in MAP_KINDS:
+            raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
         self.spec = spec
+        self.map_kind = map_kind
+        self.tolerance = float(tolerance)
+        self.evidence_params = evidence_params
+        self.clear_no_return = bool(clear_no_return)
+        self.depth_max_range_m = depth_max_range_m
+        self._camera_range: float | None = None
+        self._rays: dict[tuple[str, int, int], np.ndarray] = {}
         self.grid = grid if grid is not None else GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
-        self.map: PointMap = map if map is not None else VHVMap(self.grid, tolerance)
+        self.map: PointMap = map if map is not None else self.new_map()
         if isinstance(sonar_map, str):
-            sonar_map = VHVMap(self.grid, tolerance)
+            sonar_map = self.new_map()
         self.sonar_map: PointMap = sonar_map if sonar_map is not None else self.map
+        if matcher is None and pose == "matched":
+            from mapping.matching import ScanMatcher
+
+            matcher = ScanMatcher()
+        self.matcher = matcher
+        self.pose = pose
+        self.ground_truth = ground_truth
+        # the maps of each pose source; the main one is self.map
+        self.pose_maps: dict[str, PointMap] = {pose: self.map}
+        if matcher is not None and "matched" not in self.pose_maps:
+            self.pose_maps["matched"] = VHVMap(self.grid, tolerance)
+        if pose != "odometry":
+            self.pose_maps["odometry"] = self.new_map()
+        if matcher is not None and not hasattr(self.pose_maps["matched"], "structures"):
+            raise ConfigError(f"scan-to-map matching needs a VHV map; got {type(self.pose_maps['matched'])}")
+        self.match_ms: list[float] = []
+        self.zoom: Any = None
+        self.zoom_half_width = zoom_half_width
+        if zoom_half_width is not None:
+            from mapping.zoom import ZoomMap
+
+            if not (math.isfinite(zoom_half_width) and zoom_half_width > 0):
+                raise ConfigError(f"zoom_half_width = {zoom_half_width!r}: expected metres > 0")
+            self.zoom = ZoomMap(self.grid, tolerance, factor=zoom_factor)
+            if isinstance(self.map, VHVMap) and self.map.spec == self.grid:
+                self.zoom.coarse = self.map  # one insert feeds both levels
         self.band = (float(band[0]), float(band[1]) if band[1] is not None else float(spec.body.height))
         self.corridor = Corridor.from_spec(spec)
         self.camera_stride = int(camera_stride)
@@ -179,11 +280,18 @@ class Perception:
         self._frames.update(frames or {})
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="perception-map") if threaded else None
         self._pending: deque[Future[None]] = deque()
-        self._inflight: deque[tuple[Any, np.ndarray, list[np.ndarray], Pose2D]] = deque()
+        self._inflight: deque[tuple[Any, dict[str, np.ndarray], list[np.ndarray], Pose2D]] = deque()
         self._lock = threading.Lock()
         self._depth: tuple[float | None, Pose2D] | None = None  # (distance at capture, pose at capture)
+        self._zoom_depth: tuple[float | None, Pose2D] | None = None  # the same from the zoom's fine cells
+        # what the loop sees of the mapping thread's work: the state after frame k - SNAPSHOT_LAG when
+        # frame k is delivered, threaded or not (so both runs decide the same, bit for bit)
+        self._seq = 0
+        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D]] = {}
+        self._frame_futs: dict[int, Future[None]] = {}
+        self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
-        self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns, world x, y
+        self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
         self.map_ms: list[float] = []
         self.stats = {
@@ -195,8 +303,17 @@ class Perception:
             "sonar_fusions_with_obstacle": 0,
             "sonar_points": 0,
             "laser_scans": 0,
+            "matches_accepted": 0,
+            "matches_rejected": 0,
         }
         self.last_depth_stamp_ns: int | None = None
+
+    def new_map(self) -> PointMap:
+        """An empty map of this stage's kind on its grid (``map_kind``, ``tolerance``, evidence params)."""
+        from mapping.probabilistic import make_map
+
+        params = self.evidence_params if self.map_kind == "probabilistic" else None
+        return make_map(self.grid, self.tolerance, self.map_kind, params)  # type: ignore[arg-type]
 
     # --- frames -----------------------------------------------------------------------------------
 
@@ -225,8 +342,11 @@ class Perception:
         With a camera that captures in the background (``submit_read``), the frame delivered is the
         one taken ``camera.max_inflight`` calls earlier.
         """
-        t_world_base = se3_planar(pose.x, pose.y, pose.theta)
+        t_world_base = {"odometry": se3_planar(pose.x, pose.y, pose.theta)}
+        if self.ground_truth is not None and "ground-truth" in self.pose_maps:
+            t_world_base["ground-truth"] = np.asarray(self.ground_truth(), dtype=float)
         layer_poses = [layer.t_world_base() for layer in self.layers]
+        self._camera_range = self.depth_max_range_m or getattr(camera, "max_range_m", None)
         submit = getattr(camera, "submit_read", None)
         depth = int(getattr(camera, "max_inflight", 0)) if submit is not None else 0
         fut: Any = submit() if submit is not None else _Done(camera.read())
@@ -248,46 +368,175 @@ class Perception:
         band = sub[(sub[:, 2] >= z0) & (sub[:, 2] <= z1)]
         self._depth = (self.corridor.distance_ahead(band[:, :2]), pose)
         self.last_depth_stamp_ns = frame.stamp_ns
-        placed = [(self.map, t_world_base @ t_base_sensor, True)]
-        placed += [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
-        self._submit(self._insert_frame, frame, placed)
+        placed = [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
+        self._take_snapshot()
+        fut = self._submit(self._insert_frame, frame, t_world_base, t_base_sensor, placed, pose, self._seq)
+        if fut is not None:
+            self._frame_futs[self._seq] = fut
+        self._seq += 1
         return frame
 
-    def _insert_frame(self, frame: DepthFrame, placed: list[tuple[PointMap, np.ndarray, bool]]) -> None:
+    def _take_snapshot(self) -> None:
+        """Make the mapping state after frame ``seq - SNAPSHOT_LAG`` the one the loop sees."""
+        if self.matcher is None and self.zoom is None:
+            return
+        k = self._seq - SNAPSHOT_LAG
+        fut = self._frame_futs.pop(k, None)
+        if fut is not None:
+            fut.result()
+        snap = self._after_frame.pop(k, None)
+        if snap is not None:
+            self._t_map_odom, d, pose = snap
+            self._zoom_depth = (d, pose) if self.zoom is not None else None
+
+    def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
+                      placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D,
+                      seq: int) -> None:  # fmt: skip
         pts = np.asarray(frame.points).reshape(-1, 3)
-        for m, t, main in placed:
+        t_odom_sensor = t_world_base["odometry"] @ t_base_sensor
+        poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
+        if self.matcher is not None:
+            # the frame, placed by odometry in odom, is registered against the matched map first
+            res = self.matcher.match(
+                transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"]
+            )
+            poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor
+            with self._lock:
+                self.match_ms.append(res.ms)
+                self.stats["matches_accepted" if res.accepted else "matches_rejected"] += 1
+        main = [(self.zoom if self.zoom is not None and self.zoom.coarse is self.map else self.map,
+                 poses[self.pose], True)]  # fmt: skip
+        if self.zoom is not None:
+            t_main_base = poses[self.pose] @ np.linalg.inv(t_base_sensor)
+            self.zoom.follow(t_main_base[0, 3], t_main_base[1, 3], self.zoom_half_width)
+            if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
+                main.append((self.zoom, poses[self.pose], False))
+        others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
+        r = self._camera_range if self.clear_no_return else None
+        far = self._no_return_points(frame, r) if r else None
+        for m, t, is_main in main + others + placed:
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
-            if main and s is not None:
+            if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
+                s = s[0]
+            free_ms = 0.0
+            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
+            if far is not None and len(far) and insert_free is not None:
+                # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays),
+                # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
+                # floor within the range lost its return on something (or grazing the floor), not in air
+                fw = transform_points(t, far, np.float32)
+                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3])
+                free_ms = float(getattr(f, "build_ms", 0.0))
+            if is_main and s is not None:
                 with self._lock:
-                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)))
+                    self.map_ms.append(float(getattr(s, "build_ms", math.nan)) + free_ms)
                     st = self.stats
                     st["depth_frames"] += 1
                     st["points_in"] += int(getattr(s, "points_in", 0))
                     st["points_dropped_nonfinite"] += int(getattr(s, "points_dropped_nonfinite", 0))
                     st["points_outside_grid"] += int(getattr(s, "points_outside_grid", 0))
+        if self.matcher is not None or self.zoom is not None:
+            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
+            with self._lock:
+                self._after_frame[seq] = (t, d, pose)
 
-    def _submit(self, fn: Callable[..., None], *args: Any) -> None:
+    def _no_return_points(self, frame: DepthFrame, range_m: float) -> np.ndarray | None:
+        """Points (M, 3) in the camera frame at depth ``range_m`` along the rays of no-return pixels.
+
+        The pixel rays come from a pinhole model fitted once per (frame_id, H, W) to the frame's own
+        returns (``y/x`` linear in the column, ``z/x`` in the row); a frame that does not fit a pinhole
+        (residual over 1 %) gives none. Every ``camera_stride``-th pixel each way is used: the free
+        space is built per cell, not per ray.
+        """
+        pts = np.asarray(frame.points)
+        if pts.ndim != 3:
+            return None
+        h, w = pts.shape[:2]
+        key = (frame.frame_id, h, w)
+        rays = self._rays.get(key)
+        if rays is None:
+            x = pts[..., 0]
+            ok = np.isfinite(pts).all(axis=2) & (x > 1e-3)
+            if ok.sum() < 100:
+                return None
+            v, u = np.nonzero(ok)
+            a, b = pts[v, u, 1] / x[v, u], pts[v, u, 2] / x[v, u]
+            cu, cv = np.polyfit(u, a, 1), np.polyfit(v, b, 1)
+            if max(np.abs(np.polyval(cu, u) - a).max(), np.abs(np.polyval(cv, v) - b).max()) > 0.01:
+                self._rays[key] = np.zeros((0, 0, 3))  # not a pinhole camera: no free space from no-returns
+                return None
+            s = self.camera_stride
+            uu, vv = np.meshgrid(np.arange(w)[::s], np.arange(h)[::s])
+            d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
+            rays = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            self._rays[key] = rays
+        if rays.size == 0:
+            return None
+        s = self.camera_stride
+        nan = ~np.isfinite(pts[::s, ::s]).all(axis=2)
+        d = rays[nan]
+        return np.asarray(d * (range_m / d[:, :1]))  # the range is a depth (x), not a distance
+
+    def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:
             fn(*args)
-            return
+            return None
         while self._pending and self._pending[0].done():
             self._pending.popleft().result()  # a mapping error surfaces here, in the loop
         while len(self._pending) >= 3:
             self._pending.popleft().result()
-        self._pending.append(self._pool.submit(fn, *args))
+        fut = self._pool.submit(fn, *args)
+        self._pending.append(fut)
+        return fut
 
     def depth_distance_m(self, pose: Pose2D) -> float | None:
         """Nearest depth point in the band inside the corridor ahead, from the front edge, m.
 
-        Measured at the pose of its frame; the forward travel since then is taken off.
+        Measured at the pose of its frame; the forward travel since then is taken off. With a zoom,
+        the nearer of this and :meth:`zoom_distance_m` (the map remembers what the camera no longer
+        sees, e.g. closer than its minimum range).
         """
-        if self._depth is None:
+        return _min_opt(_travelled(self._depth, pose), self.zoom_distance_m(pose))
+
+    def zoom_distance_m(self, pose: Pose2D) -> float | None:
+        """Nearest fine zoom cell in the band inside the corridor ahead, from the front edge, m.
+
+        Answered at the zoom's fine resolution (None: no zoom, or nothing ahead in it), measured
+        when the last frame was inserted; the forward travel since then is taken off.
+        """
+        return _travelled(self._zoom_depth, pose)
+
+    def _zoom_corridor(self, t_world_base: np.ndarray) -> float | None:
+        """Corridor distance of the zoom's fine cells whose structures overlap the band."""
+        fine = self.zoom.fine if self.zoom is not None else None
+        if fine is None:
             return None
-        d, p0 = self._depth
-        if d is None:
+        s = fine.structures()
+        z0, z1 = self.band
+        hit = (s.top >= z0) & (s.bottom <= z1)
+        if not hit.any():
             return None
-        fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
-        return max(0.0, d - max(0.0, fwd))
+        x, y = fine.spec.index_to_world(s.i[hit], s.j[hit])
+        rot = t_world_base[:2, :2]
+        xy = (np.column_stack([x, y]) - t_world_base[:2, 3]) @ rot  # world -> base_link
+        return self.corridor.distance_ahead(xy)
+
+    def _t_main_base(self, pose: Pose2D) -> np.ndarray:
+        """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
+        if self.pose == "ground-truth" and self.ground_truth is not None:
+            return np.asarray(self.ground_truth(), dtype=float)
+        t = se3_planar(pose.x, pose.y, pose.theta)
+        return self.t_map_odom @ t if self.pose == "matched" else t
+
+    @property
+    def t_map_odom(self) -> np.ndarray:
+        """(4, 4) ``map -> odom`` of the scan-to-map matching (identity without a matcher).
+
+        As the loop sees it: the matcher's transform after the frame delivered :data:`SNAPSHOT_LAG`
+        frames ago (the mapping thread may be further), the same threaded or not.
+        """
+        return np.array(self._t_map_odom)
 
     # --- sonars -----------------------------------------------------------------------------------
 
@@ -304,8 +553,9 @@ class Perception:
             self._sonar[name] = None
             return None
         ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-        fusion, pts = array_points(ranges)
-        arc = sonar_obstacle_points(reading, mount)
+        arrays = self.spec.sonar_arrays
+        fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
+        arc = sonar_obstacle_points(reading, mount, arrays)
         if len(arc) and self._scan_world is not None:  # the laser locates the echo's surface if it sees it
             c, s = math.cos(pose.theta), math.sin(pose.theta)
             q = self._scan_world - (pose.x, pose.y)
@@ -315,8 +565,13 @@ class Perception:
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
-        if len(pts):
-            joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+        joint = arrays.joint_angle(reading.servo_angle_deg)
+        insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
+        if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
+            t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
+            insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
+            self.stats["sonar_points"] += len(pts)
+        elif len(pts):
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
             self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
@@ -337,9 +592,10 @@ class Perception:
 
     def add_scan(self, frame_id: str, points: Any, pose: Pose2D) -> None:
         """Insert a laser scan: ``points`` (N, 3) in ``frame_id`` (NaN rows = no return), at ``pose``."""
-        t = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
+        t = self._t_main_base(pose) @ self.t_base_sensor(frame_id)
         p = np.asarray(points, dtype=float).reshape(-1, 3)
-        w = transform_points(t, p[np.isfinite(p).all(axis=1)])
+        t_odom = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
+        w = transform_points(t_odom, p[np.isfinite(p).all(axis=1)])
         self._scan_world = w[(w[:, 2] >= self.band[0]) & (w[:, 2] <= self.band[1]), :2]
         self._submit(lambda: self.map.insert(transform_points(t, p), sensor_origin=t[:3, 3]))
         self.stats["laser_scans"] += 1
@@ -353,12 +609,39 @@ class Perception:
         while self._pending:
             self._pending.popleft().result()
 
-    def occupancy_2d(self, which: PointMap | None = None) -> np.ndarray:
-        """2D occupancy (bool, grid shape) of the height band in a map (default the main one)."""
-        from mapping.derived import occupancy_2d
+    def wait_for_maps(self) -> None:
+        """Wait for the map insertions already submitted (frames still being captured stay in flight)."""
+        while self._pending:
+            self._pending.popleft().result()
+
+    def occupancy_2d(self, which: PointMap | None = None, unknown: int = -1) -> np.ndarray:
+        """Three-valued 2D map (int8, grid shape) of the height band in a map (default the main one).
+
+        ``nav_msgs/OccupancyGrid`` codes: 100 occupied, 0 free, ``unknown`` (default -1) where nothing
+        is known; pass ``unknown=100`` to treat unknown as blocked or 0 as free. A probabilistic map
+        answers from its evidence (occupied above its occupancy threshold, remembered free space); the
+        thesis map knows no free space: a cell is 100 when a structure overlaps the band, 0 when it
+        holds only structures outside the band (seen, nothing in the band), unknown otherwise.
+
+        Raises:
+            MappingError: ``unknown`` not one of -1, 0, 100.
+        """
+        from mapping.derived import occupancy_codes
 
         self.flush()
-        return occupancy_2d(which if which is not None else self.map, *self.band)  # type: ignore[arg-type]
+        return occupancy_codes(which if which is not None else self.map, self.band, unknown=unknown)
+
+    def occupied_2d(self, which: PointMap | None = None) -> np.ndarray:
+        """2D occupancy (bool, grid shape) of the height band: True where the map is occupied.
+
+        Unknown is not occupied (for a probabilistic map: an interval overlapping the band at or above
+        the occupancy threshold; for the thesis map: a structure overlapping the band).
+        """
+        return np.asarray(self.occupancy_2d(which) == 100)
+
+    def free_2d(self, which: PointMap | None = None, unknown_is_free: bool = False) -> np.ndarray:
+        """Cells (bool, grid shape) where the height band is free; unknown counts as free only if asked."""
+        return np.asarray(self.occupancy_2d(which, unknown=0 if unknown_is_free else 100) == 0)
 
     def close(self) -> None:
         """Finish pending work and stop the mapping thread."""
@@ -368,3 +651,21 @@ class Perception:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
+
+
+def _travelled(measured: tuple[float | None, Pose2D] | None, pose: Pose2D) -> float | None:
+    """A corridor distance measured at pose ``p0``, less the forward travel from ``p0`` to ``pose``."""
+    if measured is None:
+        return None
+    d, p0 = measured
+    if d is None:
+        return None
+    fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
+    return max(0.0, d - max(0.0, fwd))
+
+
+def _min_opt(a: float | None, b: float | None) -> float | None:
+    """The smaller of two optional distances (None = no obstacle)."""
+    if a is None:
+        return b
+    return a if b is None else min(a, b)

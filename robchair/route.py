@@ -9,14 +9,14 @@ when the route is done.
 from __future__ import annotations
 
 import math
-import tomllib
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from robchair.errors import ConfigError
+from robchair.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass, load_toml
 from robchair.frames import invert, se2, transform_points
 from robchair.kinematics import DiffDrive, Pose2D
 from robchair.sources import Command, Observation
@@ -36,51 +36,47 @@ class Route:
         goal_tolerance_m = 0.1 # done when this close to the last waypoint, m
 
     Raises:
-        ConfigError: fewer than two waypoints, a non-finite waypoint, or a non-positive number.
+        ConfigError: fewer than two waypoints, a non-finite waypoint, a non-positive number or an
+            unknown key, in the :mod:`robchair.config` dialect (``route.speed = -1.0: expected ...``).
     """
 
     waypoints: tuple[tuple[float, float], ...]
-    speed: float = 0.3
-    lookahead_m: float = 0.6
-    goal_tolerance_m: float = 0.1
+    speed: float = field(default=0.3, metadata=bounds(gt=0))
+    lookahead_m: float = field(default=0.6, metadata=bounds(gt=0))
+    goal_tolerance_m: float = field(default=0.1, metadata=bounds(gt=0))
 
     def __post_init__(self) -> None:
-        if len(self.waypoints) < 2:
-            raise ConfigError(f"route.waypoints: expected at least 2 points, got {len(self.waypoints)}")
-        for i, p in enumerate(self.waypoints):
-            if len(p) != 2 or not all(math.isfinite(c) for c in p):
-                raise ConfigError(f"route.waypoints[{i}] = {p!r}: expected finite [x, y]")
-        for name in ROUTE_KEYS[1:]:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"route.{name} = {v!r}: expected a finite number > 0")
+        _check_waypoints(ConfigTable({"waypoints": _as_lists(self.waypoints)}, where="route"))
+        check_dataclass(self, "route")
 
     @classmethod
     def load(cls, path: Path | str) -> Route:
-        path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"route file {path}: not valid TOML: {exc}") from exc
-        except OSError as exc:
-            raise ConfigError(f"route file {path}: cannot be read: {exc.strerror}") from exc
-        return cls.from_dict(data, str(path))
+        """Read a route file (see the class docstring).
+
+        Raises:
+            ConfigError: the file is missing, unreadable, not TOML, or a key is unknown or invalid
+                (``<file>:<line>: <key> = <value>: expected <what>``).
+        """
+        data, source = load_toml(path, what="route file")
+        return cls.from_dict(data, source)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> Route:
-        unknown = set(data) - set(ROUTE_KEYS)
-        if unknown:
-            raise ConfigError(
-                f"route {source}: unknown key(s) {sorted(unknown)}; allowed: {', '.join(ROUTE_KEYS)}"
-            )
-        if "waypoints" not in data:
-            raise ConfigError(f"route {source}: 'waypoints' is required")
-        try:
-            wps = tuple((float(p[0]), float(p[1])) if len(p) == 2 else tuple(p) for p in data["waypoints"])
-            kw = {k: float(data[k]) for k in ROUTE_KEYS[1:] if k in data}
-        except (TypeError, ValueError, IndexError) as exc:
-            raise ConfigError(f"route {source}: waypoints must be [[x, y], ...] numbers: {exc}") from exc
-        return cls(wps, **kw)  # type: ignore[arg-type]
+    def from_dict(
+        cls, data: Mapping[str, Any] | ConfigTable, source: ConfigSource | None = None, where: str = ""
+    ) -> Route:
+        """From a TOML table (``where`` is its path in the file, e.g. ``"route"``), checked key by key."""
+        table = data if isinstance(data, ConfigTable) else ConfigTable(data, source, where)
+        table.keys(ROUTE_KEYS)
+        _check_waypoints(table)
+        return load_dataclass(cls, table)
+
+
+def _check_waypoints(table: ConfigTable) -> None:
+    table.points("waypoints", min_count=2)
+
+
+def _as_lists(v: Any) -> Any:
+    return [_as_lists(a) for a in v] if isinstance(v, tuple | list) else v
 
 
 class PurePursuit:

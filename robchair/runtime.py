@@ -39,7 +39,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,10 +48,11 @@ import numpy as np
 
 from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
+from robchair.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
 from robchair.errors import ConfigError, RobChairError
 from robchair.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.observers import Observer
-from robchair.perception import Corridor, Perception, sonar_obstacle_points
+from robchair.perception import MAP_KINDS, Corridor, Perception, sonar_obstacle_points
 from robchair.route import PurePursuit, Route
 from robchair.safety import SafetyDecision, SafetyInputs, SafetyLayer, SafetyLimits, StopReason, StopRecord
 from robchair.sources import Command, CommandSource, JoystickSource, Observation, PolicySource
@@ -97,32 +98,37 @@ class RuntimeConfig:
         camera_every: read the depth camera every this many cycles (0 = never).
         sonar_every: read the sonar arrays every this many cycles (0 = never).
         stop_on_driver_fault: end the run after a driver fault (the chair is stopped either way).
+        map_kind: map of the default perception stage: ``"probabilistic"`` (occupied, free and unknown
+            per vertical interval) or ``"thesis"`` (accumulate only); see :class:`Perception`.
     """
 
-    rate_hz: float = 10.0
-    deadline_slack: float = 0.25
-    camera_every: int = 5
-    sonar_every: int = 1
+    rate_hz: float = field(default=10.0, metadata=bounds(gt=0))
+    deadline_slack: float = field(default=0.25, metadata=bounds(ge=0))
+    camera_every: int = field(default=5, metadata=bounds(ge=0))
+    sonar_every: int = field(default=1, metadata=bounds(ge=0))
     stop_on_driver_fault: bool = True
+    map_kind: str = "probabilistic"
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.rate_hz, int | float) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ConfigError(f"runtime.rate_hz = {self.rate_hz!r}: expected a finite number > 0")
-        if not (math.isfinite(self.deadline_slack) and self.deadline_slack >= 0):
-            raise ConfigError(f"runtime.deadline_slack = {self.deadline_slack!r}: expected >= 0")
-        for name in ("camera_every", "sonar_every"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ConfigError(f"runtime.{name} = {v!r}: expected a whole number >= 0")
+        check_dataclass(self, "runtime")
+        if self.map_kind not in MAP_KINDS:
+            raise ConfigError(f"runtime.map_kind = {self.map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "[runtime]") -> RuntimeConfig:
-        """From a TOML table; an unknown key is one error naming it and the allowed keys."""
-        allowed = list(cls.__dataclass_fields__)
-        unknown = set(data) - set(allowed)
-        if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {', '.join(allowed)}")
-        return cls(**data)
+    def from_dict(
+        cls,
+        data: Mapping[str, Any] | ConfigTable,
+        source: ConfigSource | None = None,
+        where: str = "runtime",
+        **overrides: Any,
+    ) -> RuntimeConfig:
+        """From a TOML table (``where`` is its path, e.g. ``"runtime"``); ``overrides`` replace keys.
+
+        Raises:
+            ConfigError: an unknown key, a wrong type or a value out of range
+                (``<file>:<line>: runtime.<key> = <value>: expected <what>``).
+        """
+        return load_dataclass(cls, data, source, where, **overrides)
 
 
 @dataclass(frozen=True)
@@ -262,7 +268,9 @@ class Runtime:
         self.drive = DiffDrive(self.spec)
         self.safety = safety if safety is not None else SafetyLayer(SafetyLimits.from_spec(self.spec))
         self.safety_enabled = bool(safety_enabled)
-        self.perception = perception if perception is not None else Perception(self.spec)
+        self.perception = (
+            perception if perception is not None else Perception(self.spec, map_kind=self.config.map_kind)
+        )
         self.observers = list(observers)
         self.odometry = Odometry(self.spec, start_pose)
         self.period_ns = round(1e9 / self.config.rate_hz)
@@ -641,12 +649,32 @@ class Runtime:
         ]
         p = self.perception
         res.maps["odometry"] = p.map
+        for name, m in getattr(p, "pose_maps", {}).items():  # odometry, matched, ground truth
+            res.maps[name.replace("-", "_")] = m
+        res.extra.setdefault("map", {})["kind"] = getattr(p, "map_kind", None)
         if p.sonar_map is not p.map:
             res.maps["sonar"] = p.sonar_map
         ms = np.asarray(p.map_ms) if p.map_ms else np.array([np.nan])
         res.extra["frames"] = dict(p.stats)
         res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
         res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        zoom = getattr(p, "zoom", None)
+        if zoom is not None and zoom.fine is not None:
+            res.maps["zoom"] = zoom.fine
+            res.extra["zoom"] = {"region_m": list(zoom.region), "cell_size_m": zoom.fine_cell_size,
+                                 "structures": zoom.fine.n_structures}  # fmt: skip
+        matcher = getattr(p, "matcher", None)
+        if matcher is not None:
+            mm = np.asarray(p.match_ms) if p.match_ms else np.array([np.nan])
+            res.extra["matching"] = {
+                "pose": p.pose,
+                "frames": len(p.match_ms),
+                "accepted": p.stats["matches_accepted"],
+                "rejected": dict(sorted(matcher.rejections.items())),
+                "ms_per_frame_median": float(np.median(mm)) if p.match_ms else None,
+                "ms_per_frame_p90": float(np.percentile(mm, 90)) if p.match_ms else None,
+                "t_map_odom_final": [float(v) for v in _planar(p.t_map_odom)],
+            }
         poses = np.asarray(res.poses, dtype=np.float64).reshape(-1, 4)
         res.paths["odometry"] = poses[:, 1:]
         trips = getattr(self.backend.motors, "watchdog_trips", None)
@@ -704,6 +732,11 @@ def _has_servo(array: Any) -> bool:
     if flag is not None:
         return bool(flag)
     return getattr(array, "servo", None) is not None and hasattr(array, "set_servo_deg")
+
+
+def _planar(t: np.ndarray) -> tuple[float, float, float]:
+    """(x, y, yaw) of a planar (4, 4) transform."""
+    return float(t[0, 3]), float(t[1, 3]), math.atan2(float(t[1, 0]), float(t[0, 0]))
 
 
 def _min_or(a: float | None, b: float | None) -> float | None:

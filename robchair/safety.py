@@ -32,9 +32,12 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
-from robchair.errors import ConfigError
+from robchair.config import ConfigTable, bounds, check_dataclass, load_dataclass
+from robchair.spec import RobChairSpec
 
 log = logging.getLogger(__name__)
 
@@ -64,43 +67,53 @@ class SafetyLimits:
         stale_after_s: a sensor older than this stops the chair, s.
     """
 
-    max_speed: float = 0.62
-    max_yaw_rate: float = 2.14
-    max_accel: float = 0.5
-    max_yaw_accel: float = 1.5
-    brake_decel: float = 0.8
-    reaction_time_s: float = 0.3
-    margin_m: float = 0.15
-    stale_after_s: float = 0.5
+    max_speed: float = field(default=0.62, metadata=bounds(gt=0))
+    max_yaw_rate: float = field(default=2.14, metadata=bounds(gt=0))
+    max_accel: float = field(default=0.5, metadata=bounds(gt=0))
+    max_yaw_accel: float = field(default=1.5, metadata=bounds(gt=0))
+    brake_decel: float = field(default=0.8, metadata=bounds(gt=0))
+    reaction_time_s: float = field(default=0.3, metadata=bounds(gt=0))
+    margin_m: float = field(default=0.15, metadata=bounds(gt=0))
+    stale_after_s: float = field(default=0.5, metadata=bounds(gt=0))
 
     def __post_init__(self) -> None:
-        for name in self.__dataclass_fields__:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"safety.{name} = {value!r}: expected a finite number > 0")
+        check_dataclass(self, "safety")
 
     @classmethod
-    def from_spec(cls, spec: object, **overrides: float) -> SafetyLimits:
-        """Speed caps from the platform (``DiffDrive.max_speed``, ``max_yaw_rate``), the rest default."""
+    def from_spec(
+        cls,
+        spec: RobChairSpec,
+        table: Mapping[str, Any] | ConfigTable | None = None,
+        /,
+        **overrides: float,
+    ) -> SafetyLimits:
+        """Speed caps from the platform (``DiffDrive.max_speed``, ``max_yaw_rate``), the rest default.
+
+        Args:
+            spec: The platform.
+            table: A ``[safety]`` TOML table (a :class:`robchair.config.ConfigTable` carries its file
+                and path for the messages); a plain mapping is addressed as ``safety``.
+            **overrides: Values that replace the table's (e.g. a sweep's parameters).
+
+        Raises:
+            ConfigError: an unknown key, a wrong type, a value <= 0, or a speed cap above the
+                platform maximum (``<file>:<line>: safety.max_speed = 1.0: expected ...``).
+        """
         from robchair.kinematics import DiffDrive
 
-        drive = DiffDrive(spec)  # type: ignore[arg-type]
+        drive = DiffDrive(spec)
+        if not isinstance(table, ConfigTable):
+            table = ConfigTable(dict(table or {}), where="safety")
         base = {"max_speed": drive.max_speed, "max_yaw_rate": drive.max_yaw_rate}
-        unknown = set(overrides) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(
-                f"safety: unknown keys {sorted(unknown)}; expected {sorted(cls.__dataclass_fields__)}"
-            )
-        for k, v in overrides.items():
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                raise ConfigError(f"safety.{k} = {v!r}: expected a number")
-            base[k] = float(v)
-        if base["max_speed"] > drive.max_speed or base["max_yaw_rate"] > drive.max_yaw_rate:
-            raise ConfigError(
-                f"safety.max_speed/max_yaw_rate = {base['max_speed']}/{base['max_yaw_rate']}: above the "
-                f"platform maximum {drive.max_speed:.3f} m/s / {drive.max_yaw_rate:.3f} rad/s"
-            )
-        return cls(**base)
+        merged = ConfigTable({**base, **table.data, **overrides}, table.source, table.where)
+        limits = load_dataclass(cls, merged)
+        for key, cap, unit in (
+            ("max_speed", drive.max_speed, "m/s"),
+            ("max_yaw_rate", drive.max_yaw_rate, "rad/s"),
+        ):
+            if getattr(limits, key) > cap:
+                raise merged.invalid(key, f"a finite number <= the platform maximum {cap:.3f} {unit}")
+        return limits
 
     def stopping_distance(self, speed: float) -> float:
         """Distance needed to stop from ``speed`` m/s plus the margin, m."""

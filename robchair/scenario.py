@@ -14,8 +14,9 @@ One run:
 3. observers: the run recorder (MCAP bag), the ground-truth evaluation (odometry drift, maps against
    the scene, collisions), a progress bar;
 4. writes the run folder atomically (:mod:`robchair.outdir`): ``metrics.json`` (the schema of every
-   run), ``maps.npz``, the map exports and pictures of :mod:`mapping.export` (``map/``), a rendered
-   ``scene.png`` and the bag.
+   run), ``maps.npz`` (each map's structures and its three-valued 2D occupancy of the height band,
+   ``nav_msgs/OccupancyGrid`` codes), the map exports and pictures of :mod:`mapping.export`
+   (``map/``), a rendered ``scene.png`` and the bag.
 
 A failure inside the loop (e.g. the physics diverging) stops the chair; what was recorded so far is
 written (``status`` = ``"error"`` in the metrics) and the error is raised afterwards. Same scenario +
@@ -37,6 +38,7 @@ import numpy as np
 from robchair.errors import ConfigError
 from robchair.kinematics import DiffDrive, Pose2D
 from robchair.observers import Observer
+from robchair.perception import MAP_KINDS
 from robchair.route import PurePursuit, Route
 from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
 from robchair.safety import SafetyLayer, SafetyLimits
@@ -48,6 +50,9 @@ CELL_SIZE = 0.05
 MAP_TOLERANCE = 0.05
 GRID_MARGIN = 1.0
 GOAL_TOLERANCE_M = 0.15
+POSE_DEFAULT = "odometry"  # the pose the run's map is built with (see robchair.perception.POSE_SOURCES)
+ZOOM_HALF_WIDTH_M = 1.0  # a 2 m x 2 m fine region around the chair ...
+ZOOM_FACTOR = 5  # ... at 1 cm (5 cm / 5)
 
 
 def grid_covering(xy_min: tuple[float, float], xy_max: tuple[float, float], cell_size: float = CELL_SIZE,
@@ -143,6 +148,10 @@ def run_scenario(
     safety: bool = True,
     safety_limits: SafetyLimits | None = None,
     bag_storage: str = "mcap",
+    pose: str = POSE_DEFAULT,
+    matching: bool = True,
+    zoom: bool = True,
+    map_kind: str = "probabilistic",
 ) -> RunResult:
     """Run a scenario through the runtime and (with ``write``) write its run folder.
 
@@ -164,6 +173,13 @@ def run_scenario(
         safety: the safety layer on (default) or off (recorded in the metrics).
         safety_limits: limits of the safety layer (default: from the spec).
         bag_storage: ``"mcap"`` or ``"sqlite3"``.
+        pose: the pose the run's map is built with: ``"odometry"``, ``"matched"`` (scan-to-map
+            matching, :mod:`mapping.matching`) or ``"ground-truth"``.
+        matching: run the scan-to-map matching (its map and drift beside the others); forced by
+            ``pose="matched"``.
+        zoom: map a 2 m x 2 m region around the chair at 1 cm (:mod:`mapping.zoom`).
+        map_kind: the maps (odometry and ground-truth pose): ``"probabilistic"`` (free space and
+            unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).
@@ -185,13 +201,15 @@ def run_scenario(
     seed = scenario.seed if seed is None else int(seed)
     if seed < 0:
         raise ConfigError(f"seed = {seed}: expected >= 0")
+    if map_kind not in MAP_KINDS:
+        raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
     wall0 = time.perf_counter()
     chair = SimChair(spec, scenario.scene, scenario.start, sensor=camera,
                      sonars=scenario.sonars and sensors, seed=seed, camera_backend=camera_backend,
                      raycast_threads=raycast_threads)  # fmt: skip
     backend = backend_from_chair(chair, default_watchdog_ms(CONTROL_HZ), threaded=pipeline)
     config = RuntimeConfig(rate_hz=CONTROL_HZ, camera_every=KINECT_EVERY,
-                           sonar_every=sonar_every(chair, sonar_hz))  # fmt: skip
+                           sonar_every=sonar_every(chair, sonar_hz), map_kind=map_kind)  # fmt: skip
     target = None
     if write:
         target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
@@ -199,11 +217,11 @@ def run_scenario(
         if target is None:
             return _drive(scenario, spec, chair, backend, config, duration, None, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom))  # fmt: skip
         with staged_output_dir(target) as stage:
             res = _drive(scenario, spec, chair, backend, config, duration, stage, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom))  # fmt: skip
         res.out_dir = target.resolve()
         if res.error is not None and res.exception is not None:
             raise res.exception
@@ -214,11 +232,13 @@ def run_scenario(
 
 def _options(progress: bool, write_bag: bool, mapping_thread: bool, ground_truth_map: bool, safety: bool,
             safety_limits: SafetyLimits | None, bag_storage: str, pictures: bool, sensor: str, seed: int,
-            camera_backend: str, wall0: float) -> dict[str, Any]:  # fmt: skip
+            camera_backend: str, wall0: float, pose: str = POSE_DEFAULT, matching: bool = True,
+            zoom: bool = True) -> dict[str, Any]:  # fmt: skip
     return dict(progress=progress, write_bag=write_bag, mapping_thread=mapping_thread,
                 ground_truth_map=ground_truth_map, safety=safety, safety_limits=safety_limits,
                 bag_storage=bag_storage, pictures=pictures, sensor=sensor, seed=seed,
-                camera_backend=camera_backend, wall0=wall0)  # fmt: skip
+                camera_backend=camera_backend, wall0=wall0, pose=pose, matching=matching,
+                zoom=zoom)  # fmt: skip
 
 
 def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: RuntimeConfig,
@@ -231,8 +251,18 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     cam = backend.depth_camera
     if cam is not None and cam.frame_id not in spec.mounts:  # HD/qHD clouds are in the colour camera
         frames[cam.frame_id] = spec.mounts["kinect_link"].transform() @ cam.link_to_frame()
+    matcher = None
+    if o.get("matching", True) or o.get("pose") == "matched":
+        from mapping.matching import ScanMatcher
+
+        matcher = ScanMatcher()
+    depth_range = chair.kinect.model.max_range_m if chair.kinect is not None else None
     perception = Perception(spec, grid=scenario_grid(scenario), threaded=o["mapping_thread"], frames=frames,
-                            tolerance=MAP_TOLERANCE)  # fmt: skip
+                            tolerance=MAP_TOLERANCE, matcher=matcher, pose=o.get("pose", POSE_DEFAULT),
+                            ground_truth=chair.ground_truth_transform,
+                            zoom_half_width=ZOOM_HALF_WIDTH_M if o.get("zoom", True) else None,
+                            zoom_factor=ZOOM_FACTOR, map_kind=config.map_kind,
+                            depth_max_range_m=depth_range)  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
     recorder = None
@@ -281,13 +311,46 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     return res
 
 
+def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) -> None:
+    """``zoom_2d.png``: the run's map with the zoom region outlined, beside the region at its fine cells.
+
+    Occupancy in the height ``band`` (m); the region is where it was at the end of the run.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    from mapping.derived import occupancy_2d
+
+    main = res.maps.get(res.extra.get("matching", {}).get("pose", "odometry").replace("-", "_"))
+    main = main if main is not None else res.maps["odometry"]
+    fine = res.maps["zoom"]
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [2, 1]})
+    for ax, m, title in ((ax0, main, "map"), (ax1, fine, "zoom")):
+        x0, x1, y0, y1 = m.spec.extent
+        ax.imshow(occupancy_2d(m, *band).T, origin="lower", extent=(x0, x1, y0, y1), cmap="Greys",
+                  interpolation="nearest")  # fmt: skip
+        ax.set_title(f"{title}: {m.spec.cell_size * 100:g} cm cells")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    x0, x1, y0, y1 = fine.spec.extent
+    ax0.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="tab:red", linewidth=1.5))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
     """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
+    from mapping.derived import occupancy_codes
+
     arrays: dict[str, np.ndarray] = {}
+    band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
     for name, m in res.maps.items():
         s = m.structures()
         for field in ("i", "j", "bottom", "top"):
             arrays[f"{name}_{field}"] = np.asarray(getattr(s, field))
+        # nav_msgs/OccupancyGrid codes of the band: 100 occupied, 0 free, -1 unknown
+        arrays[f"{name}_occupancy"] = occupancy_codes(m, (float(band[0]), float(band[1])))
     for name, p in res.paths.items():
         arrays[f"path_{name}"] = p
     np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
@@ -299,13 +362,14 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
 
         t0 = time.perf_counter()
         (out / "map").mkdir()
-        band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
         write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
                           build_ms=res.extra.get("mapping_ms_total"),
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip
+        if "zoom" in res.maps:
+            write_zoom_picture(res, tuple(band), out / "map" / "zoom_2d.png")
         import matplotlib.pyplot as plt
 
-        plt.imsave(out / "scene.png", render_scene(scenario, spec))
+        plt.imsave(out / "scene.png", render_scene(scenario, spec, path=res.paths.get("ground_truth")))
         files += ["map", "scene.png"]
         timing["pictures"] = time.perf_counter() - t0
     if "bag" in res.extra:

@@ -490,18 +490,6 @@ def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals
     return depth, nrm, body, link
 
 
-@numba.njit(cache=True, nogil=True)
-def transform_points(t, pts):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """``R p + t`` of the 4x4 transform ``t`` for (..., 3) float32 points (float64 sums, float32 out)."""
-    flat = pts.reshape(-1, 3)
-    out = np.empty_like(flat)
-    for k in range(flat.shape[0]):
-        x, y, z = flat[k, 0], flat[k, 1], flat[k, 2]
-        for i in range(3):
-            out[k, i] = t[i, 0] * x + t[i, 1] * y + t[i, 2] * z + t[i, 3]
-    return out.reshape(pts.shape)
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
 def _interp_uniform(x, xp, fp):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """``np.interp(x, xp, fp)`` for increasing ``xp`` (held at the end values outside it)."""

@@ -14,7 +14,9 @@ simulated sensors (:mod:`sim.kinect` and :mod:`sim.sonar`). The devices below im
 * :class:`SimSonarArray` - three simulated sonars on the array's servo joint.
 
 Powers only a simulation has are domain-named methods of :class:`SimChair`: ``ground_truth_pose``,
-``ground_truth_transform``, ``contacts`` and ``teleport``.
+``ground_truth_transform``, ``contacts``, ``footprint_overlaps``, ``teleport``, ``restart`` (an exact
+reset) and ``set_floor_friction`` (with :meth:`sim.robot.SimRobot.set_payload_kg` and
+:meth:`sim.robot.SimRobot.scale_motor_plants` for domain randomisation).
 
 :func:`make_sim_backend` builds all of it from a config mapping (what :mod:`robchair.backends` passes).
 """
@@ -41,6 +43,7 @@ from hw.interfaces import (
     PIDConfig,
     SonarArrayReading,
 )
+from robchair.config import ConfigSource, ConfigTable
 from robchair.frames import quat_from_yaw
 from robchair.kinematics import Pose2D
 from robchair.spec import RobChairSpec, load_spec
@@ -50,9 +53,9 @@ from sim.scene import Scene, SceneBodies, build_scene, load_scene
 from sim.world import World
 
 SONAR_MOUNTS = ("sonar_array_left", "sonar_array_right")
-# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, 90 = facing forward;
-# the URDF joint is 0 = forward, so joint angle = servo angle - 90
-SERVO_CENTRE_DEG = 90.0
+# hw convention for sonar servos (mapping.sonar.servo_command_deg): 0..180 deg, the spec's
+# sonar_arrays.servo_centre_deg = facing forward; the URDF joint is 0 = forward
+# (spec.sonar_arrays.joint_angle converts)
 SONAR_NOISE_STD_M = 0.005  # before the SRF08's rounding to whole centimetres (its +-1 cm resolution)
 
 
@@ -72,6 +75,7 @@ class SimChair:
         tyre_radius_error: Standard deviation of each tyre's true radius relative to the spec's
             (drawn from the seed; default 0.2 %, a tyre-pressure-sized error). The odometry assumes
             the spec's radius, so this is what makes the odometry drift as on the real chair; 0 = none.
+        laser: Build the simulated Hokuyo URG-04LX (:class:`sim.laser.LaserSim`) on ``laser_link``.
     """
 
     def __init__(
@@ -86,6 +90,7 @@ class SimChair:
         noise: bool = True,
         raycast_threads: int = 0,
         tyre_radius_error: float = 0.002,
+        laser: bool = False,
     ) -> None:
         self.spec = spec if spec is not None else load_spec()
         self.timing = {"physics": 0.0, "kinect_capture": 0.0, "sonar": 0.0}  # wall s per component
@@ -106,11 +111,13 @@ class SimChair:
             scale = 1.0 + tyre_radius_error * np.random.default_rng(tyre_seed).standard_normal(2)
             self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
             self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
+            self._body_names = {v: k for k, v in self.bodies.ids.items()}  # scene bodies never change
             self._ghost_people()
             self.mirror: Any = None
             self.kinect: Any = None
             self.sonars: dict[str, Any] = {}
-            if sensor is not None or sonars:
+            self.laser: Any = None
+            if sensor is not None or sonars or laser:
                 from sim.raycast import MeshMirror
 
                 # the chair never sees itself: its sensors sit outside its body, and leaving it out
@@ -136,6 +143,18 @@ class SimChair:
                 )
             if sonars:
                 self.sonars = _make_sonars(self, np.random.default_rng(sonar_seed), noise)
+            if laser:
+                from sim.laser import LaserSim
+
+                robot = self.robot
+                self.laser = LaserSim(
+                    self.world.client,
+                    mirror=self.mirror,
+                    noise=noise,
+                    rng=np.random.default_rng(ss.spawn(1)[0]),
+                    pose=lambda: robot.link_transform("laser_link"),
+                    clock=SimClock(self),
+                )
         except BaseException:
             self.world.close()
             raise
@@ -193,7 +212,7 @@ class SimChair:
         import pybullet as p
 
         c = self.world.client
-        names = {v: k for k, v in self.bodies.ids.items()}
+        names = self._body_names
         hit = {
             names[pt[2]]
             for pt in p.getContactPoints(bodyA=self.robot.body, physicsClientId=c)
@@ -217,6 +236,59 @@ class SimChair:
         for motor in (self.robot.left, self.robot.right):
             motor.reset()
         self.robot.set_motor_rpm(0.0, 0.0)
+
+    def restart(self, pose: Pose2D | tuple[float, float, float]) -> None:
+        """Restart the simulation at time 0 with the chair at rest at ``pose`` (x, y, yaw in ``map``).
+
+        An exact reset, unlike a restored physics snapshot: the chair's body is replaced by a new one
+        (:meth:`sim.robot.SimRobot.respawn`: joints, contact cache, mass, motors, servo targets and
+        the controller's tick phase all as built), the clock restarts at 0 and scripted people stand
+        where their walks begin. What the simulation does next depends on nothing that ran before.
+        Captures still in flight are waited for first.
+        """
+        x, y, yaw = (pose.x, pose.y, pose.theta) if isinstance(pose, Pose2D) else pose
+        for fut in self.captures_in_flight:
+            fut.result()
+        self.captures_in_flight.clear()
+        old = self.robot.body
+        self.robot.respawn((float(x), float(y), float(yaw)))
+        new = self.robot.body
+        if new != old:  # the sensors leave the chair's own body out by its id
+            for holder in (self.mirror, self.kinect, getattr(self.kinect, "mirror", None)):
+                ex = getattr(holder, "exclude_bodies", None)
+                if isinstance(ex, set):
+                    ex.discard(old)
+                    ex.add(new)
+        self._ghost_people()
+        self.world.steps = 0
+        if self.bodies.moving:
+            self.bodies.update(self.world.client, 0.0)
+
+    def footprint_overlaps(self) -> list[str]:
+        """Static scene objects the chair's collision shapes penetrate where it stands (no stepping).
+
+        Walking people, which pass through the chair, are left out.
+        """
+        import pybullet as p
+
+        c = self.world.client
+        p.performCollisionDetection(physicsClientId=c)
+        names = self._body_names
+        people = {body for body, _ in self.bodies.moving}
+        hit = {
+            names[pt[2]]
+            for pt in p.getContactPoints(bodyA=self.robot.body, physicsClientId=c)
+            if pt[2] in names and pt[2] not in people and pt[8] < 0.0
+        }
+        return sorted(hit)
+
+    def set_floor_friction(self, mu: float) -> None:
+        """The floor's lateral friction coefficient (what the tyres grip with)."""
+        import pybullet as p
+
+        if not (math.isfinite(mu) and mu > 0):
+            raise SimError(f"floor friction {mu!r}: expected a finite coefficient > 0")
+        p.changeDynamics(self.world.plane, -1, lateralFriction=float(mu), physicsClientId=self.world.client)
 
     def close(self) -> None:
         for fut in self.captures_in_flight:
@@ -409,16 +481,18 @@ class SimSonarArray(Device):
         model = chair.sonars[mount].model
         self.min_range_m, self.max_range_m = model.min_range_m, model.max_range_m
         self.field_of_view_rad = model.field_of_view_rad
+        self._arrays = chair.spec.sonar_arrays  # servo convention (centre angle) of the platform
 
     def set_servo_deg(self, angle_deg: float) -> None:
-        """Servo angle in the hardware convention: 0..180 deg, 90 = facing forward."""
+        """Servo angle in the hardware convention: 0..180 deg, ``spec.sonar_arrays.servo_centre_deg``
+        (90) = facing along the mount's x axis."""
         self._check_open()
         if not math.isfinite(angle_deg):
             raise SimError(f"{self.name}: servo angle must be finite, got {angle_deg!r}")
-        self.chair.robot.set_servo_deg(self.mount, angle_deg - SERVO_CENTRE_DEG)
+        self.chair.robot.set_servo_deg(self.mount, math.degrees(self._arrays.joint_angle(angle_deg)))
 
     def servo_deg(self) -> float:
-        return self.chair.robot.servo_deg(self.mount) + SERVO_CENTRE_DEG
+        return self._arrays.servo_deg(math.radians(self.chair.robot.servo_deg(self.mount)))
 
     def read(self) -> SonarArrayReading:
         self._check_open()
@@ -478,7 +552,7 @@ _CONFIG_KEYS = {
 }
 
 
-def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
+def make_sim_backend(config: Mapping[str, Any] | ConfigTable | None = None) -> SimBackend:
     """The simulated chair as a :class:`Backend` (the ``"sim"`` entry of :mod:`robchair.backends`).
 
     Config keys (all optional): ``scenario`` (name or path: scene, start pose, sensor, seed from it),
@@ -487,16 +561,19 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     ``tyre_radius_error`` (fraction, default 0.002; 0 = tyres exactly as the spec),
     ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
-    (path of a platform TOML). Unknown keys raise :class:`sim.errors.SimError`.
+    (path of a platform TOML). An unknown key or a bad ``start`` / ``watchdog_ms`` raises
+    :class:`sim.errors.SimError` (or the error class of a :class:`robchair.config.ConfigTable`'s source,
+    whose file and line the message then names), in the :mod:`robchair.config` dialect.
 
     The returned backend has the underlying :class:`SimChair` as ``backend.chair`` (for ground truth).
     """
-    cfg = dict(config or {})
-    unknown = set(cfg) - _CONFIG_KEYS
-    if unknown:
-        raise SimError(
-            f"sim backend config: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CONFIG_KEYS)}"
-        )
+    table = (
+        config
+        if isinstance(config, ConfigTable)
+        else ConfigTable(dict(config or {}), ConfigSource(error=SimError), "sim")
+    )
+    table.keys(_CONFIG_KEYS)
+    cfg = dict(table.data)
     spec = load_spec(cfg["spec"]) if cfg.get("spec") else load_spec()
     kw: dict[str, Any] = {}
     if cfg.get("scenario"):
@@ -515,13 +592,8 @@ def make_sim_backend(config: Mapping[str, Any] | None = None) -> SimBackend:
     if isinstance(kw.get("sensor"), str) and kw["sensor"].lower() == "none":
         kw["sensor"] = None  # TOML has no null: "none" means no depth camera
     if "start" in cfg:
-        st = tuple(float(v) for v in cfg["start"])
-        if len(st) != 3 or not all(math.isfinite(v) for v in st):
-            raise SimError(f"sim backend config: start={cfg['start']!r}: expected finite [x, y, yaw]")
-        kw["start"] = st
-    watchdog = cfg.get("watchdog_ms")
-    if watchdog is not None and (isinstance(watchdog, bool) or not isinstance(watchdog, int) or watchdog < 1):
-        raise SimError(f"sim backend config: watchdog_ms={watchdog!r}: expected a whole number of ms >= 1")
+        kw["start"] = table.vector("start", 3)
+    watchdog = table.integer("watchdog_ms", None, ge=1) if cfg.get("watchdog_ms") is not None else None
     return backend_from_chair(SimChair(spec, **kw), watchdog)
 
 

@@ -123,8 +123,6 @@ class SimRobot:
         closed_loop: bool = True,
         wheel_radius_scale: tuple[float, float] = (1.0, 1.0),
     ) -> None:
-        import pybullet as p
-
         self.world, self.spec, self.client = world, spec, world.client
         self.drive = DiffDrive(spec)
         from robchair.control import CONTROLLER_RATE_HZ
@@ -134,10 +132,22 @@ class SimRobot:
             raise SimError(f"motor_rate_hz={rate!r}: expected a whole number of Hz > 0")
         self.motor_rate_hz = rate
         self.motor_dt = 1.0 / rate
-        q = frames.quat_from_yaw(start[2])
         self.wheel_radius_scale = wheel_radius_scale
+        self._load_body(start)
+        self.left, self.right = make_wheel_motors(spec, self.motor_dt, closed_loop)
+        # the identified plants (scale_motor_plants and respawn start from them)
+        self.nominal_plants = (self.left.plant.plant, self.right.plant.plant)
+        self._apply_wheel_targets(0.0, 0.0)
+        self._step_count = 0
+        world.add_pre_step(self._pre_step)
+
+    def _load_body(self, start: tuple[float, float, float]) -> None:
+        """Load the chair's URDF body at ``start`` (joints at their zero angles, servos held at 0)."""
+        import pybullet as p
+
+        q = frames.quat_from_yaw(start[2])
         self.body = p.loadURDF(
-            str(write_urdf(spec, wheel_radius_scale=wheel_radius_scale)),
+            str(write_urdf(self.spec, wheel_radius_scale=self.wheel_radius_scale)),
             basePosition=(start[0], start[1], 0.0),
             baseOrientation=q,
             flags=p.URDF_USE_INERTIA_FROM_FILE,
@@ -150,13 +160,15 @@ class SimRobot:
             self.joints[info[1].decode()] = i
             self.links[info[12].decode()] = i
         self.wheel_ids = tuple(self.joints[j] for j in WHEEL_JOINTS)
-        apply_contact_dynamics(self.client, self.body, spec, floor=world.plane)
+        apply_contact_dynamics(self.client, self.body, self.spec, floor=self.world.plane)
         # the base's PyBullet frame is its inertial frame; keep the offset to report base_link itself
         dyn = p.getDynamicsInfo(self.body, -1, physicsClientId=self.client)
+        self._inertial = (tuple(dyn[3]), tuple(dyn[4]))
         self._inertial_inv = p.invertTransform(dyn[3], dyn[4])
-        # the URDF origin is placed at basePosition by loadURDF; settle onto the floor before use
+        self.base_mass = float(dyn[0])
+        self.base_inertia = tuple(float(v) for v in dyn[2])
         self.servo_joints = {
-            name: self.joints[m.joint.name] for name, m in spec.mounts.items() if m.joint is not None
+            name: self.joints[m.joint.name] for name, m in self.spec.mounts.items() if m.joint is not None
         }
         for jid in self.servo_joints.values():
             p.setJointMotorControl2(
@@ -168,10 +180,52 @@ class SimRobot:
                 maxVelocity=SERVO_MAX_VELOCITY,
                 physicsClientId=self.client,
             )
-        self.left, self.right = make_wheel_motors(spec, self.motor_dt, closed_loop)
+
+    def respawn(self, pose: tuple[float, float, float]) -> None:
+        """Replace the chair by a new body at rest at ``pose`` (x, y, yaw of ``base_link``), as built.
+
+        The old body goes with everything the physics engine remembers of it (its contact cache
+        among them, which ``restoreState`` keeps); the new one has its joints at zero angle and speed,
+        the URDF's mass, servos held at 0, and the motors start from rest with the identified plants
+        (PID gains kept, its state cleared) and the controller's tick phase restarted. What follows is
+        therefore independent of what the chair did before. The body's id may change.
+        """
+        import pybullet as p
+
+        p.removeBody(self.body, physicsClientId=self.client)
+        self._load_body(pose)
+        for motor, plant in zip((self.left, self.right), self.nominal_plants, strict=True):
+            motor.plant = type(motor.plant)(plant, self.motor_dt)
+            motor.reset()
         self._apply_wheel_targets(0.0, 0.0)
         self._step_count = 0
-        world.add_pre_step(self._pre_step)
+
+    def set_payload_kg(self, payload_kg: float) -> None:
+        """Carry ``payload_kg`` on the seat: the base's mass grows by it, its inertia in proportion."""
+        import pybullet as p
+
+        if not (math.isfinite(payload_kg) and payload_kg >= 0):
+            raise SimError(f"payload_kg={payload_kg!r}: expected a finite mass >= 0")
+        mass = self.base_mass + float(payload_kg)
+        inertia = [v * mass / self.base_mass for v in self.base_inertia]
+        p.changeDynamics(self.body, -1, mass=mass, localInertiaDiagonal=inertia, physicsClientId=self.client)
+
+    def scale_motor_plants(self, omega_n_scale: tuple[float, float], xi_scale: tuple[float, float]) -> None:
+        """Give each wheel motor the identified plant with ``omega_n`` and ``xi`` scaled (left, right).
+
+        The plant's state starts from rest: call this between episodes, not while driving.
+        """
+        from dataclasses import replace
+
+        from robchair.control import DiscretePlant
+
+        for motor, nominal, kw, kx in zip(
+            (self.left, self.right), self.nominal_plants, omega_n_scale, xi_scale, strict=True
+        ):
+            if not (math.isfinite(kw) and kw > 0 and math.isfinite(kx) and kx > 0):
+                raise SimError(f"motor plant scales omega_n x{kw!r}, xi x{kx!r}: expected finite numbers > 0")
+            motor.plant = DiscretePlant(replace(nominal, omega_n=nominal.omega_n * kw, xi=nominal.xi * kx),
+                                        self.motor_dt)  # fmt: skip
 
     # -- motors --------------------------------------------------------------------------------------
     def set_closed_loop(self, closed: bool) -> None:

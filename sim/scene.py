@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from robchair.config import ConfigTable, load_toml
+from robchair.config import ConfigSource, ConfigTable, load_toml
 from robchair.frames import quat_from_rpy, rotation_rpy
 from robchair.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
@@ -333,9 +333,13 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
     Raises:
         ScenarioError: The scenario or its scene is invalid (see :func:`load_scene`).
     """
+    name = str(path)
     path = Path(path)
     if not path.is_file():
-        path = _resolve(str(path), SCENES)
+        path = _resolve(name, SCENES)
+        if not path.is_file() and path.parent == SCENES:  # a name, not a path: say which exist
+            known = ", ".join(p.stem for p in list_scenarios())
+            raise ConfigSource(error=ScenarioError).invalid("scenario", name, f"one of {known}, or a file")
     data, source = load_toml(path, ScenarioError, "scenario file")
     top = ConfigTable(data, source)
     top.keys({"scenario", "route"})

@@ -285,7 +285,7 @@ class RoboteqMDC2230(Device):
         Raises:
             DeviceStateError: read-only session, or not inactive (in error: release() first).
             DeviceFaultError: the configuration read back differs from what was written, a fault
-                flag is set, or a stop latched outside this session (the message names
+                flag is set, or a stop latched before the driver opened the port (the message names
                 ``--release-stop``).
         """
         self._check_open()

@@ -56,6 +56,7 @@ from hw.errors import HardwareError, ProtocolError
 from hw.interfaces import Clock, MotorFaults
 from hw.roboteq import codec
 from hw.roboteq.gains import FIRMWARE_RANGE, gains_from_roboteq
+from robchair.spec import RobChairSpec
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +153,7 @@ class RoboteqEmulator:
 
     def __init__(
         self,
-        spec: Any = None,
+        spec: RobChairSpec | None = None,
         *,
         firmware: str = DEFAULT_FIRMWARE,
         echo: bool = True,

@@ -16,7 +16,11 @@ Configurations, all measured in the same run with the same seed and the same ran
 Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup and
 one warm-up episode excluded; episodes that end are reset inside the timed loop, as a training loop
 would), its real-time factor (steps/s divided by the agent rate) and its ratio to the physics-only
-baseline. Wall-clock numbers depend on the machine's load: the JSON records the load average.
+baseline. Every step of an environment is one cycle of the chair's runtime (sensors, perception, safety
+layer, motors). Wall-clock numbers depend on the machine's load (the JSON records the load average), so
+the single-process rows also give the median CPU time per agent step (the process's user + system time,
+every thread counted) and ``1-core steps/s`` = 1000 / CPU ms: the rate on one dedicated core, which a
+loaded machine's wall clock cannot show.
 """
 
 from __future__ import annotations
@@ -50,8 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=_run)
 
 
-def _physics_only(steps: int, seed: int) -> float:
-    """Seconds for ``steps`` agent periods of physics + motors with random twists, no sensors."""
+def _physics_only(steps: int, seed: int) -> tuple[float, float]:
+    """Wall and CPU seconds for ``steps`` agent periods of physics + motors with random twists, no sensors."""
     import numpy as np
 
     from robchair.envs.navigation import AGENT_HZ
@@ -62,14 +66,14 @@ def _physics_only(steps: int, seed: int) -> float:
     try:
         rng = np.random.default_rng(seed)
         drive = chair.robot.drive
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(steps):
             v, w = rng.uniform(-1, 1, 2)
             chair.robot.set_motor_rpm(
                 *drive.motor_rpm(*drive.limit(v * drive.max_speed, w * drive.max_yaw_rate))
             )
             chair.step(PHYSICS_HZ // AGENT_HZ)
-        return time.perf_counter() - t0
+        return time.perf_counter() - t0, time.process_time() - c0
     finally:
         chair.close()
 
@@ -81,16 +85,16 @@ def _office() -> Any:
     return load_scene(SCENES / "office.toml")
 
 
-def _env_run(env: Any, steps: int, seed: int) -> float:
-    """Seconds for ``steps`` agent steps of ``env`` with seeded random actions."""
+def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float]:
+    """Wall and CPU seconds for ``steps`` agent steps of ``env`` with seeded random actions."""
     env.reset(seed=seed)
     env.action_space.seed(seed)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps):
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
         if terminated or truncated:
             env.reset()
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def _vec_run(envs: Any, steps: int, seed: int) -> float:
@@ -108,9 +112,11 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
     import statistics
 
     workers = int(config.get("workers", 1))
+    cpu: list[float] | None = None
     if config.get("physics_only"):
         _physics_only(5, seed)  # warm-up
-        secs = [_physics_only(steps, seed + k) for k in range(repeats)]
+        runs = [_physics_only(steps, seed + k) for k in range(repeats)]
+        secs, cpu = [r[0] for r in runs], [r[1] for r in runs]
     elif workers > 1:
         import gymnasium
 
@@ -133,11 +139,17 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
         env = gymnasium.make(config["id"], **config["kwargs"])
         try:
             _env_run(env, 5, seed)  # warm-up: numba kernels, Embree scene
-            secs = [_env_run(env, steps, seed + k) for k in range(repeats)]
+            runs = [_env_run(env, steps, seed + k) for k in range(repeats)]
         finally:
             env.close()
+        secs, cpu = [r[0] for r in runs], [r[1] for r in runs]
     rates = [steps / s for s in secs]
-    return {"steps_per_s": rates, "median_steps_per_s": statistics.median(rates)}
+    out: dict[str, Any] = {"steps_per_s": rates, "median_steps_per_s": statistics.median(rates)}
+    if cpu is not None:
+        ms = [1e3 * c / steps for c in cpu]
+        out["cpu_ms_per_step"] = ms
+        out["median_cpu_ms_per_step"] = statistics.median(ms)
+    return out
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -154,7 +166,10 @@ def _run(args: argparse.Namespace) -> int:
     load1 = os.getloadavg()
     base = rows[0]["median_steps_per_s"]
     print(f"robchair bench env: {args.steps} agent steps at {AGENT_HZ} Hz per run, median of {args.repeats}")
-    head = f"{'configuration':32s} {'steps/s':>9s} {'RTF':>6s} {'vs physics only':>16s} {'vs one env':>12s}"
+    head = (
+        f"{'configuration':32s} {'steps/s':>9s} {'RTF':>6s} {'vs physics only':>16s} {'vs one env':>12s}"
+        f" {'CPU ms/step':>12s} {'1-core steps/s':>15s}"
+    )
     print(head)
     print("-" * len(head))
     single = {
@@ -170,6 +185,12 @@ def _run(args: argparse.Namespace) -> int:
         if "workers" in c and c["id"] in single:
             r["speedup_vs_one_env"] = m / single[c["id"]]
             line += f" {r['speedup_vs_one_env']:12.2f}"
+        else:
+            line += f" {'':12s}"
+        if "median_cpu_ms_per_step" in r:
+            cms = r["median_cpu_ms_per_step"]
+            r["one_core_steps_per_s"] = 1e3 / cms if cms > 0 else None
+            line += f" {cms:12.2f} {1e3 / cms if cms > 0 else float('nan'):15.1f}"
         print(line)
     print(f"load average before/after: {load0[0]:.2f} / {load1[0]:.2f} on {os.cpu_count()} CPUs")
     out = Path(args.out)

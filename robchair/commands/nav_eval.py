@@ -39,7 +39,50 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
     p.add_argument("--pictures", type=int, default=3, help="pictures of the first N episodes (default 3)")
     p.add_argument("--split", choices=("eval", "train"), default="eval", help="floors of random-floor ids")
+    p.add_argument(
+        "--ray",
+        action="store_true",
+        help="distribute the episodes over Ray workers (a local instance unless --address); same results",
+    )
+    p.add_argument(
+        "--address", default=None, help="Ray cluster address (auto, ray://host:port); implies --ray"
+    )
+    p.add_argument("--num-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
     p.set_defaults(func=_run)
+
+
+def _serial(env_id: str, seeds: list[int], spec: str, kwargs: dict[str, Any], pictures: int) -> Any:
+    from tqdm import tqdm
+
+    from robchair.navigation.evaluation import evaluate_episode
+
+    for k, seed in enumerate(tqdm(seeds, desc=f"{spec} on {env_id}", unit="ep")):
+        yield evaluate_episode(env_id, seed, spec, kwargs, keep_trajectory=k < pictures)
+
+
+def _episode_task(env_id: str, seed: int, spec: str, kwargs: dict[str, Any], keep: bool) -> dict[str, Any]:
+    """One episode in a Ray worker (the worker keeps its environments between episodes)."""
+    import sim.envs  # noqa: F401  (registers the ids in the worker)
+    from robchair.navigation.evaluation import evaluate_episode
+
+    return evaluate_episode(env_id, seed, spec, kwargs, keep_trajectory=keep)
+
+
+def _distributed(
+    ray: Any, env_id: str, seeds: list[int], spec: str, kwargs: dict[str, Any], pictures: int
+) -> Any:
+    """The same episodes as :func:`_serial`, as Ray tasks; yielded in seed order."""
+    from tqdm import tqdm
+
+    task = ray.remote(num_cpus=1, max_retries=0)(_episode_task)
+    refs = [task.remote(env_id, seed, spec, kwargs, k < pictures) for k, seed in enumerate(seeds)]
+    pending = set(refs)
+    with tqdm(total=len(refs), desc=f"{spec} on {env_id} (ray)", unit="ep") as bar:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+            pending.difference_update(ready)
+            bar.update(len(ready))
+    yield from ray.get(refs)
 
 
 def _picture(ep: dict[str, Any], path: Path, title: str) -> None:
@@ -90,10 +133,10 @@ def _picture(ep: dict[str, Any], path: Path, title: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+    import contextlib
 
     import sim.envs
-    from robchair.navigation.evaluation import EvaluationError, close_envs, evaluate_episode, policy_factory
+    from robchair.navigation.evaluation import EvaluationError, close_envs, policy_factory
     from robchair.navigation.metrics import format_table, summarize
     from robchair.outdir import staged_output_dir
 
@@ -113,14 +156,26 @@ def _run(args: argparse.Namespace) -> int:
         kwargs["room_seeds"] = args.split
     results: dict[str, Any] = {"env": args.env, "env_kwargs": kwargs, "seed": args.seed, "policies": {}}
     rows = []
-    try:
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise EvaluationError(f"--num-cpus {args.num_cpus}: expected at least 1")
+    distributed = args.ray or args.address is not None
+    seeds = [args.seed + k for k in range(args.episodes)]
+    with contextlib.ExitStack() as stack:
+        ray = None
+        if distributed:
+            from robchair.sweep.executor import ray_session
+
+            ray = stack.enter_context(ray_session(args.address, args.num_cpus))
+        stack.callback(close_envs)
         with staged_output_dir(args.out) as out:
             for spec in policies:
                 eps = []
-                for k in tqdm(range(args.episodes), desc=f"{spec} on {args.env}", unit="ep"):
-                    ep = evaluate_episode(
-                        args.env, args.seed + k, spec, kwargs, keep_trajectory=k < args.pictures
-                    )
+                run = (
+                    _distributed(ray, args.env, seeds, spec, kwargs, args.pictures)
+                    if ray is not None
+                    else _serial(args.env, seeds, spec, kwargs, args.pictures)
+                )
+                for k, ep in enumerate(run):
                     if k < args.pictures:
                         safe = spec.replace(":", "_").replace("/", "_")
                         _picture(ep, out / f"episode_{safe}_{ep['seed']}.png", spec)
@@ -131,8 +186,6 @@ def _run(args: argparse.Namespace) -> int:
                 results["policies"][spec] = {"summary": summary, "episodes": eps}
                 rows.append((spec, summary))
             (out / "nav_eval.json").write_text(json.dumps(results, indent=2) + "\n")
-    finally:
-        close_envs()
     print(
         f"{args.env}, {args.episodes} episodes per policy, seeds {args.seed}..{args.seed + args.episodes - 1}"
     )

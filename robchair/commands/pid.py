@@ -181,8 +181,6 @@ def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
     warnings = [f"{m['name']}: {w}" for m in motors for w in m["warnings"]]
     if warnings and args.strict:
         raise rc.ControlError(f"--strict: {len(warnings)} warning(s), first: {warnings[0]}")
-    for w in warnings:
-        print(f"robchair pid: warning: {w}", file=sys.stderr)
 
     with out_dir.stage() as out:
         summary = {
@@ -199,6 +197,8 @@ def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
             for m in motors:
                 plot_root_locus(m, out / f"root_locus_{_slug(m['name'])}.png")
     print(f"wrote {args.out}/ (pid.json{'' if args.no_plots else ', step_responses.png, root_locus_*.png'})")
+    for w in warnings:  # after the outputs are written: a failed command prints its one error line only
+        print(f"robchair pid: warning: {w}", file=sys.stderr)
     return 0
 
 

@@ -15,9 +15,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import tomllib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from robchair.config import ConfigSource, ConfigTable
+
+if TYPE_CHECKING:
+    from robchair.kinematics import Pose2D
+    from robchair.route import Route
+    from robchair.spec import RobChairSpec
 
 
 def register(subparsers: Any) -> None:
@@ -32,6 +38,12 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
     p.add_argument("--out", type=Path, help="output folder: bag/, metrics.json, odometry.csv")
+    p.add_argument(
+        "--map",
+        choices=("probabilistic", "thesis"),
+        help="map kind (overrides [runtime] map_kind; default probabilistic): probabilistic (free space, "
+        "unknown) or thesis (accumulate only)",
+    )
     p.add_argument(
         "--no-safety",
         action="store_true",
@@ -51,23 +63,29 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_run)
 
 
-def load_run_config(path: Path | None) -> dict[str, Any]:
-    from robchair.errors import ConfigError
+RUN_CONFIG_TABLES = ("sim", "emulated", "real", "runtime", "safety", "route")
+
+
+def load_run_config(path: Path | None) -> ConfigTable:
+    """The ``--config`` file as a checked top-level table (empty without a file).
+
+    Raises:
+        ConfigError: the file is missing or not TOML, or has a table other than
+            :data:`RUN_CONFIG_TABLES` (``<file>:<line>: <key>: unknown key ...; expected one of ...``).
+    """
+    from robchair.config import load_toml
 
     if path is None:
-        return {}
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config {path}: not valid TOML: {exc}") from exc
-    allowed = {"sim", "emulated", "real", "runtime", "safety", "route"}
-    unknown = set(data) - allowed
-    if unknown:
-        raise ConfigError(f"config {path}: unknown tables {sorted(unknown)}; allowed {sorted(allowed)}")
-    return data
+        return ConfigTable({})
+    data, source = load_toml(path, what="config file")
+    top = ConfigTable(data, source)
+    top.keys(RUN_CONFIG_TABLES)
+    for name in RUN_CONFIG_TABLES:
+        top.table(name, {})  # each one a table
+    return top
 
 
-def _scenario_route(name: str, spec: Any) -> tuple[Any, Any]:
+def _scenario_route(name: str, spec: RobChairSpec) -> tuple[Route, Pose2D]:
     """The route of a sim scenario as a runtime Route starting at the scenario's start pose."""
     from robchair.kinematics import Pose2D
     from robchair.route import Route
@@ -92,24 +110,26 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.spec import load_spec
 
     if args.backend not in BACKENDS:
-        raise ConfigError(f"--backend {args.backend!r}: expected one of {', '.join(BACKENDS)}")
+        raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)
-    backend_cfg = dict(cfg.get(args.backend, {}))
+    backend_table = cfg.table(args.backend, {})
+    backend_cfg = dict(backend_table.data)
     if isinstance(backend_cfg.get("sensor"), str) and backend_cfg["sensor"].lower() == "none":
         backend_cfg["sensor"] = None  # TOML has no null: sensor = "none" means no depth camera
-    spec = load_spec(backend_cfg["spec"]) if backend_cfg.get("spec") else load_spec()
-    rt_cfg = dict(cfg.get("runtime", {}))
-    if args.rate is not None:
-        rt_cfg["rate_hz"] = args.rate
-    runtime_config = RuntimeConfig.from_dict(rt_cfg)
-    safety = SafetyLayer(SafetyLimits.from_spec(spec, **cfg.get("safety", {})))
+    spec_path = backend_table.string("spec", None)
+    spec = load_spec(spec_path) if spec_path else load_spec()
+    overrides: dict[str, Any] = {} if args.rate is None else {"rate_hz": args.rate}
+    if args.map is not None:
+        overrides["map_kind"] = args.map
+    runtime_config = RuntimeConfig.from_dict(cfg.table("runtime", {}), **overrides)
+    safety = SafetyLayer(SafetyLimits.from_spec(spec, cfg.table("safety", {})))
     route = None
     if args.route is not None:
         route = Route.load(args.route)
     elif "route" in cfg:
-        route = Route.from_dict(cfg["route"], f"{args.config} [route]")
+        route = Route.from_dict(cfg.table("route"))
     start_pose = None
     if route is None and args.backend == "sim":
         if not backend_cfg.get("scene"):
@@ -118,7 +138,11 @@ def _run(args: argparse.Namespace) -> int:
             route, start_pose = _scenario_route(str(backend_cfg["scenario"]), spec)
     if args.release_stop and args.backend != "sim":
         backend_cfg["release_stop"] = True
-    backend = get_backend(args.backend, backend_cfg, loop_rate_hz=runtime_config.rate_hz)
+    backend = get_backend(
+        args.backend,
+        ConfigTable(backend_cfg, backend_table.source, backend_table.where),
+        loop_rate_hz=runtime_config.rate_hz,
+    )
     if route is not None:
         source: Any = PurePursuit(route, DiffDrive(spec))
     elif backend.joystick is not None:

@@ -11,18 +11,30 @@ whose devices carry what an episode draws (domain randomisation, :mod:`sim.envs.
   a latent set point when it is due, and collects the scene objects the chair touches in any step;
 * sonar arrays, laser scanner and depth camera that draw their noise from the episode's stream, so
   the same seed gives the same episode however many episodes ran before.
+
+:func:`build_chair` makes the chair and its backend for an environment, :func:`place_chair` starts an
+episode on it (an exact reset, then the episode's dynamics). Beside them, what the environment reads
+of the runtime: :func:`shield_report` (``info["safety"]``)
+and :class:`GroundTruthLocalisation` (the physics' pose in place of odometry).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from hw.interfaces import DepthFrame, MotorState
+from robchair.kinematics import Pose2D
+from robchair.runtime import CycleResult
+from robchair.spec import RobChairSpec
 from sim.backend import SONAR_MOUNTS, SimBackend, SimChair, SimMotorController, SimSonarArray
+from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import decimated_depth_noise
+from sim.envs.randomization import EpisodeDynamics
+from sim.scene import Scene
 
 
 @dataclass
@@ -209,3 +221,116 @@ def episode_backend(
     )
     backend.open()
     return backend
+
+
+def shield_report(cycle: CycleResult) -> dict[str, Any]:
+    """``info["safety"]``: whether and why the safety layer changed the agent's command in a cycle.
+
+    Returns ``{"intervened": bool, "reason": str | None}``; the reason is the stop reason and its
+    detail (e.g. ``"obstacle_map: obstacle at 0.31 m ahead < stopping distance 0.35 m"``), or
+    ``"limited: ..."`` when a speed or acceleration limit changed the twist.
+    """
+    d = cycle.decision
+    if not cycle.intervened:
+        return {"intervened": False, "reason": None}
+    if d.stop is not None:
+        reason = f"{d.stop.value}: {d.detail}" if d.detail else d.stop.value
+    else:
+        reason = f"limited: {d.detail}" if d.detail else "limited: speed or acceleration limit"
+    return {"intervened": True, "reason": reason}
+
+
+class GroundTruthLocalisation:
+    """The physics' ground truth in place of wheel odometry (``pose_source="ground_truth"``).
+
+    Duck-types :class:`robchair.kinematics.Odometry` for the runtime: ``update`` ignores the
+    encoder counts and returns the simulated chair's true planar pose.
+    """
+
+    def __init__(self, chair: SimChair) -> None:
+        self.chair = chair
+        self.pose = chair.ground_truth_pose()
+        self.distance = 0.0
+
+    def update(self, *_counts: Any) -> Pose2D:
+        """The true pose now (the distance driven accumulates)."""
+        pose = self.chair.ground_truth_pose()
+        self.distance += math.hypot(pose.x - self.pose.x, pose.y - self.pose.y)
+        self.pose = pose
+        return pose
+
+
+LASER_ACCURACY_SIGMAS = 3.0  # the datasheet's +- accuracy is this many standard deviations (sim.laser)
+
+
+def build_chair(spec: RobChairSpec, scene: Scene, *, sensor: str | None, decimation: int, sonars: bool,
+                laser: bool, noise: bool, camera_backend: str,
+                ) -> tuple[SimChair, EpisodeNoise, EpisodeBackend, dict[str, np.ndarray]]:  # fmt: skip
+    """An environment's simulated chair and its opened backend.
+
+    Args:
+        spec: the platform spec.
+        scene: the scene.
+        sensor: Kinect model name (``kinect2``, ``kinect1``) or None; decimated ``decimation`` times
+            (fewer rays over the same field of view: the same camera at a lower resolution).
+        decimation: the Kinect's decimation (1 = full resolution).
+        sonars, laser, noise, camera_backend: as :class:`sim.backend.SimChair`.
+
+    Returns:
+        The chair, the episode's noise stream (replaced at each reset), the backend, and the sensor
+        frames beyond the spec's mounts (``{frame_id: T_base_frame}``) for the perception stage.
+    """
+    model: Any = None
+    if sensor is not None:
+        from sim.kinect import get_model
+
+        base = get_model(sensor)
+        model = replace(base, name=f"{base.name}/{decimation}", width=max(1, base.width // decimation),
+                        height=max(1, base.height // decimation))  # fmt: skip
+    chair = SimChair(spec, scene, (0.0, 0.0, 0.0), sensor=model, sonars=sonars, seed=0,
+                     camera_backend=camera_backend, noise=noise,
+                     tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
+                     laser=laser)  # fmt: skip
+    try:
+        # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
+        # to a decimated image it would be `decimation` times too wide and smear the floor into
+        # obstacles. A decimated camera therefore renders clean geometry and gets the axial noise
+        # (see decimated_depth_noise); at full resolution the model's own noise applies unchanged.
+        own_noise = noise and model is not None and decimation > 1
+        if own_noise:
+            chair.kinect.noise = False
+        ep_noise = EpisodeNoise()
+        backend = episode_backend(chair, ep_noise, laser=chair.laser, own_depth_noise=own_noise,
+                                  laser_accuracy_sigmas=LASER_ACCURACY_SIGMAS)  # fmt: skip
+        frames: dict[str, np.ndarray] = {}
+        if chair.kinect is not None and chair.kinect.frame_id not in spec.mounts:
+            t_link = spec.mounts["kinect_link"].transform()
+            frames[chair.kinect.frame_id] = t_link @ chair.kinect.output_pose(np.eye(4))
+    except BaseException:
+        chair.close()
+        raise
+    return chair, ep_noise, backend, frames
+
+
+def place_chair(chair: SimChair, start: Pose2D, dynamics: EpisodeDynamics, settle_steps: int) -> None:
+    """Start an episode: the chair at rest at ``start`` with the episode's floor, payload and motors.
+
+    :meth:`sim.backend.SimChair.restart` is an exact reset (a new chair body, the clock at 0), so an
+    episode depends only on its seed and actions, never on the episodes before it. The chair then
+    settles ``settle_steps`` physics steps with zero command.
+
+    Raises:
+        NavigationEnvError: the chair's collision footprint at ``start`` overlaps a scene object
+            (named, with the start).
+    """
+    chair.restart(start)
+    static = chair.footprint_overlaps()
+    if static:
+        raise NavigationEnvError(
+            f"start {(start.x, start.y, start.theta)}: the chair's footprint there overlaps "
+            + ", ".join(repr(n) for n in static)
+        )
+    chair.set_floor_friction(dynamics.floor_friction)
+    chair.robot.set_payload_kg(dynamics.payload_kg)
+    chair.robot.scale_motor_plants(dynamics.motor_omega_n_scale, dynamics.motor_xi_scale)
+    chair.step(settle_steps)

@@ -378,13 +378,14 @@ class BaselinePolicy:
         self._front = float(body.centre_x + body.depth / 2)
         self._rear = float(body.centre_x - body.depth / 2)
         self._half_width = float(body.width / 2)
-        laser = getattr(self.env, "_laser", None)
+        # the laser's beam model, as the environment's observation builder describes the scan
+        laser = getattr(getattr(self.env, "obs_builder", None), "laser_model", None)
         self._beams: npt.NDArray[np.float64] | None = None
         if laser is not None:
             m = self.env.spec_robot.laser_mount
-            self._beams = np.asarray(laser.model.angles(), dtype=float)
+            self._beams = np.asarray(laser.angles(), dtype=float)
             self._laser_xy = (float(m.xyz[0]), float(m.xyz[1]))
-            self._laser_max = float(laser.model.range_max)
+            self._laser_max = float(laser.range_max)
         self.reset()
 
     def reset(self) -> None:

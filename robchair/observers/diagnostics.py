@@ -7,8 +7,9 @@ the control loop. Each sample is written to the run's bag as ``diagnostic_msgs/D
 ``DiagnosticStatus`` named ``motor_controller``: OK, WARN when a status flag is set, ERROR when a fault
 flag is set or the driver is in its error state) and the last one goes into ``metrics.json`` under
 ``controller.diagnostics``. A controller without diagnostics (the simulated one) gives
-``controller.diagnostics = null``. A failing diagnostics read raises, as any sensor does, and the runtime
-stops the chair.
+``controller.diagnostics = null``; its bag still gets ``/diagnostics`` at the same rate (an OK status
+saying so, with the watchdog trips it counts), so every backend's bag has the same topics. A failing
+diagnostics read raises, as any sensor does, and the runtime stops the chair.
 """
 
 from __future__ import annotations
@@ -47,11 +48,15 @@ class DiagnosticsObserver(Observer):
         self._next_ns = runtime.t0_ns
 
     def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
-        if self._read is None or self._next_ns is None or cycle.stamp_ns < self._next_ns:
+        if self._next_ns is None or cycle.stamp_ns < self._next_ns:
             return
         if cycle.fault is not None:  # the driver already failed and stopped: the fault is the report
             return
         self._next_ns = cycle.stamp_ns + self.period_ns
+        if self._read is None:
+            if self.recorder is not None:
+                self._write_placeholder(runtime, cycle.stamp_ns)
+            return
         sample = self._read()
         self.last = sample
         self.samples += 1
@@ -71,6 +76,21 @@ class DiagnosticsObserver(Observer):
             message=message,
             hardware_id=f"roboteq {sample.firmware}".strip(),
             values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in pairs],
+        )
+        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
+        bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
+
+    def _write_placeholder(self, runtime: Runtime, stamp_ns: int) -> None:
+        assert self.recorder is not None
+        bag = self.recorder.bag
+        t = bag.t
+        trips = getattr(runtime.backend.motors, "watchdog_trips", 0)
+        status = t["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=OK,
+            name="motor_controller",
+            message="no hardware diagnostics (simulated controller)",
+            hardware_id="simulated",
+            values=[t["diagnostic_msgs/msg/KeyValue"](key="watchdog_trips", value=str(trips))],
         )
         msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
         bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)

@@ -7,7 +7,9 @@ as MCAP by default (ROS 2's default storage since Iron) or sqlite3. Topics and f
 topic                                  type                             frame
 =====================================  ===============================  ==================================
 ``/odom``                              nav_msgs/Odometry                ``odom`` -> ``base_link``
-``/tf``                                tf2_msgs/TFMessage               ``odom`` -> ``base_link`` each cycle;
+``/tf``                                tf2_msgs/TFMessage               ``map`` -> ``odom`` (scan-to-map
+                                                                        matching, else identity), ``odom`` ->
+                                                                        ``base_link`` each cycle;
                                                                         ``base_link`` -> ``<array>`` with
                                                                         the servo angle at each reading
 ``/tf_static``                         tf2_msgs/TFMessage               ``base_link`` -> camera frame;
@@ -31,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from robchair.errors import ConfigError
-from robchair.frames import BASE_LINK, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
+from robchair.frames import BASE_LINK, MAP, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
 from robchair.observers import Observer
 
 if TYPE_CHECKING:
@@ -215,8 +217,7 @@ class RunRecorder(Observer):
         return self.bag.counts
 
     def episode_start(self, runtime: Runtime) -> None:
-        from mapping.sonar import OUTER_SONAR_DEG
-
+        outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
         stamp = max(runtime.t0_ns, 1)
         statics: list[tuple[str, str, np.ndarray]] = []
         if getattr(runtime.backend, "laser_scanner", None) is not None:
@@ -228,7 +229,7 @@ class RunRecorder(Observer):
                     continue
                 statics.append((BASE_LINK, frame_id, runtime.perception.t_base_sensor(frame_id)))
         for name in runtime.sonar_names:
-            for k, yaw_deg in enumerate((OUTER_SONAR_DEG, 0.0, -OUTER_SONAR_DEG), 1):
+            for k, yaw_deg in enumerate((outer_deg, 0.0, -outer_deg), 1):
                 statics.append(
                     (name, sonar_frame(name, k), se3_rpy((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(yaw_deg))))
                 )
@@ -236,13 +237,14 @@ class RunRecorder(Observer):
             self.bag.tf(stamp, statics, static=True)
 
     def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
-        from robchair.perception import SERVO_CENTRE_DEG
-
         bag = self.bag
         stamp = cycle.stamp_ns
         p = cycle.pose
         bag.odometry("/odom", stamp, ODOM, BASE_LINK, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w)
-        bag.tf(stamp, [(ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
+        # REP-105: map -> odom is the localisation's part (identity without scan-to-map matching), so every
+        # backend's bag has the same tree
+        t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
+        bag.tf(stamp, [(MAP, ODOM, t_map_odom), (ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
         arrays = dict(zip(runtime.sonar_names, runtime.backend.sonar_arrays))
         for name, reading in runtime.last_sonars:
             arr = arrays.get(name)
@@ -253,7 +255,7 @@ class RunRecorder(Observer):
                 bag.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
             mount = runtime.spec.mounts.get(name)
             if mount is not None:
-                joint = math.radians(reading.servo_angle_deg - SERVO_CENTRE_DEG)
+                joint = runtime.spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
                 bag.tf(reading.stamp_ns, [(BASE_LINK, name, mount.transform(joint))])
         scan = runtime.last_scan
         if scan is not None and scan is not self._last_scan:

@@ -13,7 +13,7 @@ import numpy.typing as npt
 from mapping.grid import GridSpec
 from robchair.kinematics import Pose2D, wrap_angle
 from sim.envs.errors import NavigationEnvError
-from sim.scene import Scene, ground_truth_points
+from sim.scene import Scene
 
 PATCH_SHAPE = (64, 64)
 PATCH_CELL = 0.10  # m
@@ -150,8 +150,8 @@ class FreeSpace:
         clearance: ``(nx, ny)`` lower bound of the distance (m) from each cell centre to scene surface.
         region: ``(nx, ny)`` one connected region inside the scene's bounds where the chair fits through.
         labels: ``(nx, ny)`` int, the connected regions where the chair fits through (0 = none).
-        owner: ``(nx, ny)`` int, index into ``names`` of the object whose surface is in the cell (-1 none).
-        names: The scene objects' names.
+        scene: The scene (for naming the object nearest to a point).
+        band: The height band (z_min, z_max) of ``occupied``, m.
     """
 
     grid: GridSpec
@@ -159,8 +159,8 @@ class FreeSpace:
     clearance: npt.NDArray[np.float64]
     region: npt.NDArray[np.bool_]
     labels: npt.NDArray[np.int32]
-    owner: npt.NDArray[np.int32]
-    names: tuple[str, ...]
+    scene: Scene
+    band: tuple[float, float]
 
     @classmethod
     def from_scene(
@@ -171,7 +171,7 @@ class FreeSpace:
         pass_radius: float,
         anchor: tuple[float, float] | None = None,
     ) -> FreeSpace:
-        """Rasterise the static objects' surfaces in ``band`` and find the free region.
+        """The scene's ground truth in ``band`` (:func:`sim.truth.scene_occupancy`) and its free region.
 
         Args:
             scene: The scene (moving people are left out).
@@ -185,19 +185,11 @@ class FreeSpace:
         """
         from scipy import ndimage
 
+        from sim.truth import scene_occupancy
+
         cs = grid.cell_size
-        # a fixed generator: the raster is part of the scene, not of an episode
-        rng = np.random.default_rng(0)
-        occupied = np.zeros(grid.shape, dtype=bool)
-        owner = np.full(grid.shape, -1, dtype=np.int32)
-        for k, obj in enumerate(scene.objects):
-            one = Scene(scene.name, scene.path, (obj,))
-            pts = ground_truth_points(one, spacing=cs / 2, rng=rng)
-            sel = (pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])
-            i, j = grid.world_to_index(pts[sel, 0], pts[sel, 1])
-            ok = grid.contains_index(i, j)
-            occupied[i[ok], j[ok]] = True
-            owner[i[ok], j[ok]] = k
+        band = (float(band[0]), float(band[1]))
+        occupied = scene_occupancy(scene, grid, band)
         # distance between cell centres, less half a diagonal: the surface may lie anywhere in its cell
         clearance = ndimage.distance_transform_edt(~occupied) * cs - cs * math.sqrt(0.5)
         x0, y0, x1, y1 = scene.bounds_xy()
@@ -215,18 +207,30 @@ class FreeSpace:
             chosen = int(labels[ai, aj])
         else:
             chosen = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
-        names = tuple(o.name for o in scene.objects)
-        return cls(grid, occupied, clearance, labels == chosen, labels.astype(np.int32), owner, names)
+        return cls(grid, occupied, clearance, labels == chosen, labels.astype(np.int32), scene, band)
 
     def nearest_obstacle(self, xy: tuple[float, float]) -> tuple[str, float]:
-        """Name of the scene object nearest to ``xy`` in the height band, and its distance (m, cells)."""
-        if not self.occupied.any():
-            return "nothing", math.inf
+        """Name of the scene object nearest to ``xy`` in the height band, and its distance (m, cells).
+
+        Each object's cells come from the same rasteriser as ``occupied`` (that object alone).
+        """
+        from sim.truth import scene_occupancy
+
+        best = ("nothing", math.inf)
         i, j = self.grid.world_to_index(xy[0], xy[1])
-        oi, oj = np.nonzero(self.occupied)
-        k = int(np.argmin((oi - int(i)) ** 2 + (oj - int(j)) ** 2))
-        u, v = self.grid.index_to_world(oi[k], oj[k])
-        return self.names[int(self.owner[oi[k], oj[k]])], float(math.hypot(u - xy[0], v - xy[1]))
+        for obj in self.scene.objects:
+            if obj.is_dynamic:  # people are not part of the ground truth
+                continue
+            cells = scene_occupancy(Scene(self.scene.name, self.scene.path, (obj,)), self.grid, self.band)
+            oi, oj = np.nonzero(cells)
+            if len(oi) == 0:
+                continue
+            k = int(np.argmin((oi - int(i)) ** 2 + (oj - int(j)) ** 2))
+            u, v = self.grid.index_to_world(oi[k], oj[k])
+            d = float(math.hypot(u - xy[0], v - xy[1]))
+            if d < best[1]:
+                best = (obj.name, d)
+        return best
 
     def label_near(self, xy: tuple[float, float], reach: float) -> int:
         """Label of the passable region nearest to ``xy`` within ``reach`` metres (0: none)."""

@@ -1,4 +1,4 @@
-"""VHVMap: hand-computed examples, an independent slow reference, and the invariants of issue 2."""
+"""VHVMap: hand-computed examples, an independent slow reference, and the map's invariants."""
 
 from __future__ import annotations
 

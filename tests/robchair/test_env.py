@@ -473,7 +473,7 @@ def test_close_releases_the_pybullet_client_and_is_idempotent():
 
     e = RobChairNavigationEnv(sensor=None, sonars=True)
     e.reset(seed=0)
-    client = e.client
+    client = e.chair.world.client
     assert p.getConnectionInfo(physicsClientId=client)["isConnected"] == 1
     e.close()
     assert p.getConnectionInfo(physicsClientId=client)["isConnected"] == 0

@@ -28,14 +28,21 @@ def env():
     e.close()
 
 
-def test_a_tyre_14_cm_from_the_corridor_wall_is_not_a_collision(env):
-    # the corridor's left wall has its face at y = 1.2; the chair's left tyre reaches y = 0.76 + 0.32
-    env.reset(seed=0, options={"start": (1.0, 0.76, 0.0), "goal": (4.5, 0.76)})
-    for _ in range(10):
-        _, _, terminated, _, info = env.step(np.array([0.6, 0.0], np.float32))
-        assert not info["collision"], info.get("contacts")
-        assert not terminated
-    assert info["pose"][0] > 1.15  # it drove along the wall
+def test_a_tyre_14_cm_from_the_corridor_wall_is_not_a_collision():
+    from robchair.envs.navigation import RobChairNavigationEnv
+
+    # the collision geometry alone: the safety layer off, the command reaches the motors unchanged
+    env = RobChairNavigationEnv(sensor=None, sonars=True, safety=False)
+    try:
+        # the corridor's left wall has its face at y = 1.2; the chair's left tyre reaches y = 0.76 + 0.32
+        env.reset(seed=0, options={"start": (1.0, 0.76, 0.0), "goal": (4.5, 0.76)})
+        for _ in range(10):
+            _, _, terminated, _, info = env.step(np.array([0.6, 0.0], np.float32))
+            assert not info["collision"], info.get("contacts")
+            assert not terminated
+        assert info["pose"][0] > 1.15  # it drove along the wall
+    finally:
+        env.close()
 
 
 def test_a_start_inside_a_wall_is_refused_naming_the_point_and_the_wall(env):

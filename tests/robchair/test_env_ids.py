@@ -92,10 +92,10 @@ def test_the_discrete_variant_maps_its_five_actions_to_documented_twists():
     env = gymnasium.make("RobChair/NavigationDiscrete-v1").unwrapped
     try:
         assert env.action_space.n == 5 and DISCRETE_ACTIONS[0] == (0.0, 0.0)
-        assert env._twist(2) == pytest.approx((0.7 * env.max_speed, 0.0))
-        assert env._twist(3)[1] > 0 > env._twist(4)[1]  # left is counter-clockwise (REP-103)
+        assert env.action_twist(2) == pytest.approx((0.7 * env.max_speed, 0.0))
+        assert env.action_twist(3)[1] > 0 > env.action_twist(4)[1]  # left is counter-clockwise (REP-103)
         with pytest.raises(NavigationEnvError, match="action"):
-            env._twist(5)
+            env.action_twist(5)
     finally:
         env.close()
 

@@ -29,6 +29,7 @@ TOPIC_TYPES = (
     (r"/sonar/[a-z0-9_]+/[123]|/sonar/[a-z0-9_]+_[123]", "sensor_msgs/msg/Range"),
     (r"/kinect/points", "sensor_msgs/msg/PointCloud2"),
     (r"/scan", "sensor_msgs/msg/LaserScan"),
+    (r"/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
 )
 
 
@@ -101,7 +102,7 @@ def test_report_and_recording_of_a_sim_run(sim_run):
     assert odom > 0 and counts["/plots/v"] == odom
     assert counts["/world/map/vhv/odometry"] == 1
     clouds = [k for k in counts if k.endswith("/points")]
-    assert clouds and all(k.startswith("/world/odom/base_link/") for k in clouds)
+    assert clouds and all(k.startswith("/world/map/odom/base_link/") for k in clouds)  # REP-105 tree
     sonar_topics = [t for t in RunFolder(sim_run).bag_topics() if t.startswith("/sonar/")]
     readings = sum(1 for _ in RunFolder(sim_run).messages(sonar_topics))
     assert readings > 0 and sum(counts[k] for k in counts if k.endswith("/cone")) == readings

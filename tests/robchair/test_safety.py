@@ -156,15 +156,19 @@ def test_limits_from_spec_use_the_platform_maximum_and_reject_faster_caps() -> N
     lim = SafetyLimits.from_spec(spec)
     assert lim.max_speed == pytest.approx(1000 / 29 * 2 * math.pi / 60 * 0.172)
     assert lim.max_yaw_rate == pytest.approx(2 * lim.max_speed / 0.58)
-    with pytest.raises(ConfigError, match="above the platform maximum"):
+    with pytest.raises(
+        ConfigError, match=r"^safety\.max_speed = 1\.0: expected a finite number <= the platform max"
+    ):
         SafetyLimits.from_spec(spec, max_speed=1.0)
-    with pytest.raises(ConfigError, match="unknown keys"):
+    with pytest.raises(
+        ConfigError, match=r"^safety\.top_speed: unknown key \(value 0\.1\); expected one of brake_"
+    ):
         SafetyLimits.from_spec(spec, top_speed=0.1)
-    with pytest.raises(ConfigError, match="margin_m = 'wide'"):
+    with pytest.raises(ConfigError, match=r"^safety\.margin_m = 'wide': expected a finite number > 0$"):
         SafetyLimits.from_spec(spec, margin_m="wide")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])
 def test_non_positive_or_non_finite_limit_is_a_config_error(bad: float) -> None:
-    with pytest.raises(ConfigError, match="max_accel"):
+    with pytest.raises(ConfigError, match=r"^safety\.max_accel = .*: expected a finite number > 0$"):
         SafetyLimits(max_accel=bad)

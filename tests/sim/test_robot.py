@@ -175,7 +175,9 @@ def test_sim_backend_implements_the_hardware_interfaces_and_its_clock_drives_the
         assert backend.chair.world.client < 0  # closing the backend shut the physics down
     finally:
         backend.chair.close()
-    with pytest.raises(SimError, match="unknown key"):
+    with pytest.raises(
+        SimError, match=r"^sim\.colour: unknown key \(value .red.\); expected one of camera_backend,"
+    ):
         make_sim_backend({"colour": "red"})
     with pytest.raises(SimError, match="seed=-1: expected a non-negative integer"):
         make_sim_backend({"seed": -1, "sensor": "none", "sonars": False})

@@ -159,23 +159,6 @@ def test_lateral_offset_buckets_give_the_offset_of_the_rounded_normal():
         assert got == direct
 
 
-def test_compiled_point_transform_matches_numpy_and_keeps_nan():
-    from sim._kinect_kernels import transform_points as kernel
-
-    def transform_points(t, pts):
-        return kernel(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(pts, dtype=np.float32))
-
-    rng = np.random.default_rng(2)
-    pts = rng.normal(size=(40, 30, 3)).astype(np.float32)
-    pts[3, 4] = np.nan
-    t = pose_matrix(([1.0, -2.0, 0.5], p.getQuaternionFromEuler((0.1, -0.2, 0.3))))
-    out = transform_points(t, pts)
-    assert out.dtype == np.float32 and out.shape == pts.shape
-    expected = pts.astype(np.float64) @ t[:3, :3].T + t[:3, 3]
-    np.testing.assert_allclose(out[np.isfinite(out)], expected[np.isfinite(expected)], atol=1e-6)
-    assert np.all(np.isnan(out[3, 4]))
-
-
 def test_mirror_with_a_step_counter_syncs_once_per_step_and_follows_moves_after_a_step(client):
     b = _body(client, p.GEOM_BOX, [2.0, 0.0, 0.0], halfExtents=[0.1, 1.0, 1.0])
     steps = [0]

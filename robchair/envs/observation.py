@@ -1,0 +1,184 @@
+"""Action and observation spaces of the navigation environment; a step's sensing as an observation.
+
+Pure glue between the runtime's last cycle (sensor readings, the perception stage's map) and the
+Gymnasium spaces; nothing here touches the simulation.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from robchair.kinematics import DiffDrive, Pose2D
+from sim.envs.errors import NavigationEnvError
+from sim.envs.geometry import egocentric_patch, egocentric_values, goal_in_robot_frame
+
+SPEED_OBS_FACTOR = 1.5  # the velocity box holds measured overshoot beyond the command limits
+ELEVATION_MAX = 2.5  # m, top of the elevation observation's box
+#: Discrete actions as normalised (v, w) (times ``max_speed`` m/s and ``max_yaw_rate`` rad/s):
+#: 0 stop, 1 forward slow, 2 forward fast, 3 turn left on the spot, 4 turn right on the spot.
+DISCRETE_ACTIONS = ((0.0, 0.0), (0.3, 0.0), (0.7, 0.0), (0.0, 0.5), (0.0, -0.5))
+
+
+def action_space(action_type: str) -> spaces.Space[Any]:
+    """``Box(-1, 1, (2,), float32)`` for ``"continuous"``, ``Discrete(5)`` for ``"discrete"``."""
+    if action_type == "discrete":
+        return spaces.Discrete(len(DISCRETE_ACTIONS))
+    return spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+
+def action_to_twist(
+    action: Any, space: spaces.Space[Any], drive: DiffDrive, max_speed: float, max_yaw_rate: float
+) -> tuple[float, float]:
+    """The body twist (v m/s, w rad/s) an action asks for, within the drive's limits.
+
+    A continuous action is clipped to the unit box, scaled by ``max_speed`` and ``max_yaw_rate``, then
+    scaled down uniformly so no motor exceeds its maximum RPM (:meth:`DiffDrive.limit`).
+
+    Raises:
+        NavigationEnvError: not an action of ``space`` (discrete) or not two finite numbers.
+    """
+    if isinstance(space, spaces.Discrete):
+        if not space.contains(action):
+            raise NavigationEnvError(
+                f"action={action!r}: expected an integer in [0, {len(DISCRETE_ACTIONS)})"
+            )
+        action = DISCRETE_ACTIONS[int(action)]
+    a = np.asarray(action, dtype=np.float64).reshape(-1)
+    if a.shape != (2,) or not np.isfinite(a).all():
+        raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
+    a = np.clip(a, -1.0, 1.0)
+    return drive.limit(float(a[0]) * max_speed, float(a[1]) * max_yaw_rate)
+
+
+class ObservationBuilder:
+    """The observation space, and the observation of a step from the runtime's last cycle.
+
+    Args:
+        grid: the episode map's grid.
+        patch_shape, patch_cell, patch_behind: the egocentric patch (see :func:`egocentric_patch`).
+        drive: the chair's kinematics (velocity limits, RPM -> twist).
+        max_goal_obs: upper bound of the goal distance, m.
+        sonar_max_range: the sonars' maximum range, m (None: no sonar observation).
+        laser_model: the laser's :class:`sim.laser.LaserModel` (None: no laser observation).
+        depth_model: the Kinect model of the ``depth`` observation (None: none).
+        elevation: add the ``elevation`` observation.
+    """
+
+    def __init__(
+        self,
+        grid: Any,
+        patch_shape: tuple[int, int],
+        patch_cell: float,
+        patch_behind: float,
+        drive: DiffDrive,
+        max_goal_obs: float,
+        *,
+        sonar_max_range: float | None = None,
+        laser_model: Any = None,
+        depth_model: Any = None,
+        elevation: bool = False,
+    ) -> None:
+        self.grid = grid
+        self.patch = (patch_shape, patch_cell, patch_behind)
+        self.drive = drive
+        self.max_goal_obs = float(max_goal_obs)
+        self.sonar_max_range = sonar_max_range
+        self.laser_model = laser_model
+        self.elevation = bool(elevation)
+        self.vel_high = np.array(
+            [SPEED_OBS_FACTOR * drive.max_speed, SPEED_OBS_FACTOR * drive.max_yaw_rate], np.float32
+        )
+        obs: dict[str, spaces.Space[Any]] = {
+            "occupancy": spaces.Box(0, 1, shape=patch_shape, dtype=np.uint8),
+            "goal": spaces.Box(
+                np.array([0.0, -math.pi], np.float32),
+                np.array([self.max_goal_obs, math.pi], np.float32),
+                dtype=np.float32,
+            ),
+            "velocity": spaces.Box(-self.vel_high, self.vel_high, dtype=np.float32),
+        }
+        self.sonar: npt.NDArray[np.float32] | None = None
+        self.laser: npt.NDArray[np.float32] | None = None
+        self.depth: npt.NDArray[np.float32] | None = None
+        if sonar_max_range is not None:
+            obs["sonar"] = spaces.Box(0.0, sonar_max_range, shape=(6,), dtype=np.float32)
+            self.sonar = np.zeros(6, dtype=np.float32)
+        if laser_model is not None:
+            obs["laser"] = spaces.Box(
+                0.0, laser_model.range_max, shape=(laser_model.n_beams,), dtype=np.float32
+            )
+            self.laser = np.zeros(laser_model.n_beams, dtype=np.float32)
+        if depth_model is not None:
+            shape = (int(depth_model.height), int(depth_model.width))
+            self.depth_max = float(depth_model.max_range_m)
+            obs["depth"] = spaces.Box(0.0, self.depth_max, shape=shape, dtype=np.float32)
+            self.depth = np.zeros(shape, dtype=np.float32)
+        if self.elevation:
+            obs["elevation"] = spaces.Box(0.0, ELEVATION_MAX, shape=patch_shape, dtype=np.float32)
+        self.space = spaces.Dict(obs)
+
+    def take_readings(self, sonars: Any, scan: Any, depth_frame: Any) -> None:
+        """Keep the cycle's sensor readings (a sensor that gave nothing keeps its last values).
+
+        Args:
+            sonars: ``[(array name, SonarArrayReading)]`` in the arrays' order (left, then right).
+            scan: the laser's :class:`hw.interfaces.LaserScan` (REP-117 ranges) or None.
+            depth_frame: the depth camera's :class:`hw.interfaces.DepthFrame` or None.
+        """
+        if self.sonar is not None and sonars:
+            rr = np.asarray([r for _, reading in sonars for r in reading.ranges_m], dtype=np.float64)
+            rmax = float(self.sonar_max_range)  # type: ignore[arg-type]
+            self.sonar = np.where(np.isfinite(rr), np.clip(rr, 0.0, rmax), rmax).astype(np.float32)
+        if self.laser is not None and scan is not None:
+            r = np.asarray(scan.ranges, dtype=np.float64)
+            rmax = float(self.laser_model.range_max)
+            # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
+            rr = np.where(np.isposinf(r), rmax, np.where(np.isneginf(r), 0.0, r))
+            self.laser = np.clip(rr, 0.0, rmax).astype(np.float32)  # noise may pass range_max
+        if self.depth is not None and depth_frame is not None:  # the camera's x (REP-103); 0 = nothing
+            z = np.asarray(depth_frame.points[..., 0], dtype=np.float64)
+            self.depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self.depth_max).astype(np.float32)
+
+    def observation(
+        self,
+        occupied: npt.NDArray[np.bool_],
+        map_: Any,
+        pose: Pose2D,
+        goal: tuple[float, float],
+        wheel_rpm: tuple[float, float],
+    ) -> dict[str, np.ndarray]:
+        """The observation at ``pose`` (the pose the chair believes).
+
+        Args:
+            occupied: the episode map's 2D occupancy in the height band (bool, grid shape).
+            map_: the episode's VHV map (for ``elevation``).
+            pose: the chair's pose estimate.
+            goal: the goal (x, y) in the map frame.
+            wheel_rpm: the measured motor speeds (left, right), RPM.
+        """
+        shape, cell, behind = self.patch
+        dist, bearing = goal_in_robot_frame(pose, goal)
+        v, w = self.drive.twist_from_rpm(*wheel_rpm)  # what the encoders say
+        obs: dict[str, np.ndarray] = {
+            "occupancy": egocentric_patch(occupied, self.grid, pose, shape, cell, behind),
+            "goal": np.array([min(dist, self.max_goal_obs), bearing], dtype=np.float32),
+            "velocity": np.clip(np.array([v, w], dtype=np.float32), -self.vel_high, self.vel_high),
+        }
+        if self.sonar is not None:
+            obs["sonar"] = self.sonar.copy()
+        if self.laser is not None:
+            obs["laser"] = self.laser.copy()
+        if self.depth is not None:
+            obs["depth"] = self.depth.copy()
+        if self.elevation:
+            from mapping.derived import elevation
+
+            top, _ = elevation(map_)
+            top = np.clip(np.nan_to_num(top, nan=0.0), 0.0, ELEVATION_MAX).astype(np.float32)
+            obs["elevation"] = egocentric_values(top, self.grid, pose, shape, cell, behind)
+        return obs
