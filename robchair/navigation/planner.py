@@ -9,12 +9,15 @@ count as free (the map only knows what the chair has sensed). The route is the c
 predecessors from the chair's cell, shortened to the cells where it turns.
 
 Following: pure pursuit (Coulter 1992) with a look-ahead point on the route; a look-ahead point
-more than 60 deg off the heading turns the chair on the spot; the speed falls near the goal and
-where the map shows obstacles close to the route.
+more than 60 deg off the heading turns the chair on the spot; the speed falls near the goal. Where
+the route ahead passes close to an obstacle (a doorway) the chair first turns on the spot until it
+points along the route, then drives through slowly, so its footprint sweeps the passage straight.
 
 :class:`BaselinePolicy` replans every ``replan_every`` steps, or at once when the route runs into a
-cell the map has since marked occupied, from the map the environment's chair builds itself
-(:meth:`robchair.envs.navigation.RobChairNavigationEnv.own_occupancy`), never from the ground truth.
+cell the map has since marked occupied, from what the chair senses itself (the environment's
+:meth:`own_occupancy` and its laser scans), never from the ground truth: the laser's returns are the
+hard obstacles and the rest of the own map (the wide sonar cones) soft ones; where the safety layer
+keeps stopping the chair it marks the cells ahead, backs up and replans.
 """
 
 from __future__ import annotations
