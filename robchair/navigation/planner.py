@@ -449,6 +449,22 @@ class BaselinePolicy:
         inside = grid.contains_index(i, j)
         return not bool(self._laser_hits[i[inside], j[inside]].any())
 
+    def _turn_clear(self, grid: GridSpec, pose: tuple[float, float, float]) -> bool:
+        """Whether the laser has located nothing in the circle the footprint sweeps turning on the spot."""
+        if self._laser_hits is None or not self._laser_hits.any():
+            return True
+        reach = math.hypot(max(self._front, -self._rear), self._half_width) + 0.05
+        x, y = pose[0], pose[1]
+        n = math.ceil(reach / grid.cell_size)
+        ci, cj = grid.world_to_index(x, y)
+        i0, i1 = max(int(ci) - n, 0), min(int(ci) + n + 1, grid.shape[0])
+        j0, j1 = max(int(cj) - n, 0), min(int(cj) + n + 1, grid.shape[1])
+        ii, jj = np.nonzero(self._laser_hits[i0:i1, j0:j1])
+        if len(ii) == 0:
+            return True
+        u, v = grid.index_to_world(ii + i0, jj + j0)
+        return bool((np.hypot(u - x, v - y) > reach).all())
+
     def _plan(
         self,
         grid: GridSpec,
@@ -558,6 +574,9 @@ class BaselinePolicy:
             self.routes.append(route)
         self._since += 1
         v, w = self.follower.command(pose, self.route, self._clearance(grid, pose))  # type: ignore[arg-type]
+        if v == 0.0 and w != 0.0 and not self._turn_clear(grid, pose) and self._clear_behind(grid, pose):  # type: ignore[arg-type]
+            # turning on the spot sweeps the footprint's front corners, which no sensor guards
+            return np.array([-self.backup_speed / self.env.max_speed, 0.0], dtype=np.float32)
         return np.array([v / self.env.max_speed, w / self.env.max_yaw_rate], dtype=np.float32).clip(-1, 1)
 
 

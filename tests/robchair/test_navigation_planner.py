@@ -160,3 +160,21 @@ def test_the_baseline_plans_on_the_laser_obstacles_when_sonar_cones_close_a_door
     policy._laser_hits = laser  # what the laser located: the wall and its doorway
     route = policy._plan(grid, occ, (2.0, 3.0), (8.0, 3.0))
     assert route is not None and route[-1] == (8.0, 3.0)
+
+
+def test_the_baseline_backs_up_before_turning_on_the_spot_next_to_an_obstacle():
+    from robchair.navigation.planner import BaselinePolicy
+
+    grid = GridSpec(cell_size=0.1, size_x=10.0, size_y=6.0, centre=(5.0, 3.0))
+    env = _ChairOnAGrid(grid, np.zeros(grid.shape, dtype=bool))
+    policy = BaselinePolicy(env)
+    pose, goal = (5.0, 3.0, 0.0), (5.0, 0.5)  # the goal is behind the right shoulder: turn on the spot
+    policy._laser_hits = np.zeros(grid.shape, dtype=bool)
+    a = policy(None, _info(pose, goal, command=(0.0, 0.0)))
+    assert a[0] == 0.0 and a[1] < 0.0  # nothing near: turn
+    policy.reset()
+    policy._laser_hits = np.zeros(grid.shape, dtype=bool)
+    i, j = grid.world_to_index(5.55, 3.3)  # a box beside the front corner the turn would sweep
+    policy._laser_hits[i, j] = True
+    a = policy(None, _info(pose, goal, command=(0.0, 0.0)))
+    assert a[0] < 0.0 and a[1] == 0.0  # back out first
