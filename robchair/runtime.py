@@ -369,7 +369,7 @@ class Runtime:
 
         Stops the current episode if it runs, then starts a fresh result, odometry at ``start_pose``,
         an unlatched safety layer with an empty stop log, and (if given) a new perception stage. The
-        chair itself is not moved: a simulated chair is placed with ``SimChair.teleport`` first.
+        chair itself is not moved: a simulated chair is placed first (``SimChair.restart``: exact).
         """
         if self._started and not self._stopped:
             self.stop()
