@@ -129,6 +129,27 @@ def sonar_obstacle_points(
     return np.stack([x0 + res.distance_m * np.cos(bearings), y0 + res.distance_m * np.sin(bearings)], axis=1)
 
 
+def explained_arc(arc: np.ndarray, origin: Any, scan_xy: np.ndarray | None, tol: float = 0.06) -> np.ndarray:
+    """The part of a fused sonar arc (N, 2) that laser returns ``scan_xy`` (M, 2) explain, else the arc.
+
+    All in ``base_link``. The echo comes from the nearest surface in the cone: laser returns at the
+    arc's range (within ``tol`` m) from the sonar ``origin`` (x, y) and inside its bearing interval
+    locate that surface (e.g. a door post beside the chair's path); without such returns (a table
+    top above the scan plane) the whole arc stays.
+    """
+    if scan_xy is None or len(scan_xy) == 0 or len(arc) < 2:
+        return arc
+    o = np.asarray(origin, dtype=float)[:2]
+    d = float(np.hypot(*(arc[0] - o)))
+    b = np.arctan2(arc[:, 1] - o[1], arc[:, 0] - o[0])
+    mid = b[len(b) // 2]
+    rel = np.angle(np.exp(1j * (b - mid)))
+    q = scan_xy - o
+    qb = np.angle(np.exp(1j * (np.arctan2(q[:, 1], q[:, 0]) - mid)))
+    near = (np.abs(np.hypot(q[:, 0], q[:, 1]) - d) <= tol) & (qb >= rel.min()) & (qb <= rel.max())
+    return scan_xy[near] if near.any() else arc
+
+
 @dataclass
 class MapLayer:
     """A further map fed with the same frames, placed with another pose source.
@@ -288,6 +309,7 @@ class Perception:
         self._frame_futs: dict[int, Future[None]] = {}
         self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
+        self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
         self.map_ms: list[float] = []
         self.stats = {
@@ -556,6 +578,12 @@ class Perception:
         arrays = self.spec.sonar_arrays
         fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
         arc = sonar_obstacle_points(reading, mount, arrays)
+        if len(arc) and self._scan_world is not None:  # the laser locates the echo's surface if it sees it
+            c, s = math.cos(pose.theta), math.sin(pose.theta)
+            q = self._scan_world - (pose.x, pose.y)
+            arc = explained_arc(
+                arc, mount.xyz, np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1)
+            )
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
@@ -588,6 +616,9 @@ class Perception:
         """Insert a laser scan: ``points`` (N, 3) in ``frame_id`` (NaN rows = no return), at ``pose``."""
         t = self._t_main_base(pose) @ self.t_base_sensor(frame_id)
         p = np.asarray(points, dtype=float).reshape(-1, 3)
+        t_odom = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
+        w = transform_points(t_odom, p[np.isfinite(p).all(axis=1)])
+        self._scan_world = w[(w[:, 2] >= self.band[0]) & (w[:, 2] <= self.band[1]), :2]
         self._submit(lambda: self.map.insert(transform_points(t, p), sensor_origin=t[:3, 3]))
         self.stats["laser_scans"] += 1
 

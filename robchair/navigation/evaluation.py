@@ -161,7 +161,8 @@ def evaluate_episode(
         shield = info.get("safety")
         if isinstance(shield, dict) and "intervened" in shield:
             interventions = (interventions or 0) + int(bool(shield["intervened"]))
-            stops = (stops or 0) + int(bool(shield.get("stopped")))
+            limited = str(shield.get("reason") or "").startswith("limited")  # else a stop reason
+            stops = (stops or 0) + int(bool(shield["intervened"]) and not limited)
     shortest = shortest_path_length(env, start, goal)  # type: ignore[arg-type]
     driven = path_length(traj)
     success = bool(info["is_success"])

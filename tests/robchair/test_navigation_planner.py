@@ -85,3 +85,96 @@ def test_pure_pursuit_turns_toward_the_route_and_slows_for_the_goal():
     assert v == 0.0 and abs(w) == pytest.approx(0.8)  # behind: turn on the spot
     v, _ = pp.command((4.95, 0.0, 0.0), [(0.0, 0.0), (5.0, 0.0)])
     assert v < 0.25  # v <= sqrt(2 a d) near the goal
+
+
+def test_the_follower_aligns_on_the_spot_before_a_tight_passage_and_drives_slowly_in_it():
+    pp = PurePursuit()
+    pose, route = (0.0, 0.0, math.radians(30)), [(0.0, 0.0), (5.0, 0.0)]
+    v, w = pp.command(pose, route)
+    assert v > 0.3  # in the open a 30 deg heading error is taken while driving
+    v, w = pp.command(pose, route, clearance=0.45)  # a doorway ahead: align first
+    assert v == 0.0 and w < 0.0
+    v, w = pp.command((0.0, 0.0, math.radians(5)), route, clearance=0.45)
+    assert 0.0 < v <= pp.tight_speed
+
+
+class _ChairOnAGrid:
+    """The parts of the navigation environment the baseline reads: the spec, limits, own map."""
+
+    action_type = "continuous"
+    max_speed = 0.62
+    max_yaw_rate = 2.14
+
+    def __init__(self, grid, occ):
+        from robchair.spec import load_spec
+
+        self.spec_robot = load_spec()
+        self.grid, self.occ = grid, occ
+
+    def own_occupancy(self):
+        return self.grid, self.occ.copy()
+
+
+def _info(pose, goal, reason=None, command=(0.5, 0.0)):
+    return {
+        "pose_estimate": pose,
+        "goal": goal,
+        "command": command,
+        "safety": {"intervened": reason is not None, "reason": reason},
+    }
+
+
+def test_the_baseline_backs_up_and_plans_around_where_the_safety_layer_keeps_stopping_it():
+    from robchair.navigation.planner import BaselinePolicy
+
+    grid = GridSpec(cell_size=0.1, size_x=10.0, size_y=6.0, centre=(5.0, 3.0))
+    env = _ChairOnAGrid(grid, np.zeros(grid.shape, dtype=bool))  # the map shows nothing ahead
+    policy = BaselinePolicy(env, stuck_steps=3)
+    pose, goal = (2.0, 3.0, 0.0), (8.0, 3.0)
+    a = policy(None, _info(pose, goal))
+    assert a[0] > 0  # straight on toward the goal
+    stop = "obstacle_sonar: obstacle at 0.20 m ahead < stopping distance 0.46 m"
+    for _ in range(2):
+        policy(None, _info(pose, goal, stop))
+    a = policy(None, _info(pose, goal, stop))  # the third stop in a row: recover
+    assert a[0] < 0 and a[1] == 0.0  # back up, straight
+    for _ in range(policy.backup_steps - 1):
+        assert policy(None, _info(pose, goal, None, command=(-0.15, 0.0)))[0] < 0
+    policy(None, _info(pose, goal, None, command=(-0.15, 0.0)))
+    # the new route leaves the straight line where the chair was stopped (0.58 + 0.2 m ahead)
+    assert max(abs(p[1] - 3.0) for p in policy.route) > 0.5
+
+
+def test_the_baseline_plans_on_the_laser_obstacles_when_sonar_cones_close_a_doorway_on_its_map():
+    from robchair.navigation.planner import BaselinePolicy
+
+    grid, laser = _room_with_wall(gap_centre=3.0, gap=1.0)
+    occ = laser.copy()
+    i, _ = grid.world_to_index(5.0, 0.0)
+    _, j0 = grid.world_to_index(5.0, 2.4)
+    _, j1 = grid.world_to_index(5.0, 3.6)
+    occ[i - 2 : i + 3, j0:j1] = True  # a wide sonar arc fills the doorway
+    env = _ChairOnAGrid(grid, occ)
+    policy = BaselinePolicy(env)
+    assert plan_path(occ, grid, (2.0, 3.0), (8.0, 3.0), policy.cfg) is None
+    policy._laser_hits = laser  # what the laser located: the wall and its doorway
+    route = policy._plan(grid, occ, (2.0, 3.0), (8.0, 3.0))
+    assert route is not None and route[-1] == (8.0, 3.0)
+
+
+def test_the_baseline_backs_up_before_turning_on_the_spot_next_to_an_obstacle():
+    from robchair.navigation.planner import BaselinePolicy
+
+    grid = GridSpec(cell_size=0.1, size_x=10.0, size_y=6.0, centre=(5.0, 3.0))
+    env = _ChairOnAGrid(grid, np.zeros(grid.shape, dtype=bool))
+    policy = BaselinePolicy(env)
+    pose, goal = (5.0, 3.0, 0.0), (5.0, 0.5)  # the goal is behind the right shoulder: turn on the spot
+    policy._laser_hits = np.zeros(grid.shape, dtype=bool)
+    a = policy(None, _info(pose, goal, command=(0.0, 0.0)))
+    assert a[0] == 0.0 and a[1] < 0.0  # nothing near: turn
+    policy.reset()
+    policy._laser_hits = np.zeros(grid.shape, dtype=bool)
+    i, j = grid.world_to_index(5.55, 3.3)  # a box beside the front corner the turn would sweep
+    policy._laser_hits[i, j] = True
+    a = policy(None, _info(pose, goal, command=(0.0, 0.0)))
+    assert a[0] < 0.0 and a[1] == 0.0  # back out first
