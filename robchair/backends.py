@@ -197,7 +197,6 @@ def _sonar_arrays(
     return tuple(arrays)
 
 
-
 def _roboteq(port: str, cfg: ConfigTable, spec: RobChairSpec, clock: Clock, **extra: Any) -> Any:
     """The Roboteq driver on ``port`` with the table's link settings and the spec's drive, PID and
     controller-side protections (ramps, amps limit, loop-error detection)."""
@@ -219,6 +218,7 @@ def _roboteq(port: str, cfg: ConfigTable, spec: RobChairSpec, clock: Clock, **ex
         release_on_open=cfg.boolean("release_stop", False),
         **extra,
     )
+
 
 def make_emulated_backend(config: Mapping[str, Any] | ConfigTable) -> Backend:
     """The real drivers over protocol emulators (the ``emulated`` entry)."""
