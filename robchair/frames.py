@@ -207,17 +207,29 @@ def invert(t: Any) -> FloatArray:
     return out
 
 
+COMPILED_MIN_POINTS = 4096
+"""float32 clouds of at least this many (N, 3) points go through one compiled pass (float64 sums)."""
+
+
 def transform_points(t: Any, points: Any, dtype: Any = np.float64) -> Any:
     """Apply a rigid transform to points.
 
     Args:
         t: (4, 4) transform for 3D points, or (3, 3) for 2D points.
         points: (..., 3) or (..., 2) array; NaN rows stay NaN.
-        dtype: arithmetic and output type (``np.float32`` keeps large sensor clouds single precision).
+        dtype: output type, and arithmetic type except for large float32 clouds (``np.float32`` keeps
+            sensor clouds single precision; from :data:`COMPILED_MIN_POINTS` points a compiled pass sums
+            in float64 and rounds once).
 
     Returns:
         Array of the same shape as ``points``, of ``dtype``.
     """
+    if np.dtype(dtype) == np.float32 and np.shape(t) == (4, 4):
+        p32 = np.asarray(points, dtype=np.float32)
+        if p32.ndim == 2 and p32.shape[1] == 3 and len(p32) >= COMPILED_MIN_POINTS:
+            from robchair._frames_kernels import transform_points_f32
+
+            return transform_points_f32(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(p32))
     m = np.asarray(t, dtype=dtype)
     p = np.asarray(points, dtype=dtype)
     n = m.shape[0] - 1

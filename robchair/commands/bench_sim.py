@@ -80,6 +80,31 @@ def _pin(n: int) -> set[int] | None:
 OLD_RUNNER = "sim/runner.py"
 
 
+def old_runner_transform_kernel(t: Any, pts: Any) -> Any:
+    """``R p + t`` of the 4x4 ``t`` for (..., 3) float32 points, compiled without the GIL as the replaced
+    runner's capture threads had it (float64 sums, float32 out)."""
+    global _OLD_KERNEL
+    if _OLD_KERNEL is None:
+        import numba
+        import numpy as np
+
+        @numba.njit(cache=False, nogil=True)
+        def kernel(t, pts):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+            flat = pts.reshape(-1, 3)
+            out = np.empty_like(flat)
+            for k in range(flat.shape[0]):
+                x, y, z = flat[k, 0], flat[k, 1], flat[k, 2]
+                for i in range(3):
+                    out[k, i] = t[i, 0] * x + t[i, 1] * y + t[i, 2] * z + t[i, 3]
+            return out.reshape(pts.shape)
+
+        _OLD_KERNEL = kernel
+    return _OLD_KERNEL(t, pts)
+
+
+_OLD_KERNEL: Any = None
+
+
 def load_old_runner() -> Any:
     """The replaced scenario runner as a module, from the last git revision that had it (None: no git)."""
     import importlib.util
@@ -98,6 +123,11 @@ def load_old_runner() -> Any:
                              capture_output=True, text=True, check=True).stdout  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
         return None
+    # the old runner's point transform kernel has left sim._kinect_kernels; it gets its twin from here
+    src = src.replace(
+        "from sim._kinect_kernels import transform_points as kernel",
+        "from robchair.commands.bench_sim import old_runner_transform_kernel as kernel",
+    )
     spec = importlib.util.spec_from_loader("robchair_bench_old_runner", loader=None)
     assert spec is not None
     mod = importlib.util.module_from_spec(spec)

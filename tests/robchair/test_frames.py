@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 from robchair import frames
 
@@ -117,3 +118,20 @@ def test_rpy_matrix_and_quaternion_agree_with_scipy(roll: float, pitch: float, y
     r = ref.as_quat()
     assert q[3] >= 0.0
     assert np.allclose(q, r, atol=1e-12) or np.allclose(q, -r, atol=1e-12)
+
+
+def test_a_large_float32_cloud_is_placed_like_the_float64_product_and_keeps_its_nan_rows():
+    from robchair.frames import COMPILED_MIN_POINTS, transform_points
+
+    rng = np.random.default_rng(5)
+    pts = (rng.normal(size=(COMPILED_MIN_POINTS + 7, 3)) * 4).astype(np.float32)
+    pts[::9] = np.nan
+    t = np.eye(4)
+    t[:3, :3] = Rotation.from_euler("xyz", [0.1, -0.2, 1.3]).as_matrix()
+    t[:3, 3] = [3.0, -1.5, 0.7]
+    got = transform_points(t, pts, np.float32)
+    want = pts.astype(np.float64) @ t[:3, :3].T + t[:3, 3]  # independent: float64 numpy
+    assert got.dtype == np.float32 and got.shape == pts.shape
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    ok = ~np.isnan(want)
+    assert np.array_equal(got[ok], want.astype(np.float32)[ok])  # one rounding of the float64 result
