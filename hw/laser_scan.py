@@ -39,7 +39,8 @@ def scan_to_points(scan: LaserScan, *, keep_invalid: bool = False) -> npt.NDArra
     """
     a = scan.angles()
     r = scan.ranges.astype(np.float64)
-    pts = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)], axis=-1)
+    with np.errstate(invalid="ignore"):  # inf x cos(90 deg) = NaN: such beams are dropped or NaN below
+        pts = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)], axis=-1)
     ok = valid_mask(scan)
     if keep_invalid:
         pts[~ok] = np.nan
