@@ -22,7 +22,7 @@ class RoboteqReadings(RoboteqTransactions):
 
     Attributes:
         firmware: the ``?FID`` answer, parsed (None until configured).
-        watchdog_trips: host stalls longer than the serial watchdog seen in this session.
+        watchdog_trips: host stalls longer than the serial watchdog seen since the port was opened.
     """
 
     firmware: codec.FirmwareId | None
