@@ -1,6 +1,3 @@
-"""RobChair digital twin: platform spec, kinematics, motor control design, runtime and CLI."""
+"""RobChair digital twin: the chair's model (:mod:`robchair.platform`), the drive loop, perception and CLI."""
 
-from robchair.errors import RobChairError
-
-__all__ = ["RobChairError"]
 __version__ = "0.1.0"

@@ -4,7 +4,7 @@ Each name maps to a lazy ``"module:factory"`` entry (:data:`BACKENDS`); ``get_ba
 imports the factory and returns an unopened :class:`hw.interfaces.Backend`; the runtime opens and
 closes it. Swapping the simulated chair for the real one is one setting: the name. The registry lives
 in the application floor so that ``hw/`` never imports ``sim/``; the motor PID the emulated and real
-Roboteq are configured with is designed here (:mod:`robchair.control`), not in ``hw/``.
+Roboteq are configured with is designed here (:mod:`robchair.platform.control`), not in ``hw/``.
 
 The controller's serial watchdog follows the loop: unless ``watchdog_ms`` is configured it is
 :data:`WATCHDOG_PERIODS` loop periods (``loop_rate_hz``); the runtime refuses a watchdog outside
@@ -44,9 +44,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hw.interfaces import Backend, Clock, PIDConfig
-from robchair.config import ConfigSource, ConfigTable
-from robchair.errors import ConfigError
-from robchair.spec import RobChairSpec
+from robchair.platform.config import ConfigSource, ConfigTable
+from robchair.platform.errors import ConfigError
+from robchair.platform.spec import RobChairSpec
 
 
 class BackendConfigError(ConfigError):
@@ -102,14 +102,15 @@ def get_backend(
     Args:
         name: a key of :data:`BACKENDS`.
         config: the backend's keys (see the module docstring); unknown keys are refused. A
-            :class:`robchair.config.ConfigTable` (e.g. the ``[emulated]`` table of a run config) makes
-            the messages name its file and line; a plain mapping is addressed as ``<name>.<key>``.
+            :class:`robchair.platform.config.ConfigTable` (e.g. the ``[emulated]`` table of a run config)
+            makes the messages name its file and line; a plain mapping is addressed as ``<name>.<key>``.
         loop_rate_hz: rate of the loop that will drive it; sets the default controller watchdog
             (:data:`WATCHDOG_PERIODS` periods) when ``watchdog_ms`` is not configured.
 
     Raises:
         BackendConfigError: unknown name, unknown key or bad value, one line in the
-            :mod:`robchair.config` dialect (``emulated.speed: unknown key (value 1); expected one of ...``).
+            :mod:`robchair.platform.config` dialect
+            (``emulated.speed: unknown key (value 1); expected one of ...``).
     """
     if name not in BACKENDS:
         raise ConfigSource(error=BackendConfigError).invalid("backend", name, f"one of {', '.join(BACKENDS)}")
@@ -140,7 +141,7 @@ def default_watchdog_ms(loop_rate_hz: float) -> int:
 
 
 def _spec(cfg: ConfigTable) -> RobChairSpec:
-    from robchair.spec import load_spec
+    from robchair.platform.spec import load_spec
 
     path = cfg.string("spec", None)
     return load_spec(path) if path else load_spec()
@@ -158,7 +159,7 @@ def design_pid_configs(spec: RobChairSpec) -> tuple[PIDConfig, PIDConfig]:
 @functools.lru_cache(maxsize=16)
 def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
     # cached: the design (with its closed-loop checks) takes a noticeable fraction of a second
-    from robchair.control import design_pid, identify_from_step_metrics
+    from robchair.platform.control import design_pid, identify_from_step_metrics
 
     d = design_pid(identify_from_step_metrics(t_r, t_p, M_p).plant)
     return PIDConfig(d.kp, d.ki, d.kd)

@@ -65,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _project_errors() -> tuple[type[BaseException], ...]:
     from hw.errors import HardwareError
     from mapping.errors import MappingError
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
     from sim.errors import SimError
 
     return (MappingError, HardwareError, SimError, RobChairError, OSError)

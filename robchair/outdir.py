@@ -26,7 +26,7 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
-from robchair.errors import RobChairError
+from robchair.platform.errors import RobChairError
 
 MARKER = ".robchair-output"
 

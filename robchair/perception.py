@@ -1,7 +1,7 @@
 """The perception stage: sensor data x mount x pose -> world -> map, and what the safety layer asks of it.
 
 This is the one place that places sensor data in the world: ``T_world_sensor = T_world_base(pose) x
-T_base_sensor(mount)`` (:mod:`robchair.frames`), then ``map.insert(points_world, sensor_origin)``.
+T_base_sensor(mount)`` (:mod:`robchair.platform.frames`), then ``map.insert(points_world, sensor_origin)``.
 
 * depth frames (:class:`hw.interfaces.DepthFrame`, organized (H, W, 3) in the camera frame): into the
   map; the points of the frame that stand in the chair's height band inside its corridor ahead give
@@ -37,25 +37,31 @@ a camera offering ``submit_read()`` (the simulated Kinect) captures up to ``came
 frames ahead on background threads; frames are delivered in order, and their map insertion runs on one
 mapping thread. Delivery waits for the same number of frames whether threads are used or not, so a
 threaded run and a serial one give the same maps and decisions bit for bit.
+
+This module owns the stage (:class:`Perception`: intake of every sensor, the pose layers, the safety
+queries) and its constants; the sonar arc helpers are in :mod:`robchair.perception_sonar`, the map
+protocol and the pose layers in :mod:`robchair.perception_layers`, the corridor and its distance
+bookkeeping in :mod:`robchair.perception_queries`.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from hw.interfaces import DepthFrame, SonarArrayReading
-from robchair.frames import se3_planar, transform_points
-from robchair.kinematics import Pose2D
-from robchair.spec import RobChairSpec, SonarArrays
+from robchair.perception_layers import MapLayer, PointMap
+from robchair.perception_queries import Corridor, _min_opt, _travelled
+from robchair.perception_sonar import _zone_tables, explained_arc, sonar_obstacle_points
+from robchair.platform.frames import se3_planar, transform_points
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import RobChairSpec
 
 POSE_SOURCES = ("odometry", "matched", "ground-truth")
 SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
@@ -71,96 +77,6 @@ SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up 
 DYNAMIC_DECAY_S = 0.5
 DYNAMIC_VOID_PROBABILITY = 0.15
 DYNAMIC_MAX_DWELL_S = 2.0
-
-
-class PointMap(Protocol):
-    """What the perception stage needs of a map."""
-
-    def insert(self, points: Any, sensor_origin: Any = None) -> Any: ...
-
-
-@dataclass(frozen=True)
-class Corridor:
-    """The strip the chair will sweep driving forward, in ``base_link`` (x forward, y left)."""
-
-    front_x: float  # x of the footprint's front edge, m
-    half_width: float  # half of the chair's width plus a lateral margin, m
-
-    @classmethod
-    def from_spec(cls, spec: RobChairSpec, lateral_margin: float = 0.05) -> Corridor:
-        b = spec.body
-        return cls(b.centre_x + 0.5 * b.depth, 0.5 * b.width + lateral_margin)
-
-    def distance_ahead(self, xy: np.ndarray) -> float | None:
-        """Distance from the front edge to the nearest point (N, 2) in the corridor ahead (None: none)."""
-        if xy.size == 0:
-            return None
-        inside = (np.abs(xy[:, 1]) <= self.half_width) & (xy[:, 0] > 0.0)
-        if not inside.any():
-            return None
-        return max(0.0, float(xy[inside, 0].min()) - self.front_x)
-
-
-@functools.lru_cache(maxsize=4)
-def _zone_tables(outer_sonar_deg: float) -> Any:
-    from mapping.sonar import zone_tables
-
-    return zone_tables(outer_sonar_deg)
-
-
-def sonar_obstacle_points(
-    reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9
-) -> np.ndarray:
-    """Points (N, 2) in ``base_link`` where the fused obstacle of one array reading may lie.
-
-    Five-zone fusion (thesis 5.2) gives the distance ``d`` and the bearing interval holding the
-    obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative). The
-    outer sonars' angle and the servo's centre come from ``arrays`` (``spec.sonar_arrays``).
-    """
-    from mapping.sonar import fuse_array
-
-    r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-    res = fuse_array(r1, r2, r3, tables=_zone_tables(arrays.outer_sonar_deg))
-    if not res.has_obstacle:
-        return np.zeros((0, 2))
-    yaw0 = mount.rpy[2] + arrays.joint_angle(reading.servo_angle_deg)
-    bearings = np.radians(np.linspace(res.alpha_deg, res.alpha_deg + res.theta_deg, n_arc)) + yaw0
-    x0, y0 = mount.xyz[0], mount.xyz[1]
-    return np.stack([x0 + res.distance_m * np.cos(bearings), y0 + res.distance_m * np.sin(bearings)], axis=1)
-
-
-def explained_arc(arc: np.ndarray, origin: Any, scan_xy: np.ndarray | None, tol: float = 0.06) -> np.ndarray:
-    """The part of a fused sonar arc (N, 2) that laser returns ``scan_xy`` (M, 2) explain, else the arc.
-
-    All in ``base_link``. The echo comes from the nearest surface in the cone: laser returns at the
-    arc's range (within ``tol`` m) from the sonar ``origin`` (x, y) and inside its bearing interval
-    locate that surface (e.g. a door post beside the chair's path); without such returns (a table
-    top above the scan plane) the whole arc stays.
-    """
-    if scan_xy is None or len(scan_xy) == 0 or len(arc) < 2:
-        return arc
-    o = np.asarray(origin, dtype=float)[:2]
-    d = float(np.hypot(*(arc[0] - o)))
-    b = np.arctan2(arc[:, 1] - o[1], arc[:, 0] - o[0])
-    mid = b[len(b) // 2]
-    rel = np.angle(np.exp(1j * (b - mid)))
-    q = scan_xy - o
-    qb = np.angle(np.exp(1j * (np.arctan2(q[:, 1], q[:, 0]) - mid)))
-    near = (np.abs(np.hypot(q[:, 0], q[:, 1]) - d) <= tol) & (qb >= rel.min()) & (qb <= rel.max())
-    return scan_xy[near] if near.any() else arc
-
-
-@dataclass
-class MapLayer:
-    """A further map fed with the same frames, placed with another pose source.
-
-    ``t_world_base()`` is called when a frame is taken (on the loop's thread) and returns the
-    (4, 4) ``T_world_base`` to place that frame with (e.g. the physics' ground truth).
-    """
-
-    name: str
-    map: PointMap
-    t_world_base: Callable[[], np.ndarray]
 
 
 class _Done:
@@ -235,7 +151,7 @@ class Perception:
     ) -> None:
         from mapping.grid import GridSpec
         from mapping.vhv import VHVMap
-        from robchair.errors import ConfigError
+        from robchair.platform.errors import ConfigError
 
         if pose not in POSE_SOURCES:
             raise ConfigError(f"pose = {pose!r}: expected one of {', '.join(POSE_SOURCES)}")
@@ -340,7 +256,7 @@ class Perception:
         try:
             return self._frames[frame_id]
         except KeyError:
-            from robchair.errors import ConfigError
+            from robchair.platform.errors import ConfigError
 
             raise ConfigError(
                 f"sensor frame {frame_id!r} has no mount; known: {', '.join(sorted(self._frames))}"
@@ -673,21 +589,3 @@ class Perception:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
-
-
-def _travelled(measured: tuple[float | None, Pose2D] | None, pose: Pose2D) -> float | None:
-    """A corridor distance measured at pose ``p0``, less the forward travel from ``p0`` to ``pose``."""
-    if measured is None:
-        return None
-    d, p0 = measured
-    if d is None:
-        return None
-    fwd = (pose.x - p0.x) * math.cos(p0.theta) + (pose.y - p0.y) * math.sin(p0.theta)
-    return max(0.0, d - max(0.0, fwd))
-
-
-def _min_opt(a: float | None, b: float | None) -> float | None:
-    """The smaller of two optional distances (None = no obstacle)."""
-    if a is None:
-        return b
-    return a if b is None else min(a, b)

@@ -16,9 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from robchair.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass, load_toml
-from robchair.frames import invert, se2, transform_points
-from robchair.kinematics import DiffDrive, Pose2D
+from robchair.platform.config import (
+    ConfigSource,
+    ConfigTable,
+    bounds,
+    check_dataclass,
+    load_dataclass,
+    load_toml,
+)
+from robchair.platform.frames import invert, se2, transform_points
+from robchair.platform.kinematics import DiffDrive, Pose2D
 from robchair.sources import Command, Observation
 
 ROUTE_KEYS = ("waypoints", "speed", "lookahead_m", "goal_tolerance_m")
@@ -37,7 +44,8 @@ class Route:
 
     Raises:
         ConfigError: fewer than two waypoints, a non-finite waypoint, a non-positive number or an
-            unknown key, in the :mod:`robchair.config` dialect (``route.speed = -1.0: expected ...``).
+            unknown key, in the :mod:`robchair.platform.config` dialect
+            (``route.speed = -1.0: expected ...``).
     """
 
     waypoints: tuple[tuple[float, float], ...]

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from robchair.errors import RobChairError
+from robchair.platform.errors import RobChairError
 
 BAG_DIR = "bag"
 STRUCTURE_FIELDS = ("i", "j", "bottom", "top")

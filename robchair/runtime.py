@@ -9,11 +9,11 @@ The same loop drives the simulated chair, the emulated one and the real one
    stage (:class:`robchair.perception.Perception`: maps, corridor distances);
 2. **decide**: the command source (route follower, joystick, policy) or the command given to
    :meth:`Runtime.step` gives a body twist (v, w);
-3. **safety**: :class:`robchair.safety.SafetyLayer` limits or stops it;
+3. **safety**: :class:`robchair.platform.safety.SafetyLayer` limits or stops it;
 4. **write**: at the moment of writing, the freshness of every sensor and the cycle's deadline are
    checked again (a cycle that outlived them commands zero), as is the gap since the last command
    against the controller's watchdog (a gap longer than the watchdog means it tripped: a stop reason);
-   then twist -> wheel RPM (:class:`robchair.kinematics.DiffDrive`) -> ``set_speeds_rpm`` (every
+   then twist -> wheel RPM (:class:`robchair.platform.kinematics.DiffDrive`) -> ``set_speeds_rpm`` (every
    cycle: only commands feed the controller's watchdog);
 5. **observers** (:mod:`robchair.observers`) are called; then the loop **waits** for ``t_{k+1}``. A
    cycle that ends after its period plus ``deadline_slack`` is a missed deadline: the next cycle stops
@@ -31,50 +31,42 @@ Single-step use (a Gymnasium env, a test)::
     while not done:
         cycle = rt.step(Command(v, w))    # or rt.step() to ask the command source
     result = rt.stop()
+
+The observers' hook, what they read of the loop and the result types are in :mod:`robchair.loop_types`;
+a run into a run folder (the recording observers, ``metrics.json``) is :func:`robchair.run_output.run_to_dir`.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
-from robchair.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
-from robchair.errors import ConfigError, RobChairError
-from robchair.kinematics import DiffDrive, Odometry, Pose2D
-from robchair.observers import Observer
-from robchair.perception import MAP_KINDS, Corridor, Perception, sonar_obstacle_points
-from robchair.route import PurePursuit, Route
-from robchair.safety import SafetyDecision, SafetyInputs, SafetyLayer, SafetyLimits, StopReason, StopRecord
-from robchair.sources import Command, CommandSource, JoystickSource, Observation, PolicySource
-from robchair.spec import RobChairSpec
+from hw.laser_scan import scan_to_points
+from robchair.loop_types import CycleResult, Observer, RunResult
+from robchair.perception import MAP_KINDS, Perception
+from robchair.platform.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
+from robchair.platform.errors import ConfigError, RobChairError
+from robchair.platform.kinematics import DiffDrive, Odometry, Pose2D
+from robchair.platform.safety import (
+    SafetyDecision,
+    SafetyInputs,
+    SafetyLayer,
+    SafetyLimits,
+    StopReason,
+)
+from robchair.platform.spec import RobChairSpec
+from robchair.route import PurePursuit
+from robchair.sources import Command, CommandSource, Observation
 
-__all__ = [
-    "Command",
-    "CommandSource",
-    "Corridor",
-    "CycleResult",
-    "JoystickSource",
-    "LoopAborted",
-    "Observation",
-    "PolicySource",
-    "PurePursuit",
-    "Route",
-    "RunResult",
-    "Runtime",
-    "RuntimeConfig",
-    "run_to_dir",
-    "sonar_obstacle_points",
-]
+__all__ = ["LoopAborted", "Runtime", "RuntimeConfig"]
 
 log = logging.getLogger(__name__)
 
@@ -131,110 +123,6 @@ class RuntimeConfig:
         return load_dataclass(cls, data, source, where, **overrides)
 
 
-@dataclass(frozen=True)
-class CycleResult:
-    """What one cycle did (returned by :meth:`Runtime.step`).
-
-    Attributes:
-        k: cycle index from 0.
-        stamp_ns: the cycle's time on the backend clock.
-        pose: odometry pose at the start of the cycle.
-        command: the twist the command source (or the caller) asked for.
-        decision: what was written, after the safety layer and the write-time checks.
-        intervened: the safety layer changed the command (stopped or limited it).
-        stops: stop events that began in this cycle.
-        done: the command source has finished, or a driver fault ended the run.
-        fault: text of a driver fault, if any.
-        motor_state: the motor controller's reading at the start of the cycle (None if it failed).
-    """
-
-    k: int
-    stamp_ns: int
-    pose: Pose2D
-    command: Command
-    decision: SafetyDecision
-    intervened: bool
-    stops: tuple[StopRecord, ...]
-    done: bool
-    fault: str | None = None
-    motor_state: MotorState | None = None
-
-
-@dataclass
-class RunResult:
-    """What a run did; :meth:`metrics` is the ``metrics.json`` schema, the same for every backend."""
-
-    backend: str
-    safety_enabled: bool = True
-    cycles: int = 0
-    sim_time_s: float = 0.0
-    loop_wall_s: float = 0.0
-    deadline_misses: int = 0
-    max_overrun_s: float = 0.0
-    final_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    distance_m: float = 0.0
-    route_completed: bool | None = None
-    max_cross_track_m: float | None = None
-    stops: list[dict[str, Any]] = field(default_factory=list)
-    driver_fault: str | None = None
-    error: str | None = None
-    limited_cycles: int = 0
-    min_sonar_distance_m: float | None = None  # nearest obstacle ahead the sonars reported
-    min_map_distance_m: float | None = None  # nearest depth point ahead in the height band
-    map_frames: int = 0
-    watchdog_ms: int | None = None
-    watchdog_trips: int = 0
-    poses: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, x, y, theta)
-    extra: dict[str, Any] = field(default_factory=dict)  # observers' sections (sim ground truth ...)
-    maps: dict[str, Any] = field(default_factory=dict)  # the perception's maps (and observers')
-    paths: dict[str, np.ndarray] = field(default_factory=dict)  # (N, 3) x, y, yaw per cycle; "t" ns
-    out_dir: Path | None = None  # the run folder, when one was written
-    exception: BaseException | None = None  # what ended the run early (raised after the folder was written)
-
-    def metrics(self) -> dict[str, Any]:
-        """The ``metrics.json`` document (one schema: keys a backend cannot fill are null)."""
-        counts: dict[str, int] = {}
-        for s in self.stops:
-            counts[s["reason"]] = counts.get(s["reason"], 0) + 1
-        m: dict[str, Any] = {
-            "backend": self.backend,
-            "status": "error" if self.error else "ok",
-            "error": self.error,
-            "cycles": self.cycles,
-            "sim_time_s": self.sim_time_s,
-            "real_time_factor": self.sim_time_s / self.loop_wall_s if self.loop_wall_s > 0 else None,
-            "wall_time_s": {"loop": self.loop_wall_s},
-            "deadline_misses": self.deadline_misses,
-            "max_overrun_s": self.max_overrun_s,
-            "final_pose": list(self.final_pose),
-            "route": {
-                "goal_reached": self.route_completed,
-                "distance_travelled_m": self.distance_m,  # odometry; the sim replaces it by the truth
-                "odometry_distance_m": self.distance_m,
-                "max_cross_track_m": self.max_cross_track_m,
-            },
-            "safety": {
-                "enabled": self.safety_enabled,
-                "stops": self.stops,
-                "stop_counts": counts,
-                "limited_cycles": self.limited_cycles,
-                "min_sonar_distance_m": self.min_sonar_distance_m,
-                "min_map_distance_m": self.min_map_distance_m,
-            },
-            "controller": {"watchdog_ms": self.watchdog_ms, "watchdog_trips": self.watchdog_trips},
-            "driver_fault": self.driver_fault,
-            "collisions": None,
-            "odometry_drift": None,
-            "map": {"depth_frames": self.map_frames},
-        }
-        for k, v in self.extra.items():
-            if isinstance(v, dict) and isinstance(m.get(k), dict):
-                m[k] = {**m[k], **v}
-            else:
-                m[k] = v
-        return m
-
-
 class Runtime:
     """The loop over an *opened* backend.
 
@@ -259,7 +147,7 @@ class Runtime:
                  safety: SafetyLayer | None = None, perception: Perception | None = None,
                  observers: Sequence[Observer] = (), start_pose: Pose2D | None = None,
                  safety_enabled: bool = True) -> None:  # fmt: skip
-        from robchair.spec import load_spec
+        from robchair.platform.spec import load_spec
 
         self.backend = backend
         self.source = source
@@ -554,8 +442,6 @@ class Runtime:
                 self.result.map_frames += 1
         laser = getattr(b, "laser_scanner", None)  # a backend with a laser carries it by this name
         if laser is not None:
-            from hw.laser_scan import scan_to_points
-
             self._stage = "laser scanner"
             try:
                 scan = laser.read()
@@ -682,50 +568,6 @@ class Runtime:
             res.watchdog_trips = max(res.watchdog_trips, trips)
 
 
-def run_to_dir(backend: Backend, source: CommandSource | None, duration_s: float, out_dir: Path | None, *,
-               spec: RobChairSpec | None = None, config: RuntimeConfig | None = None,
-               safety: SafetyLayer | None = None, start_pose: Pose2D | None = None,
-               safety_enabled: bool = True, perception: Perception | None = None,
-               observers: Sequence[Observer] = (), bag_storage: str = "mcap") -> RunResult:  # fmt: skip
-    """Open the backend, run, close it, and (with ``out_dir``) write ``bag/``, ``metrics.json``,
-    ``timeseries.csv`` and ``odometry.csv``. The output folder is written all-or-nothing
-    (:mod:`robchair.outdir`). Motor-controller diagnostics are polled at 1 Hz where the controller has
-    them."""
-    from robchair.outdir import staged_output_dir
-
-    def go(stage: Path | None) -> RunResult:
-        from robchair.observers.diagnostics import DiagnosticsObserver
-
-        obs = list(observers)
-        if stage is not None:  # a recorded run: bag, time series and the controller's diagnostics
-            from robchair.observers.recorder import RunRecorder
-            from robchair.observers.timeseries import TimeseriesWriter
-
-            recorder = RunRecorder(stage / "bag", storage=bag_storage)
-            obs[:0] = [recorder, TimeseriesWriter(stage / "timeseries.csv")]
-            obs.append(DiagnosticsObserver(recorder=recorder))
-        rt = Runtime(backend, source, spec=spec, config=config, safety=safety, perception=perception,
-                     observers=obs, start_pose=start_pose, safety_enabled=safety_enabled)  # fmt: skip
-        return rt.run(duration_s)
-
-    with backend:
-        if out_dir is None:
-            return go(None)
-        with staged_output_dir(out_dir) as stage:
-            result = go(stage)
-            write_metrics(stage, result)
-            np.savetxt(stage / "odometry.csv", np.asarray(result.poses).reshape(-1, 4), delimiter=",",
-                       header="t_s,x_m,y_m,theta_rad", comments="")  # fmt: skip
-        return result
-
-
-def write_metrics(folder: Path, result: RunResult) -> dict[str, Any]:
-    """Write ``metrics.json`` (the one schema) into ``folder``; returns the document."""
-    m = result.metrics()
-    (folder / "metrics.json").write_text(json.dumps(m, indent=2, default=_json_default) + "\n")
-    return m
-
-
 def _has_servo(array: Any) -> bool:
     """Whether a sonar array can turn (a simulated array says so; a driver array has a ``servo``)."""
     flag = getattr(array, "has_servo", None)
@@ -744,9 +586,3 @@ def _min_or(a: float | None, b: float | None) -> float | None:
     if a is None:
         return b
     return a if b is None else min(a, b)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -35,14 +35,15 @@ from typing import Any
 
 import numpy as np
 
-from robchair.errors import ConfigError
-from robchair.kinematics import DiffDrive, Pose2D
-from robchair.observers import Observer
+from robchair.loop_types import LoopView, Observer, RunResult
 from robchair.perception import MAP_KINDS
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import DiffDrive, Pose2D
+from robchair.platform.safety import SafetyLayer, SafetyLimits
+from robchair.platform.spec import RobChairSpec, load_spec
 from robchair.route import PurePursuit, Route
-from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
-from robchair.safety import SafetyLayer, SafetyLimits
-from robchair.spec import RobChairSpec, load_spec
+from robchair.run_output import _json_default
+from robchair.runtime import LoopAborted, Runtime, RuntimeConfig
 
 CONTROL_HZ = 60.0
 KINECT_EVERY = 2  # cycles: 30 Hz at 60 Hz
@@ -103,14 +104,14 @@ class ProgressBar(Observer):
         self._shown = 0.0
         self._wall0 = time.perf_counter()
 
-    def after_cycle(self, runtime: Runtime, cycle: Any) -> None:
+    def after_cycle(self, runtime: LoopView, cycle: Any) -> None:
         t = (cycle.stamp_ns - runtime.t0_ns) / 1e9
         if t - self._shown >= 1.0:
             self.bar.set_postfix_str(f"RTF {t / max(time.perf_counter() - self._wall0, 1e-9):.2f}")
             self.bar.update(t - self._shown)
             self._shown = t
 
-    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         self.bar.close()
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from hw.interfaces import MotorState, SonarArrayReading
-from robchair.kinematics import Pose2D
+from robchair.platform.kinematics import Pose2D
 
 
 @dataclass(frozen=True)

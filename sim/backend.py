@@ -41,8 +41,8 @@ from hw.interfaces import (
     PIDConfig,
     SonarArrayReading,
 )
-from robchair.config import ConfigSource, ConfigTable
-from robchair.spec import load_spec
+from robchair.platform.config import ConfigSource, ConfigTable
+from robchair.platform.spec import load_spec
 from sim.chair import SONAR_MOUNTS, SONAR_NOISE_STD_M, SimChair, robot_radius
 from sim.errors import SimError
 from sim.scene import load_scene
@@ -137,7 +137,7 @@ class SimMotorController(Device):
 
     def configure_pid(self, left: PIDConfig, right: PIDConfig) -> None:
         """Replace both channels' PID gains (continuous units, as the control module designs them)."""
-        from robchair.control import DiscretePID
+        from robchair.platform.control import DiscretePID
 
         self._check_open()
         r = self.chair.robot
@@ -307,8 +307,9 @@ def make_sim_backend(config: Mapping[str, Any] | ConfigTable | None = None) -> S
     ``watchdog_ms`` (motor controller watchdog, ms; default none),
     ``start`` ([x, y, yaw]), ``camera_backend`` (``raycast``/``pybullet``), ``noise`` (bool), ``spec``
     (path of a platform TOML). An unknown key or a bad ``start`` / ``watchdog_ms`` raises
-    :class:`sim.errors.SimError` (or the error class of a :class:`robchair.config.ConfigTable`'s source,
-    whose file and line the message then names), in the :mod:`robchair.config` dialect.
+    :class:`sim.errors.SimError` (or the error class of a
+    :class:`robchair.platform.config.ConfigTable`'s source, whose file and line the message then names),
+    in the :mod:`robchair.platform.config` dialect.
 
     The returned backend has the underlying :class:`SimChair` as ``backend.chair`` (for ground truth).
     """
@@ -327,7 +328,7 @@ def make_sim_backend(config: Mapping[str, Any] | ConfigTable | None = None) -> S
         sc = load_scenario(cfg["scenario"], robot_radius=robot_radius(spec))
         kw.update(scene=sc.scene, start=sc.start, sensor=sc.sensor, sonars=sc.sonars, seed=sc.seed)
     if cfg.get("scene"):
-        from robchair.paths import SCENES
+        from robchair.platform.paths import SCENES
 
         s = Path(cfg["scene"])
         kw["scene"] = load_scene(s if s.is_file() else SCENES / f"{cfg['scene']}.toml")

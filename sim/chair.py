@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame
-from robchair.frames import quat_from_yaw
-from robchair.kinematics import Pose2D
-from robchair.spec import RobChairSpec, load_spec
+from robchair.platform.frames import quat_from_yaw
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import RobChairSpec, load_spec
 from sim.errors import SimError
 from sim.robot import SimRobot
 from sim.scene import Scene, SceneBodies, build_scene, load_scene

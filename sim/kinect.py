@@ -82,7 +82,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import DepthFrame
-from robchair import frames
+from robchair.platform import frames
 from sim.kinect_models import (
     MODELS,
     FloatArray,

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from robchair import frames
+from robchair.platform import frames
 from sim.kinect_models import FloatArray, Intrinsics, KinectError, Registration
 from sim.raycast import MeshMirror
 

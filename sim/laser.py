@@ -244,7 +244,7 @@ class LaserSim(Device):
 def mounted_pose(base_pose: Any, spec: Any = None) -> FloatArray:
     """World pose (4x4) of ``laser_link`` for the chair's ``base_link`` at ``base_pose``, from the spec's
     laser mount (``mounts.laser_link`` in ``assets/robchair.toml``)."""
-    from robchair.spec import load_spec
+    from robchair.platform.spec import load_spec
 
     s = spec if spec is not None else load_spec()
     return pose_matrix(base_pose) @ s.laser_mount.transform()

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from robchair.frames import rotation_rpy
+from robchair.platform.frames import rotation_rpy
 from sim.errors import SimError
 
 FloatArray = npt.NDArray[np.float64]
@@ -393,7 +393,7 @@ def write_all(out_dir: Path | str) -> list[Path]:
 
 
 if __name__ == "__main__":  # pragma: no cover - regenerates the shipped assets
-    from robchair.paths import ASSETS
+    from robchair.platform.paths import ASSETS
 
     for p in write_all(ASSETS / "meshes"):
         print(p)

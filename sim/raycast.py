@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from robchair import frames
+from robchair.platform import frames
 from sim import meshgen
 from sim.errors import SimError
 from sim.meshgen import Mesh
@@ -59,7 +59,7 @@ class MeshMirrorError(SimError, ValueError):
 # --------------------------------------------------------------------------------------------
 
 
-#: Quaternion (x, y, z, w) of a rotation matrix: :func:`robchair.frames.quat_from_matrix`, under the
+#: Quaternion (x, y, z, w) of a rotation matrix: :func:`robchair.platform.frames.quat_from_matrix`, under the
 #: name this module has always exported.
 matrix_to_quat = frames.quat_from_matrix
 

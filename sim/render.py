@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from robchair.spec import RobChairSpec
+from robchair.platform.spec import RobChairSpec
 from sim.scene import Scenario
 
 YAW_DEG = -30.0  # camera yaw about z, PyBullet's computeViewMatrixFromYawPitchRoll convention

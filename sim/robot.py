@@ -3,11 +3,11 @@
 Motors. PyBullet's joint motors are ideal: a velocity target is reached in one step. The real wheel
 motors are not: Appendix B measured a second-order open-loop step response (t_p ~ 0.4 s, 10-12 %
 overshoot) with the chair on the floor, i.e. with the chair's inertia included. So each wheel runs
-through :class:`robchair.control.DiscretePlant` (the identified plant, exact ZOH discretisation, unit
+through :class:`robchair.platform.control.DiscretePlant` (the identified plant, exact ZOH discretisation, unit
 DC gain: command RPM in, motor-shaft RPM out), and in closed-loop speed mode a
-:class:`robchair.control.DiscretePID` (gains by the pole-placement design of SPEC 5, derivative on the
-measurement) in front of it: the same classes the Roboteq emulator runs, at the same controller rate
-(:data:`robchair.control.CONTROLLER_RATE_HZ`, 1 kHz), independent of the physics rate. Each physics
+:class:`robchair.platform.control.DiscretePID` (gains by the pole-placement design of SPEC 5, derivative on
+the measurement) in front of it: the same classes the Roboteq emulator runs, at the same controller rate
+(:data:`robchair.platform.control.CONTROLLER_RATE_HZ`, 1 kHz), independent of the physics rate. Each physics
 step runs the controller ticks that fall inside it (4 or 5 at 240 Hz physics); the first measures the
 wheel's joint speed like the Roboteq measures its encoder, the others add the plant's change since then
 (the wheel follows the plant exactly, see below), so no tick reuses a stale measurement. The plant's output
@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from robchair import frames
-from robchair.kinematics import DiffDrive, Pose2D, wrap_int32
-from robchair.spec import RobChairSpec
+from robchair.platform import frames
+from robchair.platform.kinematics import DiffDrive, Pose2D, wrap_int32
+from robchair.platform.spec import RobChairSpec
 from sim.errors import SimError, SimulationDivergedError
 from sim.urdf import SERVO_MAX_TORQUE, SERVO_MAX_VELOCITY, WHEEL_JOINTS, apply_contact_dynamics, write_urdf
 from sim.world import World
@@ -43,8 +43,8 @@ class WheelMotor:
 
     Attributes:
         channel: Roboteq channel (1 left, 2 right).
-        plant: ``robchair.control.DiscretePlant`` (command RPM -> shaft RPM).
-        pid: ``robchair.control.DiscretePID`` or None for open loop.
+        plant: ``robchair.platform.control.DiscretePlant`` (command RPM -> shaft RPM).
+        pid: ``robchair.platform.control.DiscretePID`` or None for open loop.
     """
 
     channel: int
@@ -84,7 +84,7 @@ def make_wheel_motors(
     pid_gains: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None,
 ) -> tuple[WheelMotor, WheelMotor]:
     """The two wheel motors: plants identified from the spec's step responses, PIDs by design (SPEC 5)."""
-    from robchair.control import DiscretePID, DiscretePlant, design_pid, identify_from_step_metrics
+    from robchair.platform.control import DiscretePID, DiscretePlant, design_pid, identify_from_step_metrics
 
     motors = []
     for i, ch in enumerate((1, 2)):
@@ -108,7 +108,8 @@ class SimRobot:
         spec: Platform spec.
         start: Initial (x, y, yaw) of ``base_link`` on the floor.
         motor_rate_hz: Rate of the motor controller (plant + PID), Hz; default
-            :data:`robchair.control.CONTROLLER_RATE_HZ` (the Roboteq's 1 kHz, as the emulator runs it).
+            :data:`robchair.platform.control.CONTROLLER_RATE_HZ` (the Roboteq's 1 kHz, as the emulator
+            runs it).
         closed_loop: Closed-loop speed mode (PID) or open loop (the command goes straight to the plant).
         wheel_radius_scale: True tyre radii relative to the spec (see :func:`sim.urdf.build_urdf`); the
             encoders and everything downstream keep assuming the spec's radius.
@@ -125,7 +126,7 @@ class SimRobot:
     ) -> None:
         self.world, self.spec, self.client = world, spec, world.client
         self.drive = DiffDrive(spec)
-        from robchair.control import CONTROLLER_RATE_HZ
+        from robchair.platform.control import CONTROLLER_RATE_HZ
 
         rate = motor_rate_hz or int(CONTROLLER_RATE_HZ)
         if not (isinstance(rate, int) and rate > 0):
@@ -217,7 +218,7 @@ class SimRobot:
         """
         from dataclasses import replace
 
-        from robchair.control import DiscretePlant
+        from robchair.platform.control import DiscretePlant
 
         for motor, nominal, kw, kx in zip(
             (self.left, self.right), self.nominal_plants, omega_n_scale, xi_scale, strict=True

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from robchair.paths import ASSETS
+from robchair.platform.paths import ASSETS
 from sim.errors import SimError
 from sim.scene import Motion, Scene, SceneObject
 

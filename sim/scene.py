@@ -43,7 +43,7 @@ A **scenario** file has a ``[scenario]`` table (scene, duration, sensor, seed, s
     speed = 0.5
     lookahead = 0.6
 
-Every key is checked (:mod:`robchair.config`): an unknown key, a wrong type, a missing mesh or an
+Every key is checked (:mod:`robchair.platform.config`): an unknown key, a wrong type, a missing mesh or an
 impossible pose (non-finite, under the floor, overlapping the chair at its start) raises
 :class:`sim.errors.ScenarioError` naming the file, the line of the key, the field, the value and what
 was expected.
@@ -60,9 +60,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from robchair.config import ConfigSource, ConfigTable, load_toml
-from robchair.frames import quat_from_rpy, rotation_rpy
-from robchair.paths import ASSETS, SCENES
+from robchair.platform.config import ConfigSource, ConfigTable, load_toml
+from robchair.platform.frames import quat_from_rpy, rotation_rpy
+from robchair.platform.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
 from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, sphere
 
@@ -326,7 +326,7 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
     """Load and validate a scenario file and the scene it names.
 
     Args:
-        path: the scenario TOML, or a scenario name in :data:`robchair.paths.SCENES`.
+        path: the scenario TOML, or a scenario name in :data:`robchair.platform.paths.SCENES`.
         robot_radius: radius (m) of the circle around the start pose the chair occupies; a static
             object lower than the chair whose footprint enters it is an impossible start.
 

@@ -39,8 +39,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import RangeReading, SonarArrayReading
-from robchair import frames
-from robchair.spec import default_spec
+from robchair.platform import frames
+from robchair.platform.spec import default_spec
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -264,7 +264,7 @@ class SonarArraySim:
     servo angle 0); the servo turns the three sonars together by ``servo_angle_deg`` about z.
     ``sonar_offsets_m`` places each sonar in the turned frame (the thesis stacks them on top of each
     other). ``outer_deg`` and ``sonar_offsets_m`` default to the platform's (``[sonar_arrays]`` of
-    ``assets/robchair.toml``, :class:`robchair.spec.SonarArrays`).
+    ``assets/robchair.toml``, :class:`robchair.platform.spec.SonarArrays`).
     """
 
     def __init__(

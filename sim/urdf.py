@@ -32,7 +32,7 @@ import tempfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from robchair.spec import RobChairSpec
+from robchair.platform.spec import RobChairSpec
 
 WHEEL_JOINTS = ("left_wheel_joint", "right_wheel_joint")
 SENSOR_LINK_MASS = 0.2  # kg; small but not tiny, so the servo joints stay well conditioned

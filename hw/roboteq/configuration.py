@@ -93,7 +93,7 @@ class RoboteqConfiguration(RoboteqReadings):
 
     def _write_configuration(self) -> None:
         if self.protections is None:
-            from robchair.spec import load_spec
+            from robchair.platform.spec import load_spec
 
             self.protections = RoboteqProtections.from_spec(load_spec())
         items: dict[str, int] = {"MMOD": 1, "EPPR": self.encoder_ppr, "MXRPM": self.max_rpm}

@@ -1,7 +1,7 @@
 """The two motor channels of the emulated Roboteq: plant, PID, ramps, encoder, watchdog, loop error.
 
-Each channel runs the identified second-order plant (:class:`robchair.control.DiscretePlant`, command
-RPM in, shaft RPM out) under the discrete PID (:class:`robchair.control.DiscretePID`) at the
+Each channel runs the identified second-order plant (:class:`robchair.platform.control.DiscretePlant`, command
+RPM in, shaft RPM out) under the discrete PID (:class:`robchair.platform.control.DiscretePID`) at the
 controller rate, with the gains in firmware units. Encoder ticks are counted quadrature x4. State is
 stepped lazily: :meth:`EmulatedMotors._sync` advances both channels to the clock's time in controller
 steps whenever a command, a query or a clock move needs it. :class:`hw.roboteq.emulator.RoboteqEmulator`
@@ -19,7 +19,7 @@ from typing import Any
 from hw.interfaces import Clock, MotorFaults
 from hw.roboteq import codec
 from hw.roboteq.gains import gains_from_roboteq
-from robchair.spec import RobChairSpec
+from robchair.platform.spec import RobChairSpec
 
 # Power-on values of the per-channel configuration items the driver writes (manual defaults).
 POWER_ON_CONFIG = {"MAC": 10000, "MDEC": 10000, "ALIM": 300, "CLERD": 0}
@@ -61,7 +61,7 @@ def _plant_and_default_gains(
 ) -> tuple[Any, tuple[int, int, int]]:
     """Identified plant and the firmware gains of the SPEC 5 design (cached: the design is slow)."""
     from hw.roboteq.gains import roboteq_gains
-    from robchair import control as c
+    from robchair.platform import control as c
 
     plant = c.identify_from_step_metrics(t_r, t_p, M_p).plant
     fw = roboteq_gains(c.design_pid(plant), firmware_major)

@@ -7,8 +7,8 @@ each character as it arrives (when on; ``^ECHOF 1`` turns it off), CR or ``_`` e
 The real driver (:class:`hw.roboteq.driver.RoboteqMDC2230`) is pointed at
 :attr:`RoboteqEmulator.device_path` unchanged.
 
-Each channel runs the identified second-order plant (:class:`robchair.control.DiscretePlant`, command
-RPM in, shaft RPM out) under the discrete PID (:class:`robchair.control.DiscretePID`) at the
+Each channel runs the identified second-order plant (:class:`robchair.platform.control.DiscretePlant`, command
+RPM in, shaft RPM out) under the discrete PID (:class:`robchair.platform.control.DiscretePID`) at the
 controller rate, with the gains the driver wrote (``^KP/^KI/^KD`` in firmware units). Encoder ticks are
 counted quadrature x4 into a signed 32-bit counter. The serial watchdog (``^RWD`` ms) stops both
 motors when no ``!`` command arrived within the period; as the manual says, the motors resume their
@@ -52,7 +52,7 @@ from hw.pty_link import PtyServer
 from hw.roboteq import codec
 from hw.roboteq.emulated_commands import EmulatedCommandSet
 from hw.roboteq.emulated_motors import StopEvent
-from robchair.spec import RobChairSpec
+from robchair.platform.spec import RobChairSpec
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ class RoboteqEmulator(EmulatedCommandSet, PtyServer):
     """An emulated MDC2230 answering on a pty.
 
     Args:
-        spec: a :class:`robchair.spec.RobChairSpec` (default: ``load_spec()``); its motor step
+        spec: a :class:`robchair.platform.spec.RobChairSpec` (default: ``load_spec()``); its motor step
             responses give the two plants, its PPR and max RPM the power-on configuration.
         firmware: the ``?FID`` answer; its ``vMAJOR.`` decides the firmware gain units.
         echo: echo each command line back (the controller's default) or not.
@@ -115,8 +115,8 @@ class RoboteqEmulator(EmulatedCommandSet, PtyServer):
         rate_hz: float = 1000.0,
         battery_v: float = 24.0,
     ) -> None:
-        from robchair import control
-        from robchair.spec import load_spec
+        from robchair.platform import control
+        from robchair.platform.spec import load_spec
 
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise HardwareError(f"RoboteqEmulator: rate_hz must be > 0, got {rate_hz!r}")

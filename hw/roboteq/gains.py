@@ -11,8 +11,9 @@ Source: the Roboteq controller manuals (V1.8 for firmware 1.x, V2.0 for 2.x), SP
 
 Units assumed for the equivalence (the manuals give the integer encodings, not the loop's internals):
 the firmware's speed PID works on normalised quantities (speed command and encoder speed scaled to
-+-1000 at ``^MXRPM``; output = power command in +-1000). The plant input of :mod:`robchair.control` is
-the open-loop command expressed as the RPM it gives in steady state (power / 1000 x max RPM), the same
++-1000 at ``^MXRPM``; output = power command in +-1000). The plant input of
+:mod:`robchair.platform.control` is the open-loop command expressed as the RPM it gives in steady state
+(power / 1000 x max RPM), the same
 normalisation as the error, so one of our gains equals the firmware gain times ``scale`` = 1 when
 ``^MXRPM`` is the motor's max RPM and full power gives max RPM. K_i (1/s) and K_d (s) are continuous-time
 gains; the firmware's loop scales them by its own sample time.
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from robchair.control import ControlError, PIDDesign, evaluate_gains, pole_mismatch
+from robchair.platform.control import ControlError, PIDDesign, evaluate_gains, pole_mismatch
 
 FIRMWARE_MULTIPLIER: dict[int, int] = {1: 10, 2: 1_000_000}
 """Register value per unit of gain, by firmware major version."""
@@ -40,7 +41,7 @@ GAIN_EQUIVALENCE_NOTE = (
 
 
 def gain_equivalence_holds(major: int, minor: int) -> bool:
-    """True when the firmware's speed gains act on the plant :mod:`robchair.control` identifies.
+    """True when the firmware's speed gains act on the plant :mod:`robchair.platform.control` identifies.
 
     Firmware 1.x and 2.0 close the speed loop on the motor voltage; 2.1 and later close it on a current
     loop (SPEC erratum 8), so a design on the open-loop voltage-to-speed plant does not carry over.

@@ -76,12 +76,12 @@ class RoboteqProtections:
         distance, so the controller must be able to decelerate at least that fast.
 
         Args:
-            spec: a :class:`robchair.spec.RobChairSpec` (wheel radius, separation, gear ratio).
-            limits: a :class:`robchair.safety.SafetyLimits` (default: its defaults).
+            spec: a :class:`robchair.platform.spec.RobChairSpec` (wheel radius, separation, gear ratio).
+            limits: a :class:`robchair.platform.safety.SafetyLimits` (default: its defaults).
             amps_limit_a: ``^ALIM``, A.
         """
         if limits is None:
-            from robchair.safety import SafetyLimits
+            from robchair.platform.safety import SafetyLimits
 
             limits = SafetyLimits()
         half = spec.wheel_separation / 2.0

@@ -77,7 +77,7 @@ def _physics_only(steps: int, seed: int) -> tuple[float, float]:
 
 
 def _office() -> Any:
-    from robchair.paths import SCENES
+    from robchair.platform.paths import SCENES
     from sim.scene import load_scene
 
     return load_scene(SCENES / "office.toml")
@@ -152,7 +152,7 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
 def _run(args: argparse.Namespace) -> int:
     from robchair.envs.navigation import AGENT_HZ
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     if args.steps < 1 or args.repeats < 1:
         raise RobChairError(f"--steps and --repeats must be >= 1, got {args.steps}, {args.repeats}")

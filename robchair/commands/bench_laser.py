@@ -37,7 +37,7 @@ def measure(scene: str, scans: int) -> dict[str, Any]:
     import numpy as np
     import pybullet as p
 
-    from robchair.paths import ASSETS
+    from robchair.platform.paths import ASSETS
     from sim.backend import SimChair
     from sim.laser import LaserSim
     from sim.raycast import MeshMirror
@@ -92,7 +92,7 @@ def measure(scene: str, scans: int) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     if args.scans < 1:
         raise RobChairError(f"--scans must be >= 1, got {args.scans}")

@@ -159,7 +159,7 @@ def _peak_extra_bytes(fn: Any) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     if args.repeat < 1 or args.octomap_repeat < 1:
         raise RobChairError(f"--repeat {args.repeat} / --octomap-repeat {args.octomap_repeat}: expected >= 1")

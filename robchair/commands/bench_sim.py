@@ -181,7 +181,7 @@ def _run(args: argparse.Namespace) -> int:
     import statistics
 
     from robchair.commands.sim import retain_freed_memory
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     if args.duration <= 0 or args.repeats < 1:
         raise RobChairError(f"--duration must be > 0 and --repeats >= 1, got {args.duration}, {args.repeats}")

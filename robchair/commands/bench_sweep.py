@@ -84,7 +84,7 @@ def _long_run_wall(duration: float, tmp: Path) -> float:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
     from robchair.sweep.executor import ray_session
 
     if args.runs < 2 or args.empty < 10 or args.duration <= 0 or args.long <= 0:

@@ -233,8 +233,8 @@ def _time_backends(mesh: Path, repeats: int) -> dict[str, float]:
 
 def _run(args: argparse.Namespace) -> int:
 
-    from robchair.errors import RobChairError
     from robchair.outdir import check_output_dir, deferred_stdout
+    from robchair.platform.errors import RobChairError
 
     if args.cell_size <= 0 or args.tolerance <= 0:
         raise RobChairError(f"--cell-size {args.cell_size} and --tolerance {args.tolerance} must be > 0")
@@ -248,8 +248,8 @@ def _run(args: argparse.Namespace) -> int:
 def _measure_all(args: argparse.Namespace, out_dir: Any) -> int:
     import numpy as np
 
-    from robchair.errors import RobChairError
-    from robchair.paths import ASSETS
+    from robchair.platform.errors import RobChairError
+    from robchair.platform.paths import ASSETS
 
     rng = np.random.default_rng(args.seed)
     known = {mesh.removesuffix(".obj") for _, mesh, *_ in THESIS_ROWS}

@@ -40,7 +40,7 @@ def _run(args: argparse.Namespace) -> int:
     from mapping.synthetic import render_scene
     from mapping.vhv import VHVMap
     from mapping.zoom import ZoomMap
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     if args.repeats < 3:
         raise RobChairError(f"--repeats {args.repeats}: expected at least 3")

@@ -117,7 +117,7 @@ def register(subparsers: Any) -> None:
 
 
 def _fail(message: str) -> Exception:
-    from robchair.errors import RobChairError
+    from robchair.platform.errors import RobChairError
 
     return RobChairError(message)
 

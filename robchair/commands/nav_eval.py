@@ -141,7 +141,7 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.outdir import staged_output_dir
 
     if getattr(args, "verbose", 0) == 0:  # one line per safety stop would bury the progress bar
-        logging.getLogger("robchair.safety").setLevel(logging.ERROR)
+        logging.getLogger("robchair.platform.safety").setLevel(logging.ERROR)
     if args.episodes < 1:
         raise EvaluationError(f"--episodes {args.episodes}: expected at least 1")
     if args.env not in sim.envs.ENV_IDS:

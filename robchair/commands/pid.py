@@ -104,8 +104,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.errors import ConfigError
     from robchair.outdir import check_output_dir, deferred_stdout
+    from robchair.platform.errors import ConfigError
 
     for r in args.rate:
         if not (math.isfinite(r) and r > 0):
@@ -124,11 +124,11 @@ def _run(args: argparse.Namespace) -> int:
 
 def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
     from hw.roboteq.gains import GAIN_EQUIVALENCE_NOTE, roboteq_gains
-    from robchair import control as rc
+    from robchair.platform import control as rc
 
     motors: list[dict[str, Any]] = []
     if args.trace is not None:
-        from robchair.spec import load_spec
+        from robchair.platform.spec import load_spec
 
         spec = load_spec(args.spec)
         units = rc.TraceUnits(args.time_unit, args.command_unit, args.speed_unit)
@@ -152,7 +152,7 @@ def _design_all(args: argparse.Namespace, out_dir: Any) -> int:
         ident = rc.identify_from_step_metrics(args.tr, args.tp, args.mp)
         motors.append({"name": "motor", "plant": ident.plant, "ident": ident, "step_rpm": 100.0})
     else:
-        from robchair.spec import load_spec
+        from robchair.platform.spec import load_spec
 
         spec = load_spec(args.spec)
         for s in spec.motor_steps:

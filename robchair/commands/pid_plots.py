@@ -17,7 +17,7 @@ def plot_steps(motors: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from robchair.control import CONTROLLER_RATE_HZ, DiscretePID, DiscretePlant
+    from robchair.platform.control import CONTROLLER_RATE_HZ, DiscretePID, DiscretePlant
 
     fig, axes = plt.subplots(1, len(motors), figsize=(6.0 * len(motors), 4.2), squeeze=False)
     for ax, m in zip(axes[0], motors):
@@ -92,7 +92,7 @@ def plot_root_locus(m: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from robchair.control import open_loop_poles_and_zeros, root_locus
+    from robchair.platform.control import open_loop_poles_and_zeros, root_locus
 
     d = m["design"]
     locus, _gains = root_locus(d, np.concatenate([[0.0], np.logspace(-4, 3, 1500)]))

@@ -4,7 +4,8 @@
 
 The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
 keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
-(:class:`robchair.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route file).
+(:class:`robchair.platform.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route
+file).
 The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
 backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
 the backend's joystick. ``--backend sim`` without a route drives the ``office_corridor`` scenario.
@@ -18,12 +19,12 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from robchair.config import ConfigSource, ConfigTable
+from robchair.platform.config import ConfigSource, ConfigTable
 
 if TYPE_CHECKING:
-    from robchair.kinematics import Pose2D
+    from robchair.platform.kinematics import Pose2D
+    from robchair.platform.spec import RobChairSpec
     from robchair.route import Route
-    from robchair.spec import RobChairSpec
 
 
 def register(subparsers: Any) -> None:
@@ -73,7 +74,7 @@ def load_run_config(path: Path | None) -> ConfigTable:
         ConfigError: the file is missing or not TOML, or has a table other than
             :data:`RUN_CONFIG_TABLES` (``<file>:<line>: <key>: unknown key ...; expected one of ...``).
     """
-    from robchair.config import load_toml
+    from robchair.platform.config import load_toml
 
     if path is None:
         return ConfigTable({})
@@ -87,7 +88,7 @@ def load_run_config(path: Path | None) -> ConfigTable:
 
 def _scenario_route(name: str, spec: RobChairSpec) -> tuple[Route, Pose2D]:
     """The route of a sim scenario as a runtime Route starting at the scenario's start pose."""
-    from robchair.kinematics import Pose2D
+    from robchair.platform.kinematics import Pose2D
     from robchair.route import Route
     from sim.backend import robot_radius
     from sim.scene import load_scenario
@@ -100,14 +101,15 @@ def _scenario_route(name: str, spec: RobChairSpec) -> tuple[Route, Pose2D]:
 
 def _run(args: argparse.Namespace) -> int:
     from robchair.backends import BACKENDS, get_backend
-    from robchair.errors import ConfigError
-    from robchair.kinematics import DiffDrive
     from robchair.outdir import check_output_dir, overwrite_allowed
+    from robchair.platform.errors import ConfigError
+    from robchair.platform.kinematics import DiffDrive
+    from robchair.platform.safety import SafetyLayer, SafetyLimits
+    from robchair.platform.spec import load_spec
     from robchair.route import PurePursuit, Route
-    from robchair.runtime import RuntimeConfig, run_to_dir
-    from robchair.safety import SafetyLayer, SafetyLimits
+    from robchair.run_output import run_to_dir
+    from robchair.runtime import RuntimeConfig
     from robchair.sources import JoystickSource
-    from robchair.spec import load_spec
 
     if args.backend not in BACKENDS:
         raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")

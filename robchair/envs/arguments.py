@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from robchair.spec import RobChairSpec
+from robchair.platform.spec import RobChairSpec
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import PATCH_BEHIND, PATCH_CELL, PATCH_SHAPE
 from sim.envs.randomization import DomainRandomization
@@ -38,7 +38,7 @@ def load_scene_arg(scene: Scene | str | Path) -> Scene:
     """
     if isinstance(scene, Scene):
         return scene
-    from robchair.paths import SCENES
+    from robchair.platform.paths import SCENES
 
     path = Path(scene)
     if not path.is_file():

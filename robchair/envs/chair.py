@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, MotorState
-from robchair.kinematics import Pose2D
-from robchair.runtime import CycleResult
-from robchair.spec import RobChairSpec
+from robchair.loop_types import CycleResult
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import RobChairSpec
 from sim.backend import SONAR_MOUNTS, SimBackend, SimChair, SimMotorController, SimSonarArray
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import decimated_depth_noise
@@ -243,7 +243,7 @@ def shield_report(cycle: CycleResult) -> dict[str, Any]:
 class GroundTruthLocalisation:
     """The physics' ground truth in place of wheel odometry (``pose_source="ground_truth"``).
 
-    Duck-types :class:`robchair.kinematics.Odometry` for the runtime: ``update`` ignores the
+    Duck-types :class:`robchair.platform.kinematics.Odometry` for the runtime: ``update`` ignores the
     encoder counts and returns the simulated chair's true planar pose.
     """
 

@@ -17,8 +17,8 @@ import numpy.typing as npt
 
 from mapping.grid import GridSpec
 from robchair.envs.arguments import pose_arg
-from robchair.kinematics import Pose2D
-from robchair.spec import RobChairSpec
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import RobChairSpec
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import FreeSpace
 from sim.scene import Scene

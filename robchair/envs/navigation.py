@@ -51,11 +51,12 @@ from robchair.envs.chair import GroundTruthLocalisation, build_chair, place_chai
 from robchair.envs.episodes import EpisodeSampler, check_reset_options, scene_grid
 from robchair.envs.observation import DISCRETE_ACTIONS, ObservationBuilder, action_space, action_to_twist
 from robchair.envs.render import top_down_picture
-from robchair.kinematics import DiffDrive, Pose2D
+from robchair.loop_types import CycleResult
 from robchair.perception import Perception
-from robchair.runtime import CycleResult, Runtime, RuntimeConfig
+from robchair.platform.kinematics import DiffDrive, Pose2D
+from robchair.platform.spec import RobChairSpec, load_spec
+from robchair.runtime import Runtime, RuntimeConfig
 from robchair.sources import Command
-from robchair.spec import RobChairSpec, load_spec
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import (
     PATCH_BEHIND,
@@ -96,7 +97,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     Every step is one cycle of the chair's runtime (:meth:`robchair.runtime.Runtime.step`): the same
     loop that drives the emulated and the real chair reads the sensors through the hardware
     interfaces, maps them in the perception stage (:class:`robchair.perception.Perception`), passes
-    the agent's command through the safety layer (:class:`robchair.safety.SafetyLayer`, on unless
+    the agent's command through the safety layer (:class:`robchair.platform.safety.SafetyLayer`, on unless
     ``safety=False``) and writes the wheel speeds; the physics advances while the runtime waits for
     its next cycle. ``info["safety"]`` says whether and why the safety layer changed the command
     (``{"intervened": bool, "reason": str | None}``, e.g. ``"obstacle_map: obstacle at 0.31 m ahead
@@ -107,7 +108,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     ``Box(-1, 1, (2,), float32)``: ``[v, w]`` normalised; ``v * max_speed`` m/s forward speed and
     ``w * max_yaw_rate`` rad/s yaw rate (counter-clockwise), both by default the kinematic limits of
-    :class:`robchair.kinematics.DiffDrive` (0.62 m/s, 2.14 rad/s); the pair is then scaled down
+    :class:`robchair.platform.kinematics.DiffDrive` (0.62 m/s, 2.14 rad/s); the pair is then scaled down
     uniformly so no motor exceeds its maximum RPM. Actions outside the box are clipped; non-finite
     actions raise :class:`NavigationEnvError`. With ``action_type="discrete"``: ``Discrete(5)``, the
     normalised pairs of :data:`DISCRETE_ACTIONS` (0 stop, 1 forward at 0.3, 2 forward at 0.7, 3 turn

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from robchair.kinematics import DiffDrive, Pose2D
+from robchair.platform.kinematics import DiffDrive, Pose2D
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import egocentric_patch, egocentric_values, goal_in_robot_frame
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from robchair.kinematics import Pose2D
+from robchair.platform.kinematics import Pose2D
 
 
 def top_down_picture(

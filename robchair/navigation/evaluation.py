@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from robchair.errors import RobChairError
 from robchair.navigation.metrics import barn_score, spl_term
 from robchair.navigation.planner import (
     BaselinePolicy,
@@ -31,6 +30,7 @@ from robchair.navigation.planner import (
     plan_path,
     shortcut,
 )
+from robchair.platform.errors import RobChairError
 
 _ENVS: dict[tuple[str, str], Any] = {}
 

@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mapping.grid import GridSpec
-from robchair.errors import RobChairError
+from robchair.platform.errors import RobChairError
 
 
 class PlanningError(RobChairError, ValueError):

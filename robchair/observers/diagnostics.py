@@ -17,11 +17,10 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
-from robchair.observers import Observer
+from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
 
 if TYPE_CHECKING:
     from robchair.observers.recorder import RunRecorder
-    from robchair.runtime import CycleResult, RunResult, Runtime
 
 TOPIC = "/diagnostics"
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
@@ -43,11 +42,11 @@ class DiagnosticsObserver(Observer):
         self._next_ns: int | None = None
         self._read: Any = None
 
-    def episode_start(self, runtime: Runtime) -> None:
+    def episode_start(self, runtime: LoopView) -> None:
         self._read = getattr(runtime.backend.motors, "read_diagnostics", None)
         self._next_ns = runtime.t0_ns
 
-    def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
+    def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         if self._next_ns is None or cycle.stamp_ns < self._next_ns:
             return
         if cycle.fault is not None:  # the driver already failed and stopped: the fault is the report
@@ -80,7 +79,7 @@ class DiagnosticsObserver(Observer):
         msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
         bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
 
-    def _write_placeholder(self, runtime: Runtime, stamp_ns: int) -> None:
+    def _write_placeholder(self, runtime: LoopView, stamp_ns: int) -> None:
         assert self.recorder is not None
         bag = self.recorder.bag
         t = bag.t
@@ -95,7 +94,7 @@ class DiagnosticsObserver(Observer):
         msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
         bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
 
-    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         diag = None
         if self.last is not None:
             diag = {**asdict(self.last), "samples": self.samples}

@@ -2,7 +2,7 @@
 
 Uses only domain-named powers of the simulated chair (:class:`sim.backend.SimChair`):
 ``ground_truth_pose``, ``ground_truth_transform`` and ``contacts``. It adds a map placed with the
-physics' poses to the perception stage (a :class:`robchair.perception.MapLayer`), so the odometry map
+physics' poses to the perception stage (a :class:`robchair.perception_layers.MapLayer`), so the odometry map
 and the ground-truth-pose map see the same frames, and writes into the run's metrics:
 
 * ``route.distance_travelled_m`` (ground truth), ``odometry_drift`` (final / max position error, final
@@ -22,16 +22,13 @@ and the ground-truth-pose map see the same frames, and writes into the run's met
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import binary_dilation
 
-from robchair.frames import wrap_angle
-from robchair.observers import Observer
-
-if TYPE_CHECKING:
-    from robchair.runtime import CycleResult, RunResult, Runtime
+from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
+from robchair.platform.frames import wrap_angle
 
 
 def precision_recall(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -159,7 +156,7 @@ class GroundTruthEvaluation(Observer):
         self._touching: set[str] = set()
         self.clearing: WalkerClearing | None = None
 
-    def episode_start(self, runtime: Runtime) -> None:
+    def episode_start(self, runtime: LoopView) -> None:
         if self.ground_truth_map:
             p = runtime.perception
             if "ground-truth" in getattr(p, "pose_maps", {}):  # the run's own map is placed so already
@@ -173,13 +170,13 @@ class GroundTruthEvaluation(Observer):
                 static = scene_occupancy(self.scene, p.grid, p.band)
                 self.clearing = WalkerClearing(self.scene, p.grid, p.band, static)
 
-    def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
+    def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         gt = self.chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
         self.paths["t"].append(cycle.stamp_ns)
         self.paths["odometry"].append((cycle.pose.x, cycle.pose.y, cycle.pose.theta))
         self.paths["ground_truth"].append((gt.x, gt.y, gt.theta))
         if getattr(runtime.perception, "matcher", None) is not None:
-            from robchair.frames import se3_planar
+            from robchair.platform.frames import se3_planar
 
             tm = runtime.perception.t_map_odom @ se3_planar(cycle.pose.x, cycle.pose.y, cycle.pose.theta)
             self.paths["matched"].append((tm[0, 3], tm[1, 3], float(np.arctan2(tm[1, 0], tm[0, 0]))))
@@ -199,7 +196,7 @@ class GroundTruthEvaluation(Observer):
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: np.asarray(v, dtype=np.int64 if k == "t" else np.float64) for k, v in self.paths.items()}
 
-    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         paths = self.arrays()
         if not len(paths["matched"]):
             del paths["matched"]
@@ -232,7 +229,7 @@ class GroundTruthEvaluation(Observer):
             else:
                 result.extra[k] = v
 
-    def _map_metrics(self, runtime: Runtime) -> dict[str, Any]:
+    def _map_metrics(self, runtime: LoopView) -> dict[str, Any]:
         from sim.truth import scene_occupancy
 
         p = runtime.perception

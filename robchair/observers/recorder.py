@@ -28,16 +28,21 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from robchair.errors import ConfigError
-from robchair.frames import BASE_LINK, MAP, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
-from robchair.observers import Observer
-
-if TYPE_CHECKING:
-    from robchair.runtime import CycleResult, RunResult, Runtime
+from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
+from robchair.platform.errors import ConfigError
+from robchair.platform.frames import (
+    BASE_LINK,
+    MAP,
+    ODOM,
+    quat_from_matrix,
+    quat_from_yaw,
+    se3_planar,
+    se3_rpy,
+)
 
 STORAGES = ("mcap", "sqlite3")
 CLOUD_TOPIC = "/kinect/points"
@@ -216,7 +221,7 @@ class RunRecorder(Observer):
     def counts(self) -> dict[str, int]:
         return self.bag.counts
 
-    def episode_start(self, runtime: Runtime) -> None:
+    def episode_start(self, runtime: LoopView) -> None:
         outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
         stamp = max(runtime.t0_ns, 1)
         statics: list[tuple[str, str, np.ndarray]] = []
@@ -236,7 +241,7 @@ class RunRecorder(Observer):
         if statics:
             self.bag.tf(stamp, statics, static=True)
 
-    def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
+    def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         bag = self.bag
         stamp = cycle.stamp_ns
         p = cycle.pose
@@ -272,6 +277,6 @@ class RunRecorder(Observer):
                 bag.cloud(CLOUD_TOPIC, frame.stamp_ns, frame.frame_id, np.asarray(frame.points)[::s, ::s])
             self._frames += 1
 
-    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         self.bag.close()
         result.extra["bag"] = {"path": self.bag.path.name, "messages": dict(sorted(self.bag.counts.items()))}

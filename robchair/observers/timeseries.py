@@ -23,12 +23,9 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, Any
 
-from robchair.observers import Observer
-
-if TYPE_CHECKING:
-    from robchair.runtime import CycleResult, RunResult, Runtime
+from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
 
 COLUMNS = (
     "t_s",
@@ -59,13 +56,13 @@ class TimeseriesWriter(Observer):
         self._maps_seen = 0
         self.rows = 0
 
-    def episode_start(self, runtime: Runtime) -> None:
+    def episode_start(self, runtime: LoopView) -> None:
         self._file = self.path.open("w", newline="", encoding="utf-8")
         self._writer = csv.writer(self._file)
         self._writer.writerow(COLUMNS)
         self._maps_seen = len(runtime.perception.map_ms)
 
-    def after_cycle(self, runtime: Runtime, cycle: CycleResult) -> None:
+    def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         if self._writer is None:
             return
         left, right = runtime.drive.motor_rpm(cycle.decision.v, cycle.decision.w)
@@ -91,7 +88,7 @@ class TimeseriesWriter(Observer):
         )
         self.rows += 1
 
-    def episode_end(self, runtime: Runtime, result: RunResult) -> None:
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         if self._file is not None:
             self._file.close()
             self._file = None

@@ -28,7 +28,8 @@ PARAMETERS: dict[str, str] = {
     "safety": "safety",
 }
 
-#: Limits of the safety layer a sweep may set as ``"safety.<field>"`` (:class:`robchair.safety.SafetyLimits`).
+#: Limits of the safety layer a sweep may set as ``"safety.<field>"``
+#: (:class:`robchair.platform.safety.SafetyLimits`).
 SAFETY_FIELDS: tuple[str, ...] = (
     "max_speed",
     "max_yaw_rate",
@@ -77,8 +78,8 @@ def run_harness(params: Mapping[str, Any], run_dir: Path) -> dict[str, Any]:
     kwargs = {PARAMETERS[k]: v for k, v in params.items() if k in PARAMETERS}
     limits = {k.split(".", 1)[1]: float(v) for k, v in params.items() if k.startswith("safety.")}
     if limits:
-        from robchair.safety import SafetyLimits
-        from robchair.spec import load_spec
+        from robchair.platform.safety import SafetyLimits
+        from robchair.platform.spec import load_spec
 
         kwargs["safety_limits"] = SafetyLimits.from_spec(load_spec(), **limits)
     scenario = kwargs.pop("scenario", "office_corridor")

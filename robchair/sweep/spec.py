@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from robchair.errors import ConfigError
+from robchair.platform.errors import ConfigError
 
 Scalar = bool | int | float | str
 

@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mapping.grid import GridSpec
-from robchair.kinematics import Pose2D, wrap_angle
+from robchair.platform.kinematics import Pose2D, wrap_angle
 from sim.envs.errors import NavigationEnvError
 from sim.scene import Scene
 

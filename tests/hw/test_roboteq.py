@@ -25,9 +25,9 @@ from hw.roboteq import codec
 from hw.roboteq.driver import RoboteqMDC2230
 from hw.roboteq.emulator import RoboteqEmulator, SyncedClock
 from hw.roboteq.gains import roboteq_gains
-from robchair import control
-from robchair.kinematics import DiffDrive, Odometry
-from robchair.spec import load_spec
+from robchair.platform import control
+from robchair.platform.kinematics import DiffDrive, Odometry
+from robchair.platform.spec import load_spec
 
 TIMEOUT_S = 0.05  # reply deadline used in these tests (the pty answers in about a millisecond)
 

@@ -15,7 +15,7 @@ from hw.roboteq.gains import (
     gains_from_roboteq,
     roboteq_gains,
 )
-from robchair.control import ControlError, SecondOrderPlant, design_pid, identify_from_step_metrics
+from robchair.platform.control import ControlError, SecondOrderPlant, design_pid, identify_from_step_metrics
 
 MOTORS = {"motor 1": (0.1365, 0.3975, 0.10), "motor 2": (0.1524, 0.3590, 0.12)}
 

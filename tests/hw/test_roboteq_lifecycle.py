@@ -26,7 +26,7 @@ from hw.roboteq.driver import RoboteqMDC2230
 from hw.roboteq.emulator import INJECT_KINDS, RoboteqEmulator, SyncedClock
 from hw.roboteq.settings import RoboteqProtections
 from robchair.cli import main
-from robchair.spec import load_spec
+from robchair.platform.spec import load_spec
 
 TIMEOUT_S = 0.05
 S = LifecycleState

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from robchair.frames import BASE_LINK, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
+from robchair.platform.frames import BASE_LINK, ODOM, quat_from_matrix, quat_from_yaw, se3_planar, se3_rpy
 
 RATE_HZ = 60
 CLOUD_EVERY = 6  # 10 Hz

@@ -8,7 +8,7 @@ import pytest
 from hw.errors import HardwareError
 from mapping.errors import MappingError
 from robchair import cli
-from robchair.errors import RobChairError
+from robchair.platform.errors import RobChairError
 from sim.errors import SimError
 
 

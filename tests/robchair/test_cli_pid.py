@@ -10,7 +10,7 @@ import pytest
 
 from hw.roboteq.gains import roboteq_gains
 from robchair.cli import main
-from robchair.control import (
+from robchair.platform.control import (
     SecondOrderPlant,
     design_pid,
     identify_from_step_metrics,
@@ -126,7 +126,7 @@ def test_pid_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, arg
 
 
 def test_root_locus_passes_through_the_design_at_unit_gain_and_starts_at_the_open_loop_poles():
-    from robchair.control import root_locus
+    from robchair.platform.control import root_locus
 
     d = design_pid(identify_from_step_metrics(0.1365, 0.3975, 0.10).plant, xi_w=0.7)
     locus, gains = root_locus(d, [0.0, 1.0])

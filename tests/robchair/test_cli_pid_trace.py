@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from robchair.cli import main
-from robchair.control import (
+from robchair.platform.control import (
     ControlError,
     TraceUnits,
     fit_step_trace,

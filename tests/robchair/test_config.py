@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from robchair.config import (
+from robchair.platform.config import (
     ConfigSource,
     ConfigTable,
     bounds,
@@ -15,7 +15,7 @@ from robchair.config import (
     load_dataclass,
     load_toml,
 )
-from robchair.errors import ConfigError
+from robchair.platform.errors import ConfigError
 
 TEXT = """\
 # a comment line

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robchair.control import (
+from robchair.platform.control import (
     CONTROLLER_RATE_HZ,
     ControlError,
     DiscretePID,

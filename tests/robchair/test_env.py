@@ -19,7 +19,7 @@ from robchair.envs.navigation import (
     navigation_reward,
     reward_terms,
 )
-from robchair.kinematics import Pose2D
+from robchair.platform.kinematics import Pose2D
 
 pytest.importorskip("pybullet")
 gymnasium = pytest.importorskip("gymnasium")

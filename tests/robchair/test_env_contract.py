@@ -181,7 +181,7 @@ def test_the_environment_pickles_and_deep_copies_into_an_equal_environment():
 
 def test_an_environment_built_with_an_explicit_spec_pickles_too():
     from robchair.envs.navigation import RobChairNavigationEnv
-    from robchair.spec import load_spec
+    from robchair.platform.spec import load_spec
 
     spec = load_spec()
     assert pickle.loads(pickle.dumps(spec)) == spec

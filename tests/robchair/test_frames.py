@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from robchair import frames
+from robchair.platform import frames
 
 angles = st.floats(-math.pi, math.pi, allow_nan=False)
 
@@ -121,7 +121,7 @@ def test_rpy_matrix_and_quaternion_agree_with_scipy(roll: float, pitch: float, y
 
 
 def test_a_large_float32_cloud_is_placed_like_the_float64_product_and_keeps_its_nan_rows():
-    from robchair.frames import COMPILED_MIN_POINTS, transform_points
+    from robchair.platform.frames import COMPILED_MIN_POINTS, transform_points
 
     rng = np.random.default_rng(5)
     pts = (rng.normal(size=(COMPILED_MIN_POINTS + 7, 3)) * 4).astype(np.float32)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from robchair.kinematics import (
+from robchair.platform.kinematics import (
     DiffDrive,
     KinematicsError,
     Odometry,
@@ -17,7 +17,7 @@ from robchair.kinematics import (
     wrap_angle,
     wrap_int32,
 )
-from robchair.spec import load_spec
+from robchair.platform.spec import load_spec
 
 SPEC = load_spec()
 DD = DiffDrive(SPEC)
@@ -149,7 +149,7 @@ def test_encoder_on_wheel_changes_the_count_scale():
     import copy
     import tomllib
 
-    from robchair.spec import DEFAULT_SPEC_PATH, spec_from_dict
+    from robchair.platform.spec import DEFAULT_SPEC_PATH, spec_from_dict
 
     with DEFAULT_SPEC_PATH.open("rb") as fh:
         d = tomllib.load(fh)

@@ -12,10 +12,12 @@ import time
 
 import pytest
 
-from robchair.errors import ConfigError, RobChairError
-from robchair.observers import Observer
-from robchair.runtime import Observation, PolicySource, RuntimeConfig, run_to_dir
-from robchair.spec import load_spec
+from robchair.loop_types import Observer
+from robchair.platform.errors import ConfigError, RobChairError
+from robchair.platform.spec import load_spec
+from robchair.run_output import run_to_dir
+from robchair.runtime import RuntimeConfig
+from robchair.sources import Observation, PolicySource
 from sim.errors import SimError
 
 

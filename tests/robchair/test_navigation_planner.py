@@ -106,7 +106,7 @@ class _ChairOnAGrid:
     max_yaw_rate = 2.14
 
     def __init__(self, grid, occ):
-        from robchair.spec import load_spec
+        from robchair.platform.spec import load_spec
 
         self.spec_robot = load_spec()
         self.grid, self.occ = grid, occ

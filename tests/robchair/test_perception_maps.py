@@ -15,11 +15,11 @@ from hw.interfaces import DepthFrame, SonarArrayReading
 from mapping.grid import GridSpec
 from mapping.probabilistic import ProbabilisticVHV
 from mapping.vhv import VHVMap
-from robchair.errors import ConfigError
-from robchair.kinematics import Pose2D
 from robchair.perception import Perception
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import load_spec
 from robchair.runtime import RuntimeConfig
-from robchair.spec import load_spec
 
 GRID = GridSpec(cell_size=0.05, size_x=8.0, size_y=8.0)
 

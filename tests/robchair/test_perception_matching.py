@@ -10,11 +10,11 @@ import pytest
 
 from hw.interfaces import DepthFrame
 from mapping.synthetic import render_scene
-from robchair.errors import ConfigError
-from robchair.frames import se3_planar
-from robchair.kinematics import Pose2D
 from robchair.perception import SNAPSHOT_LAG, Perception
-from robchair.spec import load_spec
+from robchair.platform.errors import ConfigError
+from robchair.platform.frames import se3_planar
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import load_spec
 
 FRAMES = {"cam": np.eye(4)}  # the clouds below are given in base_link directly
 

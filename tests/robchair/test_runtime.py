@@ -13,14 +13,16 @@ from hw.errors import DeviceTimeoutError
 from hw.interfaces import DepthFrame, Device, JoystickReading, MotorFaults, SonarArrayReading
 from robchair.backends import BackendConfigError, get_backend
 from robchair.cli import main
-from robchair.errors import ConfigError
-from robchair.kinematics import DiffDrive, Pose2D, integrate_arc
-from robchair.perception import Corridor, sonar_obstacle_points
+from robchair.perception_queries import Corridor
+from robchair.perception_sonar import sonar_obstacle_points
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import DiffDrive, Pose2D, integrate_arc
+from robchair.platform.safety import SafetyLimits, StopReason
+from robchair.platform.spec import load_spec
 from robchair.route import PurePursuit, Route
-from robchair.runtime import RuntimeConfig, run_to_dir
-from robchair.safety import SafetyLimits, StopReason
+from robchair.run_output import run_to_dir
+from robchair.runtime import RuntimeConfig
 from robchair.sources import JoystickSource, Observation, PolicySource
-from robchair.spec import load_spec
 
 ROUTE = Route(((0.0, 0.0), (1.5, 0.0), (2.5, 1.0)), speed=0.3)
 # Tolerance of "the same odometry" between the emulated and the simulated chair on ROUTE: the

@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from robchair.errors import ConfigError
-from robchair.kinematics import DiffDrive
-from robchair.safety import SafetyInputs, SafetyLayer, SafetyLimits, StopReason
-from robchair.spec import load_spec
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import DiffDrive
+from robchair.platform.safety import SafetyInputs, SafetyLayer, SafetyLimits, StopReason
+from robchair.platform.spec import load_spec
 
 DT = 0.1
 LIM = SafetyLimits(max_speed=0.6, max_yaw_rate=2.0, max_accel=0.5, max_yaw_accel=1.5, brake_decel=0.8,

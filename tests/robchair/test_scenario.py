@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robchair.errors import ConfigError
-from robchair.kinematics import DiffDrive, Pose2D
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import DiffDrive, Pose2D
 from robchair.route import PurePursuit, Route
 from robchair.runtime import LoopAborted
 from robchair.scenario import run_scenario, scenario_grid
@@ -244,7 +244,7 @@ def _wall_scenario(tmp_path: Path) -> Path:
 
 
 def test_a_route_through_a_wall_stops_the_chair_before_it_with_the_margin_left(tmp_path: Path) -> None:
-    from robchair.spec import load_spec
+    from robchair.platform.spec import load_spec
 
     res = run_scenario(_wall_scenario(tmp_path), write=False, progress=False)
     m = res.metrics()

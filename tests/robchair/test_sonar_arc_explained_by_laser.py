@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from hw.interfaces import SonarArrayReading
-from robchair.kinematics import Pose2D
 from robchair.perception import Perception
-from robchair.spec import load_spec
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import load_spec
 
 
 @pytest.fixture(scope="module")

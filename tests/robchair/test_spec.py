@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from robchair.errors import ConfigError, RobChairError
-from robchair.spec import DEFAULT_SPEC_PATH, load_spec, spec_from_dict
+from robchair.platform.errors import ConfigError, RobChairError
+from robchair.platform.spec import DEFAULT_SPEC_PATH, load_spec, spec_from_dict
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +191,7 @@ def test_spec_file_round_trips_through_its_own_text(tmp_path):
     angle=st.floats(-math.pi / 2, math.pi / 2),
 )
 def test_mount_transforms_are_proper_rigid_motions(rpy, angle):
-    from robchair.spec import Joint, Mount
+    from robchair.platform.spec import Joint, Mount
 
     m = Mount("base_link", (0.1, 0.2, 0.3), rpy, Joint("j", (0.0, 0.0, 1.0), -2.0, 2.0))
     r = m.transform(angle)[:3, :3]

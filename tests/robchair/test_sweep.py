@@ -175,8 +175,8 @@ def test_safety_limits_in_a_sweep_reach_the_harness_as_safety_limits(monkeypatch
     assert seen["scenario"] == "office_corridor" and seen["seed"] == 3 and seen["write_bag"] is False
     assert seen["safety"] is True
     assert seen["safety_limits"].margin_m == pytest.approx(0.3)
-    from robchair.safety import SafetyLimits
-    from robchair.spec import load_spec
+    from robchair.platform.safety import SafetyLimits
+    from robchair.platform.spec import load_spec
 
     assert seen["safety_limits"].max_speed == SafetyLimits.from_spec(load_spec()).max_speed  # the rest: spec
     with pytest.raises(SweepError, match=r"unknown parameter 'safety\.margin'"):

@@ -9,8 +9,8 @@ import pytest
 
 from hw.errors import DeviceClosedError
 from hw.interfaces import LaserScanner
-from robchair.errors import ConfigError
-from robchair.spec import load_spec, spec_from_dict
+from robchair.platform.errors import ConfigError
+from robchair.platform.spec import load_spec, spec_from_dict
 from sim.laser import URG_04LX, LaserSim, LaserSimError, mounted_pose
 
 p = pytest.importorskip("pybullet")
@@ -144,7 +144,7 @@ def test_mount_comes_from_the_spec():
     np.testing.assert_allclose(t[:3, 3], m.xyz)
     import tomllib
 
-    from robchair.spec import DEFAULT_SPEC_PATH
+    from robchair.platform.spec import DEFAULT_SPEC_PATH
 
     data = tomllib.loads(DEFAULT_SPEC_PATH.read_text())
     del data["mounts"]["laser_link"]

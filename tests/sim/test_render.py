@@ -9,7 +9,7 @@ pytest.importorskip("pybullet")
 
 import itertools
 
-from robchair.spec import load_spec
+from robchair.platform.spec import load_spec
 from sim.backend import robot_radius
 from sim.render import CHAIR_HEIGHT_M, overview_camera, project, render_scene
 from sim.scene import load_scenario

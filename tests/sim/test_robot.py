@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from robchair.control import identify_from_step_metrics
-from robchair.kinematics import Odometry
-from robchair.spec import load_spec
+from robchair.platform.control import identify_from_step_metrics
+from robchair.platform.kinematics import Odometry
+from robchair.platform.spec import load_spec
 from sim.errors import SimError, SimulationDivergedError
 
 pytest.importorskip("pybullet")
@@ -65,7 +65,13 @@ def test_closed_loop_reaches_the_set_point_without_steady_state_error(world_robo
 
 def test_wheels_run_the_emulators_discrete_pid_at_the_controller_rate(world_robot):
     # the same DiscretePID / DiscretePlant classes as the Roboteq emulator, at 1 kHz under 240 Hz physics
-    from robchair.control import CONTROLLER_RATE_HZ, DiscretePID, DiscretePlant, MotorModel, design_pid
+    from robchair.platform.control import (
+        CONTROLLER_RATE_HZ,
+        DiscretePID,
+        DiscretePlant,
+        MotorModel,
+        design_pid,
+    )
 
     world, robot, spec = world_robot
     assert isinstance(robot.left.pid, DiscretePID) and isinstance(robot.left.plant, DiscretePlant)

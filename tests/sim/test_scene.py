@@ -8,7 +8,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from robchair.paths import ASSETS, SCENES
+from robchair.platform.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
 from sim.meshgen import MESHES, box, obj_text, read_obj, write_all
 from sim.scene import Motion, list_scenarios, load_scenario, load_scene
@@ -65,7 +65,7 @@ def test_outdoor_scene_has_six_people_some_walking():
 
 
 def test_office_table_top_is_below_the_chair_height_so_the_chair_cannot_pass_under_it():
-    from robchair.spec import load_spec
+    from robchair.platform.spec import load_spec
 
     scene = load_scene(SCENES / "office.toml")
     table = next(o for o in scene.objects if o.name == "table")

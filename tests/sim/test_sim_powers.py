@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from robchair.kinematics import Pose2D
-from robchair.spec import load_spec
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import load_spec
 
 pytest.importorskip("pybullet")
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from robchair.spec import load_spec
+from robchair.platform.spec import load_spec
 
 pytest.importorskip("pybullet")
 
@@ -14,7 +14,7 @@ START = (0.3, -0.2, 0.4)
 
 
 def _chair():
-    from robchair.paths import SCENES
+    from robchair.platform.paths import SCENES
     from sim.backend import SimChair
 
     return SimChair(load_spec(), SCENES / "office.toml", sensor=None, sonars=True, tyre_radius_error=0.0)

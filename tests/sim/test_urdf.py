@@ -8,7 +8,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from robchair.spec import load_spec
+from robchair.platform.spec import load_spec
 from sim.urdf import build_urdf, write_urdf
 
 pytest.importorskip("pybullet")
@@ -93,7 +93,7 @@ def test_casters_do_not_steal_the_load_driven_wheels_carry_most_of_the_weight(se
 def test_chair_drives_straight_on_equal_wheel_speeds(settled):
     # the two real motors differ (t_p 0.40 s vs 0.36 s), which alone turns the chair while it
     # accelerates; give both wheels motor 1's dynamics so only the casters could pull it off its line
-    from robchair.control import DiscretePlant
+    from robchair.platform.control import DiscretePlant
 
     world, robot, _ = settled
     robot.right.plant = DiscretePlant(robot.left.plant.plant, robot.motor_dt)
@@ -116,7 +116,7 @@ def test_chair_drives_straight_on_equal_wheel_speeds(settled):
 
 
 def test_wheels_do_not_slip_so_odometry_matches_the_driven_arc(settled):
-    from robchair.kinematics import Odometry
+    from robchair.platform.kinematics import Odometry
 
     world, robot, spec = settled
     odo = Odometry(spec)

@@ -1,6 +1,6 @@
 """Differential-drive kinematics and encoder odometry of the RobChair Storm.
 
-The chain, all functions of :class:`robchair.spec.RobChairSpec`::
+The chain, all functions of :class:`robchair.platform.spec.RobChairSpec`::
 
     (v, w) body twist  <->  wheel angular speeds (rad/s)  <->  motor shaft RPM (x gear_ratio = 29)
                        <->  encoder counts (PPR x 4 quadrature, x 29 when the encoder is on the motor)
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robchair.errors import RobChairError
-from robchair.spec import RobChairSpec, load_spec
+from robchair.platform.errors import RobChairError
+from robchair.platform.spec import RobChairSpec, load_spec
 
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 INT32_MIN = -(2**31)

@@ -19,7 +19,7 @@ Two ways in:
   :func:`check_dataclass` applies the same checks to an instance built in code (call it from
   ``__post_init__``).
 
-The error class is :class:`robchair.errors.ConfigError` unless the caller passes a subclass of
+The error class is :class:`robchair.platform.errors.ConfigError` unless the caller passes a subclass of
 ``Exception`` of its own package (``sim.errors.ScenarioError`` for scenes).
 """
 
@@ -35,14 +35,14 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar, Union
 
-from robchair.errors import ConfigError
+from robchair.platform.errors import ConfigError
 
 T = TypeVar("T")
 
 MISSING: Any = object()
 """Sentinel for "no default": the key is required."""
 
-_BOUNDS_KEY = "robchair.config.bounds"
+_BOUNDS_KEY = "robchair.platform.config.bounds"
 _MAX_REPR = 80
 
 

@@ -1,6 +1,6 @@
 """The identified wheel-motor plant: a second-order transfer function and its analytic step response.
 
-Units: command RPM in, motor-shaft RPM out (see :mod:`robchair.control`).
+Units: command RPM in, motor-shaft RPM out (see :mod:`robchair.platform.control`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import control as ct
 import numpy as np
 import numpy.typing as npt
 
-from robchair.errors import RobChairError
+from robchair.platform.errors import RobChairError
 
 
 class ControlError(RobChairError, ValueError):

@@ -1,9 +1,9 @@
 """The RobChair Storm platform specification: geometry, drive train, sensor mounts and motor step tests.
 
 Loaded from ``assets/robchair.toml`` (Table 9.1 of the thesis plus documented estimates) into frozen
-dataclasses and validated where it enters (:mod:`robchair.config`): a missing field, an unknown key, a
-wrong type or an impossible value (a negative radius, ``encoder_on = "axle"``) raises
-:class:`robchair.errors.ConfigError` whose message names the file, the line, the field, the value and
+dataclasses and validated where it enters (:mod:`robchair.platform.config`): a missing field, an unknown
+key, a wrong type or an impossible value (a negative radius, ``encoder_on = "axle"``) raises
+:class:`robchair.platform.errors.ConfigError` whose message names the file, the line, the field, the value and
 what was expected.
 
 Frames: REP-103/REP-105. ``base_link`` lies on the floor midway between the driven-wheel contact points.
@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from robchair.config import ConfigSource, ConfigTable, bounds, load_dataclass, load_toml
-from robchair.errors import ConfigError
-from robchair.frames import rotation_axis_angle, rotation_rpy, se3
-from robchair.paths import ASSETS
+from robchair.platform.config import ConfigSource, ConfigTable, bounds, load_dataclass, load_toml
+from robchair.platform.errors import ConfigError
+from robchair.platform.frames import rotation_axis_angle, rotation_rpy, se3
+from robchair.platform.paths import ASSETS
 
 DEFAULT_SPEC_PATH = ASSETS / "robchair.toml"
 QUADRATURE_FACTOR = 4  # a quadrature decoder counts both edges of both channels
@@ -258,7 +258,8 @@ def load_spec(path: Path | str | None = None) -> RobChairSpec:
 
     Raises:
         ConfigError: The file is missing, is not TOML, or a field is missing, unknown or invalid
-            (message in the dialect of :mod:`robchair.config`: file, line, field, value, expectation).
+            (message in the dialect of :mod:`robchair.platform.config`: file, line, field, value,
+            expectation).
     """
     p = Path(path) if path is not None else DEFAULT_SPEC_PATH
     data, source = load_toml(p, what="spec file")

@@ -46,19 +46,20 @@ Where this implementation differs from the thesis (SPEC.md section 6), and why:
 
 Also beyond the thesis: an optional DC gain K in the plant (for raw traces), an optional dead time in
 the trace fit with its quality (R^2, residual relative to the step), refusal of traces that cannot be
-a speed step in the declared units (:mod:`robchair.control.identification`), a discrete PID with
+a speed step in the declared units (:mod:`robchair.platform.control.identification`), a discrete PID with
 saturation, anti-windup and a filtered derivative, and exact zero-order-hold discretisation of the
 plant. The Roboteq register encoding of the gains lives beside the driver, in ``hw.roboteq.gains``.
 
-Modules: :mod:`~robchair.control.plant` (the second-order plant), :mod:`~robchair.control.identification`
-(step metrics and trace fits), :mod:`~robchair.control.traces` (trace files),
-:mod:`~robchair.control.design` (pole placement, margins), :mod:`~robchair.control.discrete` (the sampled
-loop) and :mod:`~robchair.control.rootlocus` (root locus through python-control).
+Modules: :mod:`~robchair.platform.control.plant` (the second-order plant),
+:mod:`~robchair.platform.control.identification` (step metrics and trace fits),
+:mod:`~robchair.platform.control.traces` (trace files), :mod:`~robchair.platform.control.design`
+(pole placement, margins), :mod:`~robchair.platform.control.discrete` (the sampled loop) and
+:mod:`~robchair.platform.control.rootlocus` (root locus through python-control).
 """
 
 from __future__ import annotations
 
-from robchair.control.design import (
+from robchair.platform.control.design import (
     THESIS_OMEGA_W,
     THESIS_P_FACTOR,
     THESIS_XI_W,
@@ -72,7 +73,7 @@ from robchair.control.design import (
     pole_mismatch,
     pole_placement_gains,
 )
-from robchair.control.discrete import (
+from robchair.platform.control.discrete import (
     CONTROLLER_RATE_HZ,
     DiscretePID,
     DiscretePlant,
@@ -80,15 +81,15 @@ from robchair.control.discrete import (
     SampledLoop,
     sampled_loop,
 )
-from robchair.control.identification import (
+from robchair.platform.control.identification import (
     Identification,
     TraceFit,
     identify_from_step_metrics,
     identify_from_trace,
 )
-from robchair.control.plant import ControlError, SecondOrderPlant, step_response_2nd
-from robchair.control.rootlocus import open_loop_poles_and_zeros, root_locus
-from robchair.control.traces import (
+from robchair.platform.control.plant import ControlError, SecondOrderPlant, step_response_2nd
+from robchair.platform.control.rootlocus import open_loop_poles_and_zeros, root_locus
+from robchair.platform.control.traces import (
     COMMAND_UNITS,
     SPEED_UNITS,
     TIME_UNITS,

@@ -36,8 +36,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from robchair.config import ConfigTable, bounds, check_dataclass, load_dataclass
-from robchair.spec import RobChairSpec
+from robchair.platform.config import ConfigTable, bounds, check_dataclass, load_dataclass
+from robchair.platform.spec import RobChairSpec
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ class SafetyLimits:
 
         Args:
             spec: The platform.
-            table: A ``[safety]`` TOML table (a :class:`robchair.config.ConfigTable` carries its file
+            table: A ``[safety]`` TOML table (a :class:`robchair.platform.config.ConfigTable` carries its file
                 and path for the messages); a plain mapping is addressed as ``safety``.
             **overrides: Values that replace the table's (e.g. a sweep's parameters).
 
@@ -99,7 +99,7 @@ class SafetyLimits:
             ConfigError: an unknown key, a wrong type, a value <= 0, or a speed cap above the
                 platform maximum (``<file>:<line>: safety.max_speed = 1.0: expected ...``).
         """
-        from robchair.kinematics import DiffDrive
+        from robchair.platform.kinematics import DiffDrive
 
         drive = DiffDrive(spec)
         if not isinstance(table, ConfigTable):

@@ -1,4 +1,4 @@
-"""Compiled point transform for large float32 clouds (:func:`robchair.frames.transform_points`).
+"""Compiled point transform for large float32 clouds (:func:`robchair.platform.frames.transform_points`).
 
 ``p @ R.T + t`` in numpy on a (N, 3) float32 cloud makes several passes over the points (the skinny
 matrix product, then the broadcast sum). A single compiled pass is 2-2.5x faster on the 512x424 depth

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from robchair.control.identification import TraceFit, identify_from_trace
-from robchair.control.plant import ControlError
+from robchair.platform.control.identification import TraceFit, identify_from_trace
+from robchair.platform.control.plant import ControlError
 
 
 def read_step_trace(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:

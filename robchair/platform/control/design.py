@@ -9,7 +9,7 @@ from typing import Any
 import control as ct
 import numpy as np
 
-from robchair.control.plant import ControlError, SecondOrderPlant
+from robchair.platform.control.plant import ControlError, SecondOrderPlant
 
 THESIS_XI_W = 1.0
 THESIS_OMEGA_W = 3.3  # rad/s
@@ -58,8 +58,8 @@ class PIDDesign:
             ``derivative_on_measurement`` names.
         open_loop: Step metrics of the plant alone.
         derivative_on_measurement: The derivative acts on the measured speed only (set-point weight 0
-            on the D term, as :class:`~robchair.control.DiscretePID` runs by default), so the reference
-            path is (K_p + K_i / s) G / (1 + C G); False: on the error, C G / (1 + C G). The poles,
+            on the D term, as :class:`~robchair.platform.control.DiscretePID` runs by default), so the
+            reference path is (K_p + K_i / s) G / (1 + C G); False: on the error, C G / (1 + C G). The poles,
             margins and gains are the same either way; only the zeros of the reference path differ.
     """
 

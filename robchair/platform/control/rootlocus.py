@@ -6,7 +6,7 @@ import control as ct
 import numpy as np
 import numpy.typing as npt
 
-from robchair.control.design import PIDDesign
+from robchair.platform.control.design import PIDDesign
 
 
 def loop_tf(design: PIDDesign) -> ct.TransferFunction:

@@ -227,7 +227,7 @@ def transform_points(t: Any, points: Any, dtype: Any = np.float64) -> Any:
     if np.dtype(dtype) == np.float32 and np.shape(t) == (4, 4):
         p32 = np.asarray(points, dtype=np.float32)
         if p32.ndim == 2 and p32.shape[1] == 3 and len(p32) >= COMPILED_MIN_POINTS:
-            from robchair._frames_kernels import transform_points_f32
+            from robchair.platform._frames_kernels import transform_points_f32
 
             return transform_points_f32(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(p32))
     m = np.asarray(t, dtype=dtype)

@@ -10,8 +10,8 @@ import control as ct
 import numpy as np
 import numpy.typing as npt
 
-from robchair.control.design import PIDDesign, _sort_poles
-from robchair.control.plant import ControlError, SecondOrderPlant
+from robchair.platform.control.design import PIDDesign, _sort_poles
+from robchair.platform.control.plant import ControlError, SecondOrderPlant
 
 CONTROLLER_RATE_HZ = 1000.0
 """Default sample rate (Hz) of the discrete PID and plant used by the simulator and emulators."""
@@ -73,7 +73,7 @@ class DiscretePID:
     reference response is no longer the linear one the design computes. On the measurement the set point
     reaches the command through P and I only (set-point weight 0 on D, Astrom & Hagglund); the poles,
     and so the disturbance rejection, are those of the design, and the sampled loop's step response is
-    the design's :meth:`~robchair.control.PIDDesign.closed_loop_tf` at every step size.
+    the design's :meth:`~robchair.platform.control.PIDDesign.closed_loop_tf` at every step size.
 
     Anti-windup: ``"conditional"`` (default) skips the integration when the output is saturated and the
     error would drive it further into saturation; ``"back_calculation"`` feeds (u_sat - u) / t_t back

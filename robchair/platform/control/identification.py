@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from robchair.control.plant import ControlError, SecondOrderPlant, step_response_2nd
+from robchair.platform.control.plant import ControlError, SecondOrderPlant, step_response_2nd
 
 
 @dataclass(frozen=True)
