@@ -40,7 +40,7 @@ from robchair.kinematics import DiffDrive, Pose2D
 from robchair.observers import Observer
 from robchair.perception import MAP_KINDS
 from robchair.route import PurePursuit, Route
-from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default
+from robchair.runtime import LoopAborted, RunResult, Runtime, RuntimeConfig, _json_default, check_duration_s
 from robchair.safety import SafetyLayer, SafetyLimits
 from robchair.spec import RobChairSpec, load_spec
 
@@ -193,9 +193,7 @@ def run_scenario(
     spec = spec if spec is not None else load_spec()
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario, robot_radius=robot_radius(spec))
-    duration = scenario.duration if duration is None else float(duration)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ConfigError(f"duration = {duration!r}: expected a positive number of seconds")
+    duration = check_duration_s(scenario.duration if duration is None else duration, "duration")
     sensor = scenario.sensor if sensor is None else sensor
     camera = None if not sensors or sensor in (None, "none") else sensor
     seed = scenario.seed if seed is None else int(seed)
