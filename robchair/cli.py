@@ -7,16 +7,25 @@ heavy dependencies inside ``func`` so ``robchair --help`` stays fast.
 
 Any error the project raises on purpose (MappingError, HardwareError, SimError, RobChairError), and
 file-system errors, become one line on stderr and exit code 2.
+
+SIGINT, SIGTERM and SIGHUP (where their action is still the default) raise
+:class:`robchair.platform.errors.StopSignal` in the command: the drive loop stops the motors (zero speeds,
+then the emergency stop), staging folders are removed, then one line is printed and the exit code is
+``128 + signo`` (130, 143, 129). A repeated signal is ignored while that happens.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from typing import NoReturn
 
 COMMANDS = (
     "robchair.commands.map",
@@ -40,8 +49,18 @@ BENCHES = (
 )
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors (a bad choice, a missing value ...) are one line, exit code 2.
+
+    Sub-command parsers are of the same class (argparse creates them with the parent's class).
+    """
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="robchair",
         description="RobChair digital twin: mapping, simulation, hardware and motor control.",
     )
@@ -71,6 +90,39 @@ def _project_errors() -> tuple[type[BaseException], ...]:
     return (MappingError, HardwareError, SimError, RobChairError, OSError)
 
 
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+@contextlib.contextmanager
+def stop_signals_raise() -> Iterator[None]:
+    """Turn :data:`STOP_SIGNALS` into :class:`robchair.platform.errors.StopSignal` inside the block.
+
+    A signal the parent set to be ignored (``nohup``) stays ignored; outside the main thread nothing
+    is installed. The first signal raises; later ones are ignored so the stop and clean-up can finish.
+    """
+    from robchair.platform.errors import StopSignal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    numbers = [getattr(signal, n) for n in STOP_SIGNALS if hasattr(signal, n)]
+
+    def handler(signo: int, _frame: object) -> None:
+        for s in numbers:
+            signal.signal(s, signal.SIG_IGN)
+        raise StopSignal(signo)
+
+    previous = {}
+    for s in numbers:
+        if signal.getsignal(s) in (signal.SIG_DFL, signal.default_int_handler):
+            previous[s] = signal.signal(s, handler)
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     parser = build_parser()
@@ -83,13 +135,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with stop_signals_raise():
+            return int(args.func(args) or 0)
     except _project_errors() as exc:
         print(f"robchair {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"robchair {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signo = int(getattr(exc, "signo", signal.SIGINT))
+        stopped = "; motors stopped" if getattr(exc, "motors_stopped", False) else ""
+        print(f"robchair {args.command}: stopped by {signal.Signals(signo).name}{stopped}", file=sys.stderr)
+        return 128 + signo
 
 
 if __name__ == "__main__":  # pragma: no cover

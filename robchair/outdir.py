@@ -13,14 +13,25 @@ The rules (shared by every command that writes a folder: ``sim``, ``run``, ``map
   nothing else in the folder is touched.
 * Outputs are built in a hidden staging folder and moved in only when the command succeeds. A failed
   command leaves no new folder behind: the staging folder and every parent created for it are removed.
+* One command at a time per target: the first check takes an exclusive lock (``flock``) on the file
+  ``.<name>.lock`` beside it, held until the output is in place (or the process ends); a second
+  command refuses at once, with or without ``--overwrite``.
+* A staging folder is named ``.<name>.partial-<pid>-<hex>``. One left by a process that was killed
+  (SIGKILL, power loss) is removed by the next command writing the same target, which says so on
+  stderr; one whose pid is still alive is left alone.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import contextvars
+import errno
+import fcntl
 import json
+import logging
 import os
+import re
 import secrets
 import shutil
 from collections.abc import Iterator
@@ -29,6 +40,9 @@ from pathlib import Path
 from robchair.platform.errors import RobChairError
 
 MARKER = ".robchair-output"
+log = logging.getLogger(__name__)
+#: targets this process holds the lock of -> the open lock file's descriptor
+_LOCKS: dict[Path, int] = {}
 
 #: Default of ``overwrite`` where a command cannot pass it down (set by the CLI around the command).
 OVERWRITE: contextvars.ContextVar[bool] = contextvars.ContextVar("robchair_overwrite", default=False)
@@ -71,8 +85,11 @@ class OutputDir:
         self.check()
 
     def check(self) -> None:
-        """Refuse a target that would lose data (see the class docstring)."""
+        """Refuse a target that would lose data, or that another command is writing (the lock is
+        taken here when the target's parent exists)."""
         t, name = self.target, str(self.given)
+        if t.parent.is_dir():
+            _lock(t, name)
         if t.exists() and not t.is_dir():
             raise OutputDirError(f"--out {name}: is a file, not a folder; choose a folder name")
         if self.overwrite or not t.exists():
@@ -101,16 +118,22 @@ class OutputDir:
         On any exception the staging folder and the parents created for it are removed, and an
         existing target is left as it was.
         """
-        self.check()
         t = self.target
         created: list[Path] = []
         for parent in reversed([p for p in t.parents if not p.exists()]):
             parent.mkdir()
             created.append(parent)
         try:
+            self.check()
+        except BaseException:
+            _unlock(t)
+            _remove_created(created)
+            raise
+        try:
+            _remove_stale_staging(t)
             # Into an existing folder entry by entry; a new (or empty, unused) one is swapped in whole.
             merge = t.exists() and (any(t.iterdir()) or Path.cwd().resolve().is_relative_to(t))
-            staging = _new_hidden_dir(t if merge else t.parent, f".{t.name}.partial-")
+            staging = _new_hidden_dir(t if merge else t.parent, f".{t.name}.partial-{os.getpid()}-")
             try:
                 yield staging
                 if merge:
@@ -120,11 +143,17 @@ class OutputDir:
                     staging.rename(t)  # rename(2) also replaces an empty folder
             finally:
                 shutil.rmtree(staging, ignore_errors=True)
-        except BaseException:
-            for parent in reversed(created):
-                with contextlib.suppress(OSError):
-                    parent.rmdir()
+        except OSError as exc:
+            _unlock(t)
+            _remove_created(created)
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT) and exc.filename is None:
+                raise OSError(exc.errno, f"{exc.strerror} while writing --out", str(self.given)) from exc
             raise
+        except BaseException:
+            _unlock(t)
+            _remove_created(created)
+            raise
+        _unlock(t)
 
     def _merge(self, staging: Path) -> None:
         """Move the staged entries into the non-empty target, replacing same-named entries and the
@@ -155,6 +184,86 @@ class OutputDir:
                 trash.rmdir()  # only if everything went back
             raise
         shutil.rmtree(trash, ignore_errors=True)
+
+
+def _lock_path(target: Path) -> Path:
+    return target.parent / f".{target.name}.lock"
+
+
+def _lock(target: Path, name: str) -> None:
+    """Hold the exclusive lock of ``target`` (once per process); refuse if another process holds it."""
+    if target in _LOCKS:
+        return
+    path = _lock_path(target)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise OutputDirError(
+                f"--out {name}: another robchair command (pid {owner}) is writing it; wait for it to "
+                "finish or choose another folder"
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino  # not unlinked by its last holder meanwhile
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    _LOCKS[target] = fd
+
+
+def _unlock(target: Path) -> None:
+    fd = _LOCKS.pop(target, None)
+    if fd is None:
+        return
+    with contextlib.suppress(OSError):
+        os.unlink(_lock_path(target))  # while still holding it: a waiting process then retries
+    os.close(fd)
+
+
+@atexit.register
+def _unlock_all() -> None:
+    for target in list(_LOCKS):
+        _unlock(target)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale_staging(target: Path) -> None:
+    """Remove the staging folders of ``target`` no live process owns (called with its lock held)."""
+    pattern = re.compile(rf"\.{re.escape(target.name)}\.partial-(?:(\d+)-)?[0-9a-f]+")
+    for folder in (target.parent, target):
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            m = pattern.fullmatch(p.name)
+            if m is None or not p.is_dir():
+                continue
+            pid = int(m.group(1)) if m.group(1) else None
+            if pid is not None and pid != os.getpid() and _pid_alive(pid):
+                continue
+            shutil.rmtree(p, ignore_errors=True)
+            log.warning("removed %s: the staging folder of an interrupted robchair command", p)
+
+
+def _remove_created(created: list[Path]) -> None:
+    for parent in reversed(created):
+        with contextlib.suppress(OSError):
+            parent.rmdir()
 
 
 def _new_hidden_dir(parent: Path, prefix: str) -> Path:

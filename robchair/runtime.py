@@ -53,7 +53,7 @@ from hw.laser_scan import scan_to_points
 from robchair.loop_types import CycleResult, Observer, RunResult
 from robchair.perception import MAP_KINDS, Perception
 from robchair.platform.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
-from robchair.platform.errors import ConfigError, RobChairError
+from robchair.platform.errors import ConfigError, RobChairError, StopSignal
 from robchair.platform.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.platform.safety import (
     SafetyDecision,
@@ -66,13 +66,31 @@ from robchair.platform.spec import RobChairSpec
 from robchair.route import PurePursuit
 from robchair.sources import Command, CommandSource, Observation
 
-__all__ = ["LoopAborted", "Runtime", "RuntimeConfig"]
+__all__ = ["MAX_DURATION_S", "LoopAborted", "Runtime", "RuntimeConfig", "check_duration_s"]
 
 log = logging.getLogger(__name__)
 
 DEPTH_CAMERA = "depth_camera"
 WATCHDOG_PERIODS_MIN = 1.5
 WATCHDOG_PERIODS_MAX = 10.0
+
+
+#: longest run, s: its stamps stay within int64 nanoseconds (9.2e9 s) with a margin
+MAX_DURATION_S = 1e9
+
+
+def check_duration_s(duration_s: float, what: str = "duration_s") -> float:
+    """``duration_s`` as a float if it is a finite number of seconds in (0, :data:`MAX_DURATION_S`].
+
+    Raises:
+        ConfigError: ``<what> = <value>: expected ...`` (inf, nan, zero, negative, too long).
+    """
+    d = float(duration_s)
+    if not (math.isfinite(d) and 0 < d <= MAX_DURATION_S):
+        raise ConfigError(
+            f"{what} = {duration_s!r}: expected a finite number of seconds > 0 and <= {MAX_DURATION_S:g}"
+        )
+    return d
 
 
 class LoopAborted(RobChairError):
@@ -190,6 +208,7 @@ class Runtime:
         self._stage = "start"
         self._started = False
         self._stopped = False
+        self._halted = False  # zero speeds and the emergency stop were sent after an exception
         self._wall0 = 0.0
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -203,6 +222,11 @@ class Runtime:
 
     def _start(self) -> None:
         clock = self.backend.clock
+        warm_up = getattr(self.perception, "warm_up", None)
+        if warm_up is not None:  # compiled kernels load before the clock starts, not in cycle 0
+            self._stage = "perception (warm-up)"
+            warm_up()
+            self._stage = "motors"
         self.t0_ns = self._next_ns = clock.now_ns()
         for name in (*self.sonar_names, DEPTH_CAMERA):
             self._last_fresh[name] = self.t0_ns
@@ -272,13 +296,12 @@ class Runtime:
         self.last_sonars, self.last_depth_frame, self.last_scan = [], None, None
         self._last_fresh.clear()
         self._missed, self._fault, self._last_motion_ns = False, None, None
-        self._stage, self._started, self._stopped = "start", False, False
+        self._stage, self._started, self._stopped, self._halted = "start", False, False, False
 
     def run(self, duration_s: float) -> RunResult:
         """Run for ``duration_s`` seconds of the backend's clock, until the source is done or a driver
         fault ends it; the chair is stopped however the run ends."""
-        if not (math.isfinite(duration_s) and duration_s > 0):
-            raise ConfigError(f"duration_s = {duration_s!r}: expected a finite number of seconds > 0")
+        duration_s = check_duration_s(duration_s)
         n_cycles = max(1, round(duration_s * self.config.rate_hz))
         end_ns = None
         try:
@@ -290,6 +313,8 @@ class Runtime:
                     break
         except BaseException as exc:
             self.result.error = f"{type(exc).__name__}: {exc}"
+            if self._started and not self._halted:  # raised between cycles: stop the motors first
+                self._halt(exc)
             raise
         finally:
             self.stop()
@@ -302,7 +327,7 @@ class Runtime:
             return fn(*args)
         except BaseException as exc:
             stage = self._stage
-            self._stop_motors_after_error()
+            self._halt(exc)
             if isinstance(exc, LoopAborted | KeyboardInterrupt | SystemExit):
                 raise
             t = (self.backend.clock.now_ns() - self.t0_ns) / 1e9 if self.t0_ns else 0.0
@@ -311,16 +336,23 @@ class Runtime:
                 "motors commanded to zero and emergency-stopped"
             ) from exc
 
-    def _stop_motors_after_error(self) -> None:
-        motors = self.backend.motors
+    def _halt(self, cause: BaseException) -> None:
+        """Zero speeds, then the emergency stop, after ``cause`` ended the run (a StopSignal learns
+        whether both were sent)."""
+        self._halted = True
+        motors, ok = self.backend.motors, True
         try:
             motors.set_speeds_rpm(0.0, 0.0)
         except Exception as exc:
+            ok = False
             log.error("zero speed command failed: %s", exc)
         try:
             motors.emergency_stop()
         except Exception as exc:
+            ok = False
             log.error("emergency stop could not be confirmed: %s", exc)
+        if isinstance(cause, StopSignal):
+            cause.motors_stopped = ok
 
     def _cycle(self, command: Command | None) -> CycleResult:
         clock = self.backend.clock

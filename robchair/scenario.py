@@ -43,7 +43,7 @@ from robchair.platform.safety import SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec, load_spec
 from robchair.route import PurePursuit, Route
 from robchair.run_output import _json_default
-from robchair.runtime import LoopAborted, Runtime, RuntimeConfig
+from robchair.runtime import LoopAborted, Runtime, RuntimeConfig, check_duration_s
 
 CONTROL_HZ = 60.0
 KINECT_EVERY = 2  # cycles: 30 Hz at 60 Hz
@@ -194,9 +194,7 @@ def run_scenario(
     spec = spec if spec is not None else load_spec()
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario, robot_radius=robot_radius(spec))
-    duration = scenario.duration if duration is None else float(duration)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ConfigError(f"duration = {duration!r}: expected a positive number of seconds")
+    duration = check_duration_s(scenario.duration if duration is None else duration, "duration")
     sensor = scenario.sensor if sensor is None else sensor
     camera = None if not sensors or sensor in (None, "none") else sensor
     seed = scenario.seed if seed is None else int(seed)

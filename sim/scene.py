@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -373,7 +374,31 @@ def load_scenario(path: Path | str, robot_radius: float = 0.55) -> Scenario:
         description=str(head.raw("description", "")),
     )
     _check_start_clear(head, scene, scenario.start, robot_radius)
+    _check_waypoints_clear(route_t, scene, scenario.route.waypoints)
     return scenario
+
+
+def _check_waypoints_clear(
+    table: ConfigTable, scene: Scene, waypoints: Sequence[tuple[float, float]]
+) -> None:
+    """Refuse a route waypoint inside the footprint (convex hull from above) of a static object."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    for obj in scene.objects:
+        if obj.is_dynamic:
+            continue
+        xy = obj.world_mesh().vertices[:, :2]
+        try:
+            hull = ConvexHull(xy)
+        except QhullError:  # a flat object seen edge-on from above has no area
+            continue
+        # facets: a . p + b <= 0 inside; 1 mm of slack keeps a waypoint on the surface outside
+        for i, wp in enumerate(waypoints):
+            if bool(np.all(hull.equations[:, :2] @ np.asarray(wp) + hull.equations[:, 2] < -1e-3)):
+                raise table.problem(
+                    "waypoints",
+                    f"waypoint {i} {tuple(wp)} lies inside object {obj.name!r} of scene {scene.path.name}",
+                )
 
 
 def _check_start_clear(

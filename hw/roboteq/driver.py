@@ -40,8 +40,9 @@ as is the "default configuration loaded at startup" flag appearing during a sess
 Watchdog. The controller's serial watchdog (``^RWD``) is always armed (0 is refused) and only ``!``
 commands refresh it, so speeds must be sent every cycle. When it trips, the controller keeps the
 last set points and resumes them on the next valid command (manual): after any host stall longer
-than the watchdog the driver commands zero on both channels before the new speeds, and counts the
-trip (:attr:`RoboteqMDC2230.watchdog_trips`).
+than the watchdog after non-zero speeds the driver commands zero on both channels before the new
+speeds, and counts the trip (:attr:`RoboteqMDC2230.watchdog_trips`); a gap after zero speeds stops
+nothing and is no trip (start-up, a stop).
 
 Where this differs from the reference drivers, and why:
 
@@ -200,6 +201,7 @@ class RoboteqMDC2230(RoboteqConfiguration):
         self.n_retries = 0
         self._discarded_before = 0
         self.watchdog_trips = 0
+        self._moving = False  # the last speeds commanded were not both zero
         self.stop_acknowledged = False
 
     # --- lifecycle --------------------------------------------------------------------------
@@ -395,6 +397,7 @@ class RoboteqMDC2230(RoboteqConfiguration):
         self._after_stall()
         self._command(codec.set_speed(1, left))
         self._command(codec.set_speed(2, right))
+        self._moving = left != 0 or right != 0
 
     def set_commands(self, left: int, right: int) -> None:
         """``!G 1 left`` and ``!G 2 right``: motor commands -1000..1000 (a fraction of ``^MXRPM``).
@@ -409,6 +412,7 @@ class RoboteqMDC2230(RoboteqConfiguration):
         self._after_stall()
         self._command(codec.go(1, left))
         self._command(codec.go(2, right))
+        self._moving = left != 0 or right != 0
 
     def read_state(self) -> MotorState:
         """``?C``, ``?S``, ``?FF`` (and ``?FM`` with ``check_motor_flags``), checked.
@@ -492,8 +496,11 @@ class RoboteqMDC2230(RoboteqConfiguration):
         )
 
     def _after_stall(self) -> None:
-        """After a host stall longer than the watchdog, zero both channels before anything else."""
-        if self._state is not S.ACTIVE or self._last_bang_ns is None:
+        """After a host stall longer than the watchdog, zero both channels before anything else.
+
+        A gap after zero speeds (start-up, a stop) is no trip: the watchdog stops nothing that moves.
+        """
+        if self._state is not S.ACTIVE or self._last_bang_ns is None or not self._moving:
             return
         gap_ms = (self._now_ns() - self._last_bang_ns) / 1e6
         if gap_ms > self.watchdog_ms:
@@ -527,6 +534,7 @@ class RoboteqMDC2230(RoboteqConfiguration):
     def _zero(self) -> None:
         self._command(codec.set_speed(1, 0))
         self._command(codec.set_speed(2, 0))
+        self._moving = False
 
     def _latch_and_confirm(self) -> None:
         self._command(codec.emergency_stop())

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -108,11 +109,14 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.platform.spec import load_spec
     from robchair.route import PurePursuit, Route
     from robchair.run_output import run_to_dir
-    from robchair.runtime import RuntimeConfig
+    from robchair.runtime import RuntimeConfig, check_duration_s
     from robchair.sources import JoystickSource
 
     if args.backend not in BACKENDS:
         raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
+    check_duration_s(args.duration, "--duration")  # the duration and the rate before opening the chair
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
+        raise ConfigSource().invalid("--rate", args.rate, "a finite loop rate in Hz > 0")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)

@@ -96,8 +96,11 @@ def _run(args: argparse.Namespace) -> int:
             )
         return 0
     from robchair.outdir import check_output_dir, overwrite_allowed
+    from robchair.runtime import check_duration_s
     from robchair.scenario import run_scenario
 
+    if args.duration is not None:
+        check_duration_s(args.duration, "--duration")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before simulating
     if args.keep_freed_memory:
