@@ -13,7 +13,7 @@ summary.json. Bag clouds are placed at their header stamps in a fixed frame thro
 /tf_static (--fixed-frame, default odom; --pose-topic for a bag with nav_msgs/Odometry instead of TF);
 a bag without TF is mapped in its message frame, as recorded. Without --size the grid follows the
 data's extent, so a bag is read twice (once for the extent). A warning (and summary.json's
-band_check) says when most points lie outside the 2D band.
+band_check) says when 90 % or more of the points lie outside the 2D band.
 """
 
 from __future__ import annotations
