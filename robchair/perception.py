@@ -79,6 +79,18 @@ DYNAMIC_VOID_PROBABILITY = 0.15
 DYNAMIC_MAX_DWELL_S = 2.0
 
 
+def run_evidence_params() -> Any:
+    """The :class:`mapping.probabilistic.EvidenceParams` of a run's probabilistic maps (the dynamic-hit
+    decay above)."""
+    from mapping.probabilistic import EvidenceParams
+
+    return EvidenceParams(
+        dynamic_decay_s=DYNAMIC_DECAY_S,
+        dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
+        dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
+    )
+
+
 class _Done:
     """A finished future (a camera without background capture)."""
 
@@ -166,13 +178,7 @@ class Perception:
         self.map_kind = map_kind
         self.tolerance = float(tolerance)
         if evidence_params is None and map_kind == "probabilistic":
-            from mapping.probabilistic import EvidenceParams
-
-            evidence_params = EvidenceParams(
-                dynamic_decay_s=DYNAMIC_DECAY_S,
-                dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
-                dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
-            )
+            evidence_params = run_evidence_params()
         self.evidence_params = evidence_params
         self.clear_no_return = bool(clear_no_return)
         self.depth_max_range_m = depth_max_range_m

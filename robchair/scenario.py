@@ -149,6 +149,7 @@ def run_scenario(
     safety: bool = True,
     safety_limits: SafetyLimits | None = None,
     bag_storage: str = "mcap",
+    bag_clouds: str = "decimated",
     pose: str = POSE_DEFAULT,
     matching: bool = True,
     zoom: bool = True,
@@ -174,6 +175,7 @@ def run_scenario(
         safety: the safety layer on (default) or off (recorded in the metrics).
         safety_limits: limits of the safety layer (default: from the spec).
         bag_storage: ``"mcap"`` or ``"sqlite3"``.
+        bag_clouds: depth clouds in the bag, a key of :data:`robchair.observers.recorder.BAG_CLOUDS`.
         pose: the pose the run's map is built with: ``"odometry"``, ``"matched"`` (scan-to-map
             matching, :mod:`mapping.matching`) or ``"ground-truth"``.
         matching: run the scan-to-map matching (its map and drift beside the others); forced by
@@ -216,11 +218,11 @@ def run_scenario(
         if target is None:
             return _drive(scenario, spec, chair, backend, config, duration, None, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds))  # fmt: skip
         with staged_output_dir(target) as stage:
             res = _drive(scenario, spec, chair, backend, config, duration, stage, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds))  # fmt: skip
         res.out_dir = target.resolve()
         if res.error is not None and res.exception is not None:
             raise res.exception
@@ -232,18 +234,18 @@ def run_scenario(
 def _options(progress: bool, write_bag: bool, mapping_thread: bool, ground_truth_map: bool, safety: bool,
             safety_limits: SafetyLimits | None, bag_storage: str, pictures: bool, sensor: str, seed: int,
             camera_backend: str, wall0: float, pose: str = POSE_DEFAULT, matching: bool = True,
-            zoom: bool = True) -> dict[str, Any]:  # fmt: skip
+            zoom: bool = True, bag_clouds: str = "decimated") -> dict[str, Any]:  # fmt: skip
     return dict(progress=progress, write_bag=write_bag, mapping_thread=mapping_thread,
                 ground_truth_map=ground_truth_map, safety=safety, safety_limits=safety_limits,
                 bag_storage=bag_storage, pictures=pictures, sensor=sensor, seed=seed,
                 camera_backend=camera_backend, wall0=wall0, pose=pose, matching=matching,
-                zoom=zoom)  # fmt: skip
+                zoom=zoom, bag_clouds=bag_clouds)  # fmt: skip
 
 
 def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: RuntimeConfig,
            duration: float, stage: Path | None, o: dict[str, Any]) -> RunResult:  # fmt: skip
     from robchair.observers.evaluation import GroundTruthEvaluation
-    from robchair.observers.recorder import RunRecorder
+    from robchair.observers.recorder import BAG_CLOUDS, RunRecorder
     from robchair.perception import Perception
 
     frames = {}
@@ -267,7 +269,10 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     observers: list[Observer] = [evaluation]
     recorder = None
     if stage is not None and o["write_bag"]:
-        recorder = RunRecorder(stage / "bag", storage=o["bag_storage"])
+        every, stride = BAG_CLOUDS[o.get("bag_clouds", "decimated")]
+        recorder = RunRecorder(
+            stage / "bag", storage=o["bag_storage"], cloud_every=every, cloud_stride=stride
+        )
         observers.append(recorder)
     if stage is not None:
         from robchair.observers.timeseries import TimeseriesWriter

@@ -72,6 +72,7 @@ def write_map_outputs(
     parameters: dict[str, Any] | None = None,
     max_boxes_3d: int = 1500,
     bag_storage: str = "sqlite3",
+    extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write pictures, map_server PGM + YAML, PLY meshes, a ROS 2 bag and ``summary.json`` for a map.
 
@@ -88,6 +89,7 @@ def write_map_outputs(
         parameters: Extra entries for the summary's ``parameters``.
         max_boxes_3d: Cap on boxes drawn in the 3D picture (the PLY and the bag hold all).
         bag_storage: ``sqlite3`` (default of ROS 2 Humble) or ``mcap``.
+        extra: Further top-level entries of the summary (after ``parameters``).
 
     Returns:
         The summary written to ``summary.json``.
@@ -167,6 +169,7 @@ def write_map_outputs(
             "frame_id": frame_id,
             **(parameters or {}),
         },
+        **(extra or {}),
         "outputs": dict(OUTPUT_FILES),
     }
     (out / OUTPUT_FILES["summary"]).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")

@@ -5,15 +5,22 @@ from the file; :func:`detect_bin_layout` takes it from the name or the data, and
 when neither settles it:
 
 * ``*.pcd.bin`` (nuScenes' file-name convention) is ``nuscenes``: x y z intensity ring;
-* any other ``.bin`` is ``kitti`` (x y z intensity) when its size is a multiple of 16 bytes and
-  every fourth value is an intensity (finite, 0 to 255), and the nuScenes reading is not equally
-  plausible (a size that is a multiple of 80 bytes fits both);
+* any other ``.bin`` is ``kitti`` (x y z intensity) when its size is a multiple of 16 bytes, its
+  data fits KITTI, and the data rules out every other layout the size fits. The data fits a layout
+  when its extra columns hold what they should (intensity: finite, 0 to 255; ring: a whole number 0 to
+  1023; r g b: finite, 0 to 255) and the float32 stream repeats with the layout's record length: the
+  values at equal positions of neighbouring records are alike (Kolmogorov-Smirnov distance at most
+  0.3 between the columns of a record-aligned reshape), where a wrong record length pairs unlike
+  columns (x with intensity, y with a colour). A 1.2 MB x y z r g b file (50,000 points) fits KITTI,
+  nuScenes, x y z and x y z r g b by size, and its colours pass the intensity check; the repetition
+  test tells it is not KITTI;
 * otherwise the file is refused with the layouts its size fits: give the layout explicitly
   (``robchair map --bin-layout kitti|nuscenes|xyz|xyzrgb``).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -31,14 +38,17 @@ BIN_LAYOUTS: dict[str, tuple[int, str]] = {
 }
 _MAX_INTENSITY = 255.0  # KITTI stores 0-1, other drivers 0-255
 _MAX_RING = 1023.0  # laser index: 32 on nuScenes' HDL-32E, at most 128 on today's lidars
+_MIN_ROWS = 64  # fewer record-aligned rows than this: too few to judge the repetition
+_MAX_ROWS = 20_000  # rows compared (the start of a long file is enough)
+_MAX_KS = 0.3  # largest distance of like columns; unlike ones (x vs intensity) are far apart
 
 
-def _plausible(values: np.ndarray, layout: str) -> bool:
-    """Whether the records of ``values`` ((N, k) float32) look like ``layout``'s extra columns."""
-    if values.shape[0] == 0:
+def _columns_fit(values: np.ndarray, layout: str) -> bool:
+    """Whether the records of ``values`` ((N, k) float32) hold what ``layout``'s extra columns hold."""
+    if values.shape[0] == 0 or layout == "xyz":
         return True
-    inten = values[:, 3]
-    ok = bool(np.all(np.isfinite(inten)) and inten.min() >= 0.0 and inten.max() <= _MAX_INTENSITY)
+    extra = values[:, 3:4] if layout == "nuscenes" else values[:, 3:]  # intensity, or r g b
+    ok = bool(np.all(np.isfinite(extra)) and extra.min() >= 0.0 and extra.max() <= _MAX_INTENSITY)
     if ok and layout == "nuscenes":
         ring = values[:, 4]
         ok = bool(
@@ -48,6 +58,35 @@ def _plausible(values: np.ndarray, layout: str) -> bool:
             and np.all(ring == np.round(ring))
         )
     return ok
+
+
+def _ks_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sample Kolmogorov-Smirnov distance of two equally long samples (non-finite values last)."""
+    sa, sb = np.sort(a), np.sort(b)
+    both = np.concatenate([sa, sb])
+    fa = np.searchsorted(sa, both, side="right") / sa.size
+    fb = np.searchsorted(sb, both, side="right") / sb.size
+    return float(np.max(np.abs(fa - fb)))
+
+
+def _repeats_every(stream: np.ndarray, k: int, period: int) -> bool:
+    """Whether the float stream (reshaped into rows of ``period`` values, a multiple of ``k``) looks
+    alike at columns ``c`` and ``c + k``: what records of ``k`` floats look like. True when there are
+    too few rows to tell."""
+    n_rows = min(stream.size // period, _MAX_ROWS)
+    if n_rows < _MIN_ROWS or k == period:
+        return True
+    table = stream[: n_rows * period].astype(np.float64).reshape(n_rows, period)
+    table[~np.isfinite(table)] = np.inf
+    return all(_ks_distance(table[:, c], table[:, c + k]) <= _MAX_KS for c in range(period - k))
+
+
+def _data_fits(raw: bytes, layouts: list[str]) -> list[str]:
+    """The layouts among ``layouts`` (all fitting the size) whose columns and record length the data fits."""
+    stream = np.frombuffer(raw, "<f4")
+    cols = [name for name in layouts if _columns_fit(stream.reshape(-1, BIN_LAYOUTS[name][0]), name)]
+    period = math.lcm(*(BIN_LAYOUTS[name][0] for name in cols)) if cols else 1
+    return [name for name in cols if _repeats_every(stream, BIN_LAYOUTS[name][0], period)]
 
 
 def detect_bin_layout(path: Path | str, raw: bytes | None = None) -> str:
@@ -74,13 +113,20 @@ def detect_bin_layout(path: Path | str, raw: bytes | None = None) -> str:
         return "nuscenes"
     if "kitti" not in fits:
         raise PointCloudFormatError(f"{path}: not a KITTI scan (4 float32 per point); {hint}")
-    kitti = _plausible(np.frombuffer(raw, "<f4").reshape(-1, 4), "kitti")
-    if not kitti:
+    if not _columns_fit(np.frombuffer(raw, "<f4").reshape(-1, 4), "kitti"):
         raise PointCloudFormatError(
             f"{path}: not a KITTI scan: every 4th float32 should be an intensity in [0, 255]; {hint}"
         )
-    if "nuscenes" in fits and _plausible(np.frombuffer(raw, "<f4").reshape(-1, 5), "nuscenes"):
-        raise PointCloudFormatError(f"{path}: layout is ambiguous (KITTI or nuScenes); {hint}")
+    data_fits = _data_fits(raw, fits)
+    if "kitti" not in data_fits:
+        raise PointCloudFormatError(
+            f"{path}: not a KITTI scan: the data does not repeat every 4 float32 "
+            f"(it fits {', '.join(data_fits) or 'no layout'}); {hint}"
+        )
+    if data_fits != ["kitti"]:
+        raise PointCloudFormatError(
+            f"{path}: layout is ambiguous: the data fits {', '.join(data_fits)}; {hint}"
+        )
     return "kitti"
 
 

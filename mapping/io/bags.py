@@ -1,5 +1,5 @@
 """ROS bags through the ``rosbags`` library: read ``sensor_msgs/PointCloud2`` (and the older
-``sensor_msgs/PointCloud``) frames, write messages.
+``sensor_msgs/PointCloud``) frames and the TF tree (``/tf``, ``/tf_static``, odometry), write messages.
 
 ROS 1 ``.bag`` files (any chunk compression rosbags reads: none, bz2, lz4) use the ROS 1 Noetic type
 store; ROS 2 bags (a folder with ``metadata.yaml``, or a bare ``.db3`` / ``.mcap`` file) use ROS 2
@@ -24,12 +24,16 @@ import numpy as np
 
 from mapping.errors import BagTopicError, PointCloudFormatError
 from mapping.io.frame import CloudFrame
+from mapping.io.tf import TfBuffer
 from mapping.pointcloud2 import decode
 
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # the first bytes of every zstd frame (RFC 8878)
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 POINTCLOUD = "sensor_msgs/msg/PointCloud"  # the older message, one Point32 per point (thesis inputs)
 CLOUD_TYPES = (POINTCLOUD2, POINTCLOUD)
+TF_TOPICS = ("/tf", "/tf_static")
+TFMESSAGE = "tf2_msgs/msg/TFMessage"
+ODOMETRY = "nav_msgs/msg/Odometry"
 
 
 def is_ros2_bag(path: Path) -> bool:
@@ -38,9 +42,14 @@ def is_ros2_bag(path: Path) -> bool:
 
 
 def _typestore(ros2: bool) -> Any:
-    from rosbags.typesys import Stores, get_typestore
+    """ROS 2 Humble's type store, or ROS 1 Noetic's with ``tf2_msgs/TFMessage`` added (rosbags ships
+    the Noetic store without tf2_msgs; its definition is the one of ROS 1 ``tf2_msgs/TFMessage.msg``)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    store = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    if TFMESSAGE not in store.types:
+        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TFMESSAGE))
+    return store
 
 
 class _BoundedReads:
@@ -268,6 +277,77 @@ def open_bag_clouds(path: Path | str, topic: str | None = None) -> BagClouds:
     finally:
         reader.close()
     return BagClouds(path, chosen, n)
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def read_bag_tf(path: Path | str, pose_topic: str | None = None) -> TfBuffer:
+    """The TF tree of a bag: every ``tf2_msgs/TFMessage`` of ``/tf`` and ``/tf_static``, and with
+    ``pose_topic`` the poses of that ``nav_msgs/Odometry`` topic (``header.frame_id`` ->
+    ``child_frame_id``, replacing any ``/tf`` edge into the same child).
+
+    Returns:
+        A :class:`mapping.io.tf.TfBuffer` (empty when the bag has neither topic).
+
+    Raises:
+        BagTopicError: ``pose_topic`` is absent or not Odometry; the message lists the bag's topics.
+        PointCloudFormatError: A message cannot be read.
+    """
+    from mapping.io.tf import TfBuffer
+
+    path = Path(path)
+    decompress = _decompressor(path)
+    reader, ros2 = _open_reader(path)
+    store = _typestore(ros2)
+    buf = TfBuffer()
+    try:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        if pose_topic is not None and topics.get(pose_topic) != ODOMETRY:
+            listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
+            what = "has no topic" if pose_topic not in topics else f"has {topics[pose_topic]} on"
+            raise BagTopicError(
+                f"{path}: --pose-topic: bag {what} {pose_topic!r}, expected {ODOMETRY}; topics: {listing}"
+            )
+        conns = [
+            c
+            for c in reader.connections
+            if (c.topic in TF_TOPICS and c.msgtype == TFMESSAGE) or c.topic == pose_topic
+        ]
+        poses: list[tuple[str, str, int, Any]] = []
+        try:
+            for conn, _, raw in reader.messages(connections=conns) if conns else ():  # [] means all
+                raw = BagClouds._decompress(decompress, raw) if decompress is not None else raw
+                msg = (
+                    store.deserialize_cdr(raw, conn.msgtype)
+                    if ros2
+                    else store.deserialize_ros1(raw, conn.msgtype)
+                )
+                if conn.topic == pose_topic:
+                    p = msg.pose.pose
+                    poses.append((msg.header.frame_id, msg.child_frame_id, _stamp_ns(msg.header.stamp), p))
+                    continue
+                for tr in msg.transforms:
+                    t, q = tr.transform.translation, tr.transform.rotation
+                    static = conn.topic == "/tf_static"
+                    stamp = _stamp_ns(tr.header.stamp)
+                    xyz, xyzw = (t.x, t.y, t.z), (q.x, q.y, q.z, q.w)
+                    buf.add(tr.header.frame_id, tr.child_frame_id, stamp, xyz, xyzw, static=static)
+        except PointCloudFormatError:
+            raise
+        except (OSError, MemoryError):
+            raise
+        except Exception as exc:  # rosbags, sqlite3 and mcap share no error base
+            raise PointCloudFormatError(f"{path}: cannot read TF ({type(exc).__name__}: {exc})") from None
+    finally:
+        reader.close()
+    for child in {pose[1] for pose in poses}:
+        buf.drop(child)
+    for parent, child, stamp, p in poses:
+        o = p.orientation
+        buf.add(parent, child, stamp, (p.position.x, p.position.y, p.position.z), (o.x, o.y, o.z, o.w))
+    return buf
 
 
 def to_ros_pointcloud2(cloud: Any, *, ros2: bool = True) -> Any:

@@ -178,12 +178,14 @@ def read_ply_mesh(path: Path | str, *, faces: bool = True) -> PlyMesh:
     Args:
         path: The file.
         faces: Also read the ``face`` element. Faces of mixed sizes are split into triangle fans.
-            With False only the elements up to the vertices are parsed, so whatever follows them
-            (faces, edges, anything) does not matter.
+            With False the faces are not decoded, but every element is still walked.
 
     Raises:
-        PointCloudFormatError: Bad header, no vertex x/y/z, data shorter than declared, or (with
-            ``faces``) a face with fewer than 3 vertices or an index outside the vertices.
+        PointCloudFormatError: Bad header, no vertex x/y/z, data shorter or longer than the
+            elements declare (every element must fit the rest of the file exactly: a wrong vertex
+            count would otherwise read face bytes as points, or drop points), an ascii row that
+            does not hold its properties, or (with ``faces``) a face with fewer than 3 vertices or
+            an index outside the vertices.
     """
     want_faces = faces
     raw = Path(path).read_bytes()
@@ -200,12 +202,11 @@ def read_ply_mesh(path: Path | str, *, faces: bool = True) -> PlyMesh:
             raise _fail(path, f"PLY vertex property {c!r} is a list")
     vertices = np.zeros((0, 3))
     face_rows: list[np.ndarray] = []
-    last = len(elements) if want_faces else names.index("vertex") + 1
     if fmt == "ascii":
         lines = raw[start:].decode("ascii", errors="replace").splitlines()
         lines = [ln for ln in lines if ln.strip()]
         row = 0
-        for el in elements[:last]:
+        for el in elements:
             chunk = lines[row : row + el.count]
             if len(chunk) < el.count:
                 raise _fail(
@@ -214,21 +215,17 @@ def read_ply_mesh(path: Path | str, *, faces: bool = True) -> PlyMesh:
             row += el.count
             if el.name == "vertex":
                 vertices = _ascii_vertices(path, el, chunk)
-            elif el.name == "face" and el.properties and el.properties[0].count_dtype:
-                try:
-                    for ln in chunk:
-                        words = ln.split()
-                        n = int(words[0])
-                        if n < 0 or len(words) < 1 + n:
-                            raise ValueError(f"row {ln!r} is shorter than its count")
-                        face_rows.append(np.array(words[1 : 1 + n], dtype=np.int64))
-                except ValueError as exc:
-                    raise _fail(path, f"PLY ascii face data is malformed ({exc})") from None
+                continue
+            rows = _ascii_rows(path, el, chunk)
+            if el.name == "face" and want_faces and el.properties and el.properties[0].count_dtype:
+                face_rows = rows
+        if row != len(lines):
+            raise _fail(path, f"PLY ascii data has {len(lines) - row} rows more than {_declared(elements)}")
     else:
         order = "<" if fmt == "binary_little_endian" else ">"
         buf = memoryview(raw)
         pos = start
-        for el in elements[:last]:
+        for el in elements:
             dt = _scalar_dtype(el, order)
             if dt is not None:
                 need = dt.itemsize * el.count
@@ -248,8 +245,45 @@ def read_ply_mesh(path: Path | str, *, faces: bool = True) -> PlyMesh:
                 rows, pos = _read_binary_lists(path, el, buf, pos, order)
                 if el.name == "face":
                     face_rows = rows
+        if pos != len(raw):
+            raise _fail(path, f"PLY binary data has {len(raw) - pos} bytes more than {_declared(elements)}")
     tri = _rows_to_faces(path, face_rows, vertices.shape[0]) if want_faces else np.zeros((0, 3), np.int64)
     return PlyMesh(vertices, tri)
+
+
+def _declared(elements: list[PlyElement]) -> str:
+    """What the header declares, for messages: ``the header declares (vertex 100, face 50)``."""
+    counts = ", ".join(f"{e.name} {e.count}" for e in elements)
+    return f"the header declares ({counts}): an element count is wrong or the file is damaged"
+
+
+def _ascii_rows(path: Path | str, el: PlyElement, lines: list[str]) -> list[np.ndarray]:
+    """Check that every ascii row of a non-vertex element holds its properties exactly (a list is its
+    count, then that many values); return each row's first list (empty when it has none)."""
+    rows: list[np.ndarray] = []
+    for ln in lines:
+        words = ln.split()
+        pos, first = 0, None
+        try:
+            for p in el.properties:
+                if p.count_dtype:
+                    n = int(words[pos])
+                    if n < 0 or pos + 1 + n > len(words):
+                        raise ValueError(f"row {ln!r} is shorter than its count")
+                    if first is None:
+                        first = np.array(
+                            words[pos + 1 : pos + 1 + n], dtype=np.int64 if p.dtype[0] in "iu" else float
+                        )
+                    pos += 1 + n
+                else:
+                    float(words[pos])
+                    pos += 1
+        except (ValueError, IndexError) as exc:
+            raise _fail(path, f"PLY ascii {el.name} data is malformed ({exc or 'row too short'})") from None
+        if pos != len(words):
+            raise _fail(path, f"PLY ascii {el.name} row {ln!r} holds {len(words)} values, {pos} declared")
+        rows.append(first if first is not None else np.zeros(0, dtype=np.int64))
+    return rows
 
 
 def _columns(rec: np.ndarray, el: PlyElement) -> np.ndarray:
@@ -283,8 +317,8 @@ def _ascii_vertices(path: Path | str, el: PlyElement, lines: list[str]) -> np.nd
 
 
 def read_ply(path: Path | str) -> np.ndarray:
-    """Read the vertex x, y, z of a PLY file as (N, 3) (float32 when stored as float); the faces and
-    any other element after the vertices are not read."""
+    """Read the vertex x, y, z of a PLY file as (N, 3) (float32 when stored as float); the elements
+    after the vertices are checked to fit the file (see :func:`read_ply_mesh`) but not decoded."""
     return read_ply_mesh(path, faces=False).vertices
 
 

@@ -9,8 +9,11 @@ indoor cloud is mapped.
 
 Outputs: occupancy.png, elevation.png, vhv_3d.png, map.pgm + map.yaml (map_server), vhv_boxes.ply and
 voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid, /vhv_markers MarkerArray) and
-summary.json. Bag points are mapped in their message frame (no TF lookup); without --size the grid
-follows the data's extent, so a bag is read twice (once for the extent).
+summary.json. Bag clouds are placed at their header stamps in a fixed frame through the bag's /tf and
+/tf_static (--fixed-frame, default odom; --pose-topic for a bag with nav_msgs/Odometry instead of TF);
+a bag without TF is mapped in its message frame, as recorded. Without --size the grid follows the
+data's extent, so a bag is read twice (once for the extent). A warning (and summary.json's
+band_check) says when 90 % or more of the points lie outside the 2D band.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ import math
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from robchair.commands import map_tf
 
 if TYPE_CHECKING:
     from mapping.grid import GridSpec
@@ -113,6 +118,7 @@ def register(subparsers: Any) -> None:
         "else refused)",
     )
     p.add_argument("--sample", action="store_true", help="map the built-in synthetic sample cloud")
+    map_tf.add_arguments(p)
     p.set_defaults(func=_run)
 
 
@@ -135,6 +141,7 @@ def _check_args(args: argparse.Namespace) -> None:
         raise _fail(f"--min-range {args.min_range}: expected a distance >= 0 m")
     if args.sample and args.inputs:
         raise _fail("give either INPUT files or --sample, not both")
+    map_tf.check_arguments(args, _fail)
 
 
 class _SampleSource:
@@ -230,12 +237,10 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def _warm_up(spec: GridSpec, tolerance: float, points: Any) -> None:
+def _warm_up(spec: GridSpec, args: argparse.Namespace, points: Any, origin: Any) -> None:
     """Build a throwaway map from the first frame of each dtype, so the compiled kernels that frame
     needs are loaded (or compiled) before the timed insert: ``build ms`` then measures the build."""
-    from mapping.vhv import VHVMap
-
-    VHVMap(spec, tolerance=tolerance).insert(points)
+    map_tf.make_map(spec, args).insert(points, sensor_origin=origin)
 
 
 def _drop_close(points: Any, origin: Any, min_range: float) -> tuple[Any, int]:
@@ -251,12 +256,24 @@ def _drop_close(points: Any, origin: Any, min_range: float) -> tuple[Any, int]:
     return (pts[~close] if n else pts), n
 
 
-def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str, Any]:
+def _placed_frames(frames: Any, placement: Any, sensor_origin: Any) -> Any:
+    """(frame, sensor origin) of each frame, placed in the fixed frame when ``placement`` is set
+    (frames outside the TF range are left out there and counted)."""
+    for frame in frames:
+        origin = sensor_origin if sensor_origin is not None else frame.sensor_origin
+        if placement is None:
+            yield frame, origin
+            continue
+        placed = placement.place(frame, origin)
+        if placed is not None:
+            yield placed
+
+
+def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: Any = None) -> dict[str, Any]:
     """Read one source and build its map; returns the map and what the table row needs."""
     from tqdm import tqdm
 
     from mapping.grid import GridSpec
-    from mapping.vhv import VHVMap
 
     label = str(source.path) + (f" [{source.topic}]" if source.topic else "")
     bar_kw = {"total": source.n_frames, "desc": label, "unit": "frame", "disable": None if progress else True}
@@ -270,30 +287,37 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
         # (frame summaries only are kept, so a long bag does not have to fit in memory).
         extent = _Extent(args.axis)
         kept: list[Any] = []
-        for frame in tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"}):
-            origin = tuple(args.sensor_origin) if args.sensor_origin is not None else frame.sensor_origin
+        user_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
+        bar = tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"})
+        for frame, origin in _placed_frames(bar, placement, user_origin):
             extent.add(_drop_close(frame.points, origin, args.min_range)[0], origin)
             if source.n_frames <= 1:
-                kept.append(frame)
+                kept.append((frame, origin))
         spec, how = extent.grid(args)
         frames = kept if source.n_frames <= 1 else None
-    m = VHVMap(spec, tolerance=args.tolerance)
+        if placement is not None:
+            placement.reset()
+    m = map_tf.make_map(spec, args)
+    stamped = args.map_kind == "probabilistic"  # evidence decays in time: each cloud at its stamp
     build_ms = 0.0
     sensor_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
     frame_id, stamp_ns = "", 0
     sensor_origin_used = sensor_origin
     warmed: set[str] = set()
     dropped_close = 0
-    for frame in tqdm(frames if frames is not None else iter(source), **bar_kw):
-        origin = sensor_origin if sensor_origin is not None else frame.sensor_origin
+    band = map_tf.BandCheck(_band(args), spec.columns[2])
+    pairs = frames if frames is not None else _placed_frames(iter(source), placement, sensor_origin)
+    for frame, origin in tqdm(pairs, **bar_kw):
         points, n_close = _drop_close(frame.points, origin, args.min_range)
+        band.add(points)
         dropped_close += n_close
         if str(points.dtype) not in warmed:
-            _warm_up(spec, args.tolerance, points)
+            _warm_up(spec, args, points, origin)
             warmed.add(str(points.dtype))
-        stats = m.insert(points, sensor_origin=origin)
+        kw = {"stamp": frame.stamp_ns * 1e-9} if stamped and frame.stamp_ns >= 1e9 * m.now else {}
+        stats = m.insert(points, sensor_origin=origin, **kw)
         build_ms += stats.build_ms
-        sensor_origin_used = origin
+        sensor_origin_used = origin if placement is None else None  # a moving sensor has no one origin
         frame_id = frame.frame_id or frame_id
         stamp_ns = max(stamp_ns, int(frame.stamp_ns))
     return {
@@ -305,7 +329,14 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool) -> dict[str,
         "sensor_origin": sensor_origin_used,
         "frame_id": frame_id or "map",
         "stamp_ns": stamp_ns,
+        "band_check": band,
     }
+
+
+def _band(args: argparse.Namespace) -> tuple[float, float]:
+    from mapping.export import DEFAULT_BAND
+
+    return (float(args.band[0]), float(args.band[1])) if args.band is not None else DEFAULT_BAND
 
 
 def _row(label: str, points: int, structures: int, voxels: int, ms: float, width: int) -> str:
@@ -323,18 +354,19 @@ def _run(args: argparse.Namespace) -> int:
         if (args.sample or not args.inputs)
         else [open_clouds(p, topic=args.topic, bin_layout=args.bin_layout) for p in args.inputs]
     )
+    placements = [map_tf.open_placement(s, args, _fail) for s in sources]
     out_dir = check_output_dir(args.out, overwrite=args.overwrite)
     with deferred_stdout():
-        return _map_all(args, sources, out_dir)
+        return _map_all(args, sources, placements, out_dir)
 
 
-def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
+def _map_all(args: argparse.Namespace, sources: list[Any], placements: list[Any], out_dir: Any) -> int:
     import json
     import sys
 
-    from mapping.export import DEFAULT_BAND, write_map_outputs
+    from mapping.export import write_map_outputs
 
-    band = tuple(args.band) if args.band is not None else DEFAULT_BAND
+    band = _band(args)
     names = _unique_names([s.path for s in sources])
     progress = sys.stderr.isatty()
     width = max(12, *(len(str(s.path)) + (len(s.topic) + 3 if s.topic else 0) for s in sources))
@@ -343,10 +375,13 @@ def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
         f"{'standard voxels':>15}  {'build ms':>9}"
     )
     results = []
+    notes: list[str | None] = []  # printed once every map is written (bad input stays one line)
     with out_dir.stage() as stage:
-        for source, name in zip(sources, names):
-            r = _map_one(source, args, progress)
+        for source, name, placement in zip(sources, names, placements):
+            r = _map_one(source, args, progress, placement)
             m = r["map"]
+            notes += [map_tf.no_tf_note(source) if placement is None else None]
+            notes += [r["band_check"].warning(r["label"], args.axis)]
             target = stage if len(sources) == 1 else stage / name
             target.mkdir(exist_ok=True)
             summary = write_map_outputs(
@@ -365,6 +400,10 @@ def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
                     "grid_size_source": r["grid_size_source"],
                     "min_range": args.min_range,
                     "bin_layout": source.kind if source.path.suffix == ".bin" else None,
+                },
+                extra={
+                    "band_check": r["band_check"].summary(r["label"], args.axis),
+                    "tf": placement.summary() if placement is not None else map_tf.no_tf_summary(source),
                 },
             )
             points = summary["points_in"]
@@ -393,6 +432,9 @@ def _map_all(args: argparse.Namespace, sources: list[Any], out_dir: Any) -> int:
             }
             total["inputs"] = [{"name": n, "folder": n, **s} for n, s in results]
             (stage / "summary.json").write_text(json.dumps(total, indent=2) + "\n", encoding="utf-8")
+    for note in notes:
+        if note:
+            print(note, file=sys.stderr)
     for name, summary in results:
         p = summary["parameters"]
         where = "" if len(results) == 1 else f"{name}/: "

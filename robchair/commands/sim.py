@@ -49,6 +49,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--bag-storage", choices=("mcap", "sqlite3"), default="mcap", help="bag storage (default mcap)"
     )
     p.add_argument(
+        "--bag-clouds",
+        choices=("decimated", "full"),
+        default="decimated",
+        help="depth clouds in the bag: decimated (every 3rd frame, every 4th pixel each way; default) or "
+        "full (every frame whole, about 70 MB per simulated second: `robchair map --map-kind "
+        "probabilistic` on it rebuilds the run's map)",
+    )
+    p.add_argument(
         "--no-safety",
         action="store_true",
         help="drive without the safety layer (ground-truth studies; recorded in metrics.json)",
@@ -118,6 +126,7 @@ def _run(args: argparse.Namespace) -> int:
             camera_backend=args.camera_backend,
             safety=not args.no_safety,
             bag_storage=args.bag_storage,
+            bag_clouds=args.bag_clouds,
             **({"pose": args.pose} if args.pose else {}),
             matching=not args.no_matching,
             zoom=not args.no_zoom,

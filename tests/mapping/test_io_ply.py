@@ -124,3 +124,60 @@ def test_mesh_written_here_is_read_by_open3d(tmp_path, fmt):
     got = o3d.io.read_triangle_mesh(str(path))
     np.testing.assert_array_equal(np.asarray(got.vertices), np.asarray(box.vertices))
     np.testing.assert_array_equal(np.asarray(got.triangles), np.asarray(box.triangles))
+
+
+def _grid_mesh(n: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid, 0.1 m apart, and its 2 (n - 1)^2 triangles."""
+    u, v = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    pts = np.stack([u.ravel() * 0.1, v.ravel() * 0.1, np.zeros(n * n)], axis=1).astype(np.float32)
+    idx = (u * n + v)[:-1, :-1].ravel()
+    faces = np.concatenate(
+        [np.stack([idx, idx + n, idx + 1], 1), np.stack([idx + 1, idx + n, idx + n + 1], 1)]
+    )
+    return pts, faces
+
+
+def _recount(raw: bytes, delta: int) -> bytes:
+    head, sep, body = raw.partition(b"end_header\n")
+    n = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    return head.replace(b"element vertex %d" % n, b"element vertex %d" % (n + delta)) + sep + body
+
+
+WRONG_COUNTS = [(fmt, kind) for fmt in FORMATS for kind in ("raised by 500", "lowered by 89")] + [
+    ("ascii", "truncated")
+]
+
+
+@pytest.mark.parametrize(("fmt", "kind"), WRONG_COUNTS)
+def test_a_ply_whose_elements_do_not_fit_the_file_is_refused_as_plyfile_refuses_it(tmp_path, fmt, kind):
+    """A vertex count raised by 500 (face bytes read as points), lowered by 89 (points dropped), or an
+    ascii file cut 2000 bytes short inside its faces: the PLY format (Turk, "The PLY Polygon File
+    Format") makes every element exactly as long as its declared count, and plyfile refuses all three."""
+    plyfile = pytest.importorskip("plyfile")
+    pts, faces = _grid_mesh()
+    raw = write_ply(tmp_path / "good.ply", pts, faces=faces, encoding=fmt).read_bytes()
+    bad = {"raised by 500": _recount(raw, 500), "lowered by 89": _recount(raw, -89)}.get(kind)
+    path = tmp_path / "bad.ply"
+    path.write_bytes(raw[:-2000] if bad is None else bad)
+    with pytest.raises(plyfile.PlyElementParseError):
+        plyfile.PlyData.read(str(path))
+    with pytest.raises(PointCloudFormatError, match=r"bad\.ply: PLY .*(truncated|malformed|more than)"):
+        read_ply(path)
+    with pytest.raises(PointCloudFormatError, match=r"bad\.ply: PLY "):
+        read_ply_mesh(path)
+    np.testing.assert_array_equal(read_ply(tmp_path / "good.ply"), pts)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_point_cloud_ply_with_a_lowered_count_is_refused_for_its_left_over_data(tmp_path, fmt):
+    """Without faces the 89 points past a lowered count are left-over data: the header declares
+    (vertex 1511) and the file holds 1600 rows (hand count of the written grid)."""
+    pts, _ = _grid_mesh()
+    raw = write_ply(tmp_path / "good.ply", pts, encoding=fmt).read_bytes()
+    (tmp_path / "bad.ply").write_bytes(_recount(raw, -89))
+    unit = "rows" if fmt == "ascii" else "bytes"
+    extra = 89 if fmt == "ascii" else 89 * 12
+    with pytest.raises(
+        PointCloudFormatError, match=rf"has {extra} {unit} more than the header declares \(vertex 1511\)"
+    ):
+        read_ply(tmp_path / "bad.ply")

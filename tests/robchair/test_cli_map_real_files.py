@@ -100,6 +100,44 @@ def test_kitti_scan_is_still_the_default_and_a_doubtful_size_is_refused(tmp_path
         open_clouds(tmp_path / "cut.pcd.bin")
 
 
+def test_xyzrgb_bin_whose_colours_pass_for_intensities_is_refused_naming_the_layouts(tmp_path, capsys):
+    """50,000 x y z r g b float32 points with colours in [0, 1] (1,200,000 bytes): the size fits
+    16-, 20-, 12- and 24-byte records (hand division) and every 4th float (r, y or b, all in [0, 10])
+    passes for a KITTI intensity; only the layout given with --bin-layout reads its 50,000 points."""
+    rng = np.random.default_rng(3)
+    pts = np.empty((50_000, 6), "<f4")
+    pts[:, 0], pts[:, 1] = rng.uniform(0, 10, 50_000), rng.uniform(0, 8, 50_000)
+    pts[:, 2], pts[:, 3:] = rng.uniform(0, 2.5, 50_000), rng.uniform(0, 1, (50_000, 3))
+    pts.tofile(tmp_path / "room.bin")
+    assert (tmp_path / "room.bin").stat().st_size == 1_200_000
+    assert main(["map", str(tmp_path / "room.bin"), "--out", str(tmp_path / "o")]) == 2
+    line = _one_error_line(capsys)
+    assert "room.bin: not a KITTI scan" in line
+    assert "fits: kitti, nuscenes, xyz, xyzrgb" in line and "--bin-layout" in line
+    assert not (tmp_path / "o").exists()
+    out = tmp_path / "out"
+    assert main(["map", str(tmp_path / "room.bin"), "--bin-layout", "xyzrgb", "--out", str(out)]) == 0
+    assert _summary(out)["points_in"] == 50_000
+
+
+def test_kitti_scan_whose_size_also_fits_xyz_and_xyzrgb_is_still_read_as_kitti(tmp_path):
+    """30,000 KITTI points are 480,000 bytes, a multiple of 12, 16, 20 and 24 (hand division); the
+    data repeats every 4 floats only, so x y z and x y z r g b are ruled out and no flag is needed."""
+    rng = np.random.default_rng(4)
+    kitti = rng.uniform(-40, 40, (30_000, 4)).astype("<f4")
+    kitti[:, 2], kitti[:, 3] = rng.uniform(-2, 1, 30_000), rng.uniform(0, 1, 30_000)
+    kitti.tofile(tmp_path / "000001.bin")
+    assert open_clouds(tmp_path / "000001.bin").kind == "kitti"
+    (frame,) = read_clouds(tmp_path / "000001.bin")
+    np.testing.assert_array_equal(frame.points, kitti[:, :3])
+    cube = rng.uniform(0, 10, (24_000, 3)).astype("<f4")  # x y z alike: nothing tells the record length
+    cube.tofile(tmp_path / "cube.bin")
+    with pytest.raises(
+        PointCloudFormatError, match=r"cube\.bin: layout is ambiguous: the data fits kitti, xyz"
+    ):
+        open_clouds(tmp_path / "cube.bin")
+
+
 # ------------------------------------------------------------------------------------------- PLY
 
 
