@@ -141,8 +141,26 @@ def _crossing_bearing_deg(d_cm: FloatArray, side: str) -> FloatArray:
     return 0.5 * (lo + hi)
 
 
+#: Half-apertures of single ranges already solved, ``{d_cm: (left, right)}``. Sonar readings come in
+#: whole centimetres, so a run meets few distinct ranges; the bisection costs ~10 ms per range.
+_SOLVED: dict[float, tuple[FloatArray, FloatArray]] = {}
+_SOLVED_MAX = 65536
+
+
 def _model_half_apertures_deg(d_cm: FloatArray) -> tuple[FloatArray, FloatArray]:
-    return _crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right")
+    if d_cm.shape != (1,):
+        return _crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right")
+    # one range: solved as a one-element array, exactly as before, once per distinct value
+    key = float(d_cm[0])
+    hit = _SOLVED.get(key)
+    if hit is None:
+        if len(_SOLVED) >= _SOLVED_MAX:
+            _SOLVED.clear()
+        hit = (_crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right"))
+        for a in hit:
+            a.setflags(write=False)
+        _SOLVED[key] = hit
+    return hit[0], hit[1]
 
 
 def _widest_half_apertures_deg() -> tuple[float, float]:
