@@ -36,6 +36,7 @@ re-exported here.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any, SupportsFloat
 
@@ -54,6 +55,7 @@ from robchair.envs.render import top_down_picture
 from robchair.kinematics import DiffDrive, Pose2D
 from robchair.perception import Perception
 from robchair.runtime import CycleResult, Runtime, RuntimeConfig
+from robchair.safety import SafetyLayer, SafetyLimits
 from robchair.sources import Command
 from robchair.spec import RobChairSpec, load_spec
 from sim.envs.errors import NavigationEnvError
@@ -317,6 +319,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             spec=self.spec_robot,
             config=RuntimeConfig(rate_hz=float(self.agent_hz), camera_every=1, sonar_every=1),
             perception=self._new_perception(),
+            # a stop is part of what the agent learns from (info["safety"]): INFO, not a warning per stop
+            safety=SafetyLayer(SafetyLimits.from_spec(self.spec_robot), log_level=logging.INFO),
             safety_enabled=self.safety_enabled,
         )
         self._closed = False
