@@ -20,10 +20,13 @@ slots, else appended at the pool's end).
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numba
 import numpy as np
+
+from mapping._deps import announce_compilation
 
 _JIT: dict[str, Any] = {
     "cache": True,
@@ -376,3 +379,7 @@ def split_beyond(pts, ox, oy, oz, max_range, kept, ends):  # type: ignore[no-unt
             kept[k, 1] = pts[k, 1]
             kept[k, 2] = pts[k, 2]
     return n
+
+
+# first run after an install or a change here: say why the first frame takes tens of seconds
+announce_compilation(sys.modules[__name__], "mapping kernels (free space)")

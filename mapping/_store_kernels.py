@@ -7,9 +7,12 @@ itself comes from :mod:`mapping._evidence_kernels`, whose module docstring gives
 
 from __future__ import annotations
 
+import sys
+
 import numba
 import numpy as np
 
+from mapping._deps import announce_compilation
 from mapping._evidence_kernels import _JIT
 
 
@@ -340,3 +343,7 @@ def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type
             dropped += cnt - w
             ccount[c] = w
     return dropped
+
+
+# first run after an install or a change here: say why the first frame takes tens of seconds
+announce_compilation(sys.modules[__name__], "mapping kernels (interval store)")
