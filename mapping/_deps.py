@@ -51,3 +51,30 @@ def require(module: str, purpose: str) -> Any:
         return importlib.import_module(module)
     except ImportError as exc:
         raise MappingError(f"{purpose} needs the Python package '{module}' ({exc})") from exc
+
+
+_announced: set[str] = set()
+
+
+def announce_compilation(module: ModuleType, what: str) -> None:
+    """Say on stderr, once per process and module, that ``module``'s numba kernels are being compiled.
+
+    numba compiles a kernel at its first call and caches it on disk (``cache=True``), so only the first
+    run after an install pays (tens of seconds for the mapping kernels). A kernel has been cached when
+    its index file exists; a module none of whose kernels has one is compiled for the first time (a run
+    that finds some indexes compiles only the kernels it had not used before, and says nothing).
+    """
+    name = module.__name__
+    if name in _announced:
+        return
+    _announced.add(name)
+    import os
+    import sys
+
+    indexes = []
+    for obj in vars(module).values():
+        index = getattr(getattr(getattr(obj, "_cache", None), "_cache_file", None), "_index_path", None)
+        if isinstance(index, str):
+            indexes.append(os.path.exists(index))
+    if indexes and not any(indexes):
+        print(f"compiling {what} (first run only, cached afterwards)...", file=sys.stderr, flush=True)

@@ -70,6 +70,27 @@ _SAMPLE_STEP = 32
 _MARGIN_CELLS = 2
 
 
+def _run_bounds(
+    key: NDArray[np.int64], bot: NDArray[np.float64], top: NDArray[np.float64], tol: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """First and last index of each structure of a list sorted by (key, bottom): a new structure starts
+    where the cell changes or the gap to the previous top exceeds ``tol`` (thesis test 4.2.4)."""
+    start = np.ones(key.shape[0], bool)
+    start[1:] = (key[1:] != key[:-1]) | (bot[1:] - top[:-1] > tol)
+    s = np.flatnonzero(start)
+    return s, np.r_[s[1:], key.shape[0]] - 1
+
+
+def _sort_cluster(
+    key: NDArray[np.int64], h: NDArray[np.floating], tol: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Structures of (cell key, height) pairs by a vectorised sort (the thesis's pipeline)."""
+    order = np.lexsort((h, key))
+    key, hs = key[order], h[order].astype(np.float64)
+    s, ends = _run_bounds(key, hs, hs, tol)
+    return key[s], hs[s], hs[ends]
+
+
 def _sort_path(
     pts: NDArray[np.floating], spec: GridSpec, tol: float
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], int, int]:
@@ -113,14 +134,8 @@ def _sort_path(
     i, j = spec.world_to_index(pts[ok, cu], pts[ok, cv])
     inside = spec.contains_index(i, j)
     key = i[inside] * ny + j[inside]
-    h = pts[ok, ch][inside].astype(np.float64)
-    order = np.lexsort((h, key))
-    key, h = key[order], h[order]
-    start = np.ones(key.shape[0], bool)
-    start[1:] = (key[1:] != key[:-1]) | (h[1:] - h[:-1] > tol)
-    s = np.flatnonzero(start)
-    ends = np.r_[s[1:], key.shape[0]] - 1
-    return key[s], h[s], h[ends], n_nonfinite, n - n_nonfinite - int(key.shape[0])
+    k, bot, top = _sort_cluster(key, pts[ok, ch][inside], tol)
+    return k, bot, top, n_nonfinite, n - n_nonfinite - int(key.shape[0])
 
 
 def _build_compiled(
@@ -256,14 +271,7 @@ def _build_numpy(
     dense = (int(i.max()) - i0 + 1) * nj * (b_hi - b_lo + 1) if math.isfinite(b_hi - b_lo) else math.inf
     if dense * 16 > max(8 * pts.nbytes, 1 << 24):
         # Far too sparse for a dense table: sort (the thesis's pipeline, vectorised).
-        key = i * ny + j
-        order = np.lexsort((h, key))
-        key, hs = key[order], h[order].astype(np.float64)
-        start = np.ones(hs.shape[0], bool)
-        start[1:] = (key[1:] != key[:-1]) | (hs[1:] - hs[:-1] > tol)
-        s = np.flatnonzero(start)
-        ends = np.r_[s[1:], hs.shape[0]] - 1
-        return key[s], hs[s], hs[ends], n_nonfinite, n_outside
+        return *_sort_cluster(i * ny + j, h, tol), n_nonfinite, n_outside
     b0 = int(b_lo)
     nb = int(b_hi) - b0 + 1
     dense = int(dense)
@@ -276,10 +284,7 @@ def _build_numpy(
     nz = np.flatnonzero(mins != np.inf)
     cell = nz // nb
     lo, hi = mins[nz], maxs[nz]
-    start = np.ones(nz.shape[0], bool)
-    start[1:] = (cell[1:] != cell[:-1]) | (lo[1:] - hi[:-1] > tol)
-    s = np.flatnonzero(start)
-    ends = np.r_[s[1:], nz.shape[0]] - 1
+    s, ends = _run_bounds(cell, lo, hi, tol)
     ci = cell[s] // nj + i0
     cj = cell[s] % nj + j0
     return ci * ny + cj, lo[s], hi[ends], n_nonfinite, n_outside
@@ -313,10 +318,7 @@ def _merge_numpy(
     group = np.cumsum(np.r_[True, key[1:] != key[:-1]]) - 1
     run = np.maximum.accumulate(group * n + rank) - group * n
     run_top = top[rank_order[run]]
-    start = np.ones(n, bool)
-    start[1:] = (key[1:] != key[:-1]) | (bot[1:] - run_top[:-1] > tol)
-    s = np.flatnonzero(start)
-    ends = np.r_[s[1:], n] - 1
+    s, ends = _run_bounds(key, bot, run_top, tol)
     return key[s], bot[s], run_top[ends]
 
 

@@ -9,10 +9,13 @@ Structures leave the kernels as three parallel arrays: cell key ``i * ny + j`` (
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 import numba
 import numpy as np
+
+from mapping._deps import announce_compilation
 
 _JIT: dict[str, Any] = {
     "cache": True,
@@ -292,3 +295,7 @@ def cluster_cells(hs, offsets, i0, j0, nj, ny, tol):  # type: ignore[no-untyped-
                 out_t[n_out] = z
                 n_out += 1
     return out_key, out_b, out_t
+
+
+# first run after an install or a change here: say why the first frame takes tens of seconds
+announce_compilation(sys.modules[__name__], "mapping kernels")

@@ -82,6 +82,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mapping._evidence_views import EvidenceViews, _structures_from
+from mapping._interval_store import IntervalStore
 from mapping.errors import MappingError
 from mapping.evidence import EvidenceIntervals, EvidenceParams, EvidenceStats
 from mapping.grid import GridSpec
@@ -96,26 +98,7 @@ MapKind = Literal["probabilistic", "thesis"]
 _LATTICE_LIMIT = float(2**30)
 
 
-def _structures_from(
-    key: NDArray[np.int64], lo: NDArray[np.float64], hi: NDArray[np.float64], ny: int
-) -> Structures:
-    return Structures.from_bounds((key // ny).astype(np.int32), (key % ny).astype(np.int32), lo, hi)
-
-
-def _join_touching(
-    key: NDArray[np.int64], lo: NDArray[np.int32], hi: NDArray[np.int32]
-) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32]]:
-    """Join consecutive intervals of one cell that touch (sorted, disjoint input)."""
-    if key.shape[0] == 0:
-        return key, lo, hi
-    start = np.ones(key.shape[0], bool)
-    start[1:] = (key[1:] != key[:-1]) | (lo[1:] != hi[:-1])
-    s = np.flatnonzero(start)
-    ends = np.r_[s[1:], key.shape[0]] - 1
-    return key[s], lo[s], hi[ends]
-
-
-class ProbabilisticVHV:
+class ProbabilisticVHV(IntervalStore, EvidenceViews):
     """A variable-height map that keeps occupied and free evidence per vertical interval.
 
     Accepts the same inputs as :class:`mapping.vhv.VHVMap` (``insert(points, sensor_origin=...)``) and
@@ -164,22 +147,7 @@ class ProbabilisticVHV:
         self._l_occ = np.float32(lo["occupied"])
         self._l_free = np.float32(lo["free"])
         self._l_void = np.float32(lo["void"])
-        nx, ny = spec.shape
-        self._cstart = np.zeros(nx * ny, np.int64)
-        self._ccount = np.zeros(nx * ny, np.int32)
-        self._ccap = np.zeros(nx * ny, np.int32)
-        cap = 1 << 16
-        self._plo = np.empty(cap, np.int32)
-        self._phi = np.empty(cap, np.int32)
-        self._pl = np.empty(cap, np.float32)
-        # stamps of the last and the first dynamic hit of a dynamic interval, else -inf
-        self._pt = np.empty((cap, 2), np.float64)
-        self._track = p.dynamic_decay_s is not None
-        self._now = -math.inf
-        self._used = 0
-        self._garbage = 0
-        self._n_intervals = 0
-        self._cache: dict[str, Any] = {}
+        self._init_store(spec.shape[0] * spec.shape[1], p.dynamic_decay_s is not None)
         self.frames = 0
         self.points_inserted = 0
         self.points_dropped_nonfinite = 0
@@ -274,17 +242,6 @@ class ProbabilisticVHV:
         dv = max(abs((int(j.min()) + ov) * cs - sv), abs((int(j.max()) + ov + 1) * cs - sv))
         dh = max(abs(float(bot.min()) - sh), abs(float(top.max()) - sh))
         return math.sqrt(du * du + dv * dv + dh * dh) <= max_range
-
-    def _advance(self, stamp: float | None) -> None:
-        """Move the map's clock to ``stamp`` (seconds; None: keep it)."""
-        if stamp is None:
-            return
-        s = float(stamp)
-        if not math.isfinite(s):
-            raise MappingError(f"insert stamp={stamp!r}: expected a finite time in seconds")
-        if s < self._now - 1e-9:
-            raise MappingError(f"insert stamp={s!r}: earlier than the map's clock {self._now!r} s")
-        self._now = s
 
     def _insert_with_free(
         self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
@@ -614,254 +571,11 @@ class ProbabilisticVHV:
         )
         return fkey, flo, fhi, int(passages)
 
-    def _update(
-        self,
-        okey: NDArray[np.int64],
-        olo: NDArray[np.int32],
-        ohi: NDArray[np.int32],
-        fkey: NDArray[np.int64],
-        flo: NDArray[np.int32],
-        fhi: NDArray[np.int32],
-    ) -> int:
-        from mapping import _evidence_kernels as E
-
-        tkey, toff, tlo, thi, tl, tt = E.update_cells(
-            self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt,
-            okey, olo, ohi, fkey, flo, fhi,
-            self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
-            self._track, self._now, self._l_void, self._l_occ,
-        )  # fmt: skip
-        extra = int(E.relocation_slots(tkey, toff, self._ccap))
-        if self._used + extra > self._plo.shape[0]:
-            self._grow(self._used + extra)
-        used, freed, delta = E.write_back(
-            tkey, toff, tlo, thi, tl, tt, self._cstart, self._ccount, self._ccap,
-            self._plo, self._phi, self._pl, self._pt, self._used,
-        )  # fmt: skip
-        self._used = int(used)
-        self._garbage += int(freed)
-        self._n_intervals += int(delta)
-        if self._garbage > 2 * self._n_intervals + (1 << 16):
-            self._compact()
-        return int(tkey.shape[0])
-
-    def _decay(self) -> int:
-        """Forget the dynamic occupied intervals not hit for ``dynamic_decay_s``; returns how many."""
-        age = self.params.dynamic_decay_s
-        dwell = self.params.dynamic_max_dwell_s
-        if age is None or not math.isfinite(self._now) or self._n_intervals == 0:
-            return 0
-        from mapping import _evidence_kernels as E
-
-        n = int(
-            E.decay(self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
-                    self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ)
-        )  # fmt: skip
-        self._n_intervals -= n
-        self._garbage += n
-        return n
-
-    def _grow(self, need: int) -> None:
-        cap = max(2 * self._plo.shape[0], need)
-        for name in ("_plo", "_phi", "_pl", "_pt"):
-            old = getattr(self, name)
-            new = np.empty((cap, *old.shape[1:]), old.dtype)
-            new[: self._used] = old[: self._used]
-            setattr(self, name, new)
-
-    def _compact(self) -> None:
-        from mapping import _evidence_kernels as E
-
-        slack = 2
-        cells = int(np.count_nonzero(self._ccount))
-        cap = max(self._n_intervals + slack * cells + 1024, 1 << 16)
-        lo, hi, lv = np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, np.float32)
-        lt = np.empty((cap, 2), np.float64)
-        # cells with no interval keep no room
-        self._ccap[self._ccount == 0] = 0
-        self._used = int(
-            E.compact(
-                self._cstart, self._ccount, self._ccap, self._plo, self._phi, self._pl, self._pt,
-                lo, hi, lv, lt, slack,
-            )
-        )  # fmt: skip
-        self._plo, self._phi, self._pl, self._pt = lo, hi, lv, lt
-        self._garbage = 0
-
-    # ------------------------------------------------------------------ queries
-    def _flat(self) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.float32]]:
-        if "flat" not in self._cache:
-            from mapping import _evidence_kernels as E
-
-            self._cache["flat"] = E.gather(
-                self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt, self._n_intervals
-            )[:4]
-        flat: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.float32]] = (
-            self._cache["flat"]
-        )
-        return flat
-
-    def intervals(self) -> EvidenceIntervals:
-        """Every stored interval (occupied, free or in between) with its log-odds and probability."""
-        key, lo, hi, lv = self._flat()
-        ny = self.spec.shape[1]
-        with np.errstate(over="ignore"):
-            prob = 1.0 / (1.0 + np.exp(-lv.astype(np.float64)))
-        return EvidenceIntervals(
-            i=(key // ny).astype(np.int32),
-            j=(key % ny).astype(np.int32),
-            bottom=lo.astype(np.float64) * self._r,
-            top=hi.astype(np.float64) * self._r,
-            log_odds=lv.copy(),
-            probability=prob,
-            occupied=lv >= self._l_occ,
-            free=lv < self._l_free,
-        )
-
-    def _state(self, which: str) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        if which not in self._cache:
-            key, lo, hi, lv = self._flat()
-            sel = lv >= self._l_occ if which == "occupied" else lv < self._l_free
-            k, a, b = _join_touching(key[sel], lo[sel], hi[sel])
-            self._cache[which] = (k, a.astype(np.float64) * self._r, b.astype(np.float64) * self._r)
-        out: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] = self._cache[which]
-        return out
-
-    def _occupied_view(self) -> VHVMap:
-        if "view" not in self._cache:
-            k, b, t = self._state("occupied")
-            v = VHVMap(self.spec, self.tolerance)
-            v._key, v._bottom, v._top = k, b, t
-            self._cache["view"] = v
-        view: VHVMap = self._cache["view"]
-        return view
-
-    def structures(self) -> Structures:
-        """Occupied intervals as VHV structures (touching occupied pieces of a cell joined).
-
-        Bounds are those of the stored slabs: the hits' extent widened by ``surface_half_thickness``
-        and snapped outward to the height lattice.
-        """
-        return self._occupied_view().structures()
-
-    def free_structures(self) -> Structures:
-        """Free intervals (touching free pieces of a cell joined), same layout as :meth:`structures`."""
-        k, b, t = self._state("free")
-        return _structures_from(k, b, t, self.spec.shape[1])
-
-    def structures_in_cell(self, i: int, j: int) -> Structures:
-        """Occupied structures of cell ``(i, j)``."""
-        return self._occupied_view().structures_in_cell(i, j)
-
-    def structures_at(self, u: float, v: float) -> Structures:
-        """Occupied structures of the cell containing grid-plane point ``(u, v)``."""
-        return self._occupied_view().structures_at(u, v)
-
-    @property
-    def cell_keys(self) -> NDArray[np.int64]:
-        """Cell key ``i * ny + j`` of every occupied structure (sorted)."""
-        return self._occupied_view().cell_keys
-
-    @property
-    def n_structures(self) -> int:
-        """Number of occupied structures."""
-        return self._occupied_view().n_structures
-
-    @property
-    def n_cells_occupied(self) -> int:
-        """Cells holding at least one occupied structure."""
-        return self._occupied_view().n_cells_occupied
-
-    @property
-    def n_voxels(self) -> int:
-        """Standard voxels the occupied structures cover."""
-        return self._occupied_view().n_voxels
-
-    @property
-    def now(self) -> float:
-        """The map's clock: the latest insertion stamp, seconds (-inf before any)."""
-        return self._now
-
-    @property
-    def n_intervals(self) -> int:
-        """Stored intervals of every state."""
-        return self._n_intervals
-
-    def bbox(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        """World bounds of the occupied structures, or None."""
-        return self._occupied_view().bbox()
-
-    def elevation(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """2.5D elevation ``(top_max, bottom_min)`` of the occupied structures, ``(nx, ny)`` float64.
-
-        NaN where a cell holds no occupied interval: unknown, or known free with no surface.
-        """
-        from mapping.derived import elevation
-
-        return elevation(self._occupied_view())
-
-    def occupancy_2d(
-        self,
-        band: tuple[float, float],
-        unknown: int = -1,
-        min_free_fraction: float = 0.5,
-    ) -> NDArray[np.int8]:
-        """Three-valued 2D map of the height band, ``nav_msgs/OccupancyGrid`` codes, ``(nx, ny)`` int8.
-
-        * 100: an occupied interval overlaps ``[band[0], band[1]]``;
-        * 0: no occupied interval there, and free intervals cover at least ``min_free_fraction`` of
-          the band;
-        * ``unknown`` (default -1) otherwise. Pass ``unknown=100`` to plan as if unknown were blocked,
-          or 0 to treat it as free (the default keeps it apart: not free).
-
-        Raises:
-            MappingError: a malformed band, ``unknown`` not one of -1, 0, 100, or a fraction outside [0, 1].
-        """
-        z0, z1 = _check_band(band)
-        if unknown not in (-1, 0, 100):
-            raise MappingError(f"occupancy_2d unknown={unknown!r}: expected -1, 0 or 100")
-        if not (math.isfinite(min_free_fraction) and 0.0 <= min_free_fraction <= 1.0):
-            raise MappingError(
-                f"occupancy_2d min_free_fraction={min_free_fraction!r}: expected a value in [0, 1]"
-            )
-        nx, ny = self.spec.shape
-        codes = np.full(nx * ny, unknown, np.int8)
-        fk, fb, ft = self._state("free")
-        touch = (fb <= z1) & (ft > z0)
-        cover = np.minimum(ft, z1) - np.maximum(fb, z0)
-        covered = np.bincount(fk[touch], weights=np.maximum(cover[touch], 0.0), minlength=nx * ny)
-        any_free = np.bincount(fk[touch], minlength=nx * ny) > 0
-        free = any_free & (covered >= min_free_fraction * (z1 - z0) - 1e-12)
-        codes[free] = 0
-        ok, ob, ot = self._state("occupied")
-        hit = (ob <= z1) & (ot > z0)
-        codes[ok[hit]] = 100
-        return codes.reshape(nx, ny)
-
-    def free_cells(
-        self, band: tuple[float, float], unknown_is_free: bool = False, min_free_fraction: float = 0.5
-    ) -> NDArray[np.bool_]:
-        """``(nx, ny)`` True where the band is free; unknown counts as free only if asked."""
-        codes = self.occupancy_2d(
-            band, unknown=0 if unknown_is_free else 100, min_free_fraction=min_free_fraction
-        )
-        return np.asarray(codes == 0)
-
     def __repr__(self) -> str:
         return (
             f"ProbabilisticVHV(cells={self.spec.shape}, cell_size={self.spec.cell_size}, "
             f"tolerance={self.tolerance}, intervals={self._n_intervals}, frames={self.frames})"
         )
-
-
-def _check_band(band: tuple[float, float]) -> tuple[float, float]:
-    try:
-        z0, z1 = (float(b) for b in band)
-    except (TypeError, ValueError):
-        raise MappingError(f"height band {band!r}: expected (z_min, z_max) in metres") from None
-    if not (math.isfinite(z0) and math.isfinite(z1)) or z0 > z1:
-        raise MappingError(f"height band [{z0!r}, {z1!r}]: expected finite z_min <= z_max")
-    return z0, z1
 
 
 def make_map(

@@ -70,6 +70,7 @@ Pure numpy; nothing here talks to hardware. The pieces, in the order data flows 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -141,8 +142,26 @@ def _crossing_bearing_deg(d_cm: FloatArray, side: str) -> FloatArray:
     return 0.5 * (lo + hi)
 
 
+#: Half-apertures of single ranges already solved, ``{d_cm: (left, right)}``. Sonar readings come in
+#: whole centimetres, so a run meets few distinct ranges; the bisection costs ~10 ms per range.
+_SOLVED: dict[float, tuple[FloatArray, FloatArray]] = {}
+_SOLVED_MAX = 65536
+
+
 def _model_half_apertures_deg(d_cm: FloatArray) -> tuple[FloatArray, FloatArray]:
-    return _crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right")
+    if d_cm.shape != (1,):
+        return _crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right")
+    # one range: solved as a one-element array, exactly as before, once per distinct value
+    key = float(d_cm[0])
+    hit = _SOLVED.get(key)
+    if hit is None:
+        if len(_SOLVED) >= _SOLVED_MAX:
+            _SOLVED.clear()
+        hit = (_crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right"))
+        for a in hit:
+            a.setflags(write=False)
+        _SOLVED[key] = hit
+    return hit[0], hit[1]
 
 
 def _widest_half_apertures_deg() -> tuple[float, float]:
@@ -335,6 +354,11 @@ def _hull(intervals: FloatArray) -> tuple[float, float]:
     return lo, hi - lo
 
 
+def _three(flags: Iterable[bool]) -> tuple[bool, bool, bool]:
+    a, b, c = flags
+    return bool(a), bool(b), bool(c)
+
+
 def fuse_array(
     r1_m: float,
     r2_m: float,
@@ -359,21 +383,20 @@ def fuse_array(
     if not (math.isfinite(threshold_m) and threshold_m >= 0.0):
         raise SonarModelError(f"threshold_m={threshold_m!r} must be a finite value >= 0")
     tables = default_zone_tables() if tables is None else tables
-    r = np.array([r1_m, r2_m, r3_m], dtype=np.float64)
+    # three readings: plain float arithmetic (the same IEEE operations as on a numpy array, without
+    # its per-call overhead; the fusion runs for every array reading)
+    r = (float(r1_m), float(r2_m), float(r3_m))
     for k, v in enumerate(r, start=1):
         if v < 0.0 or v == -math.inf:
             raise SonarModelError(f"r{k}_m={v!r} is negative: a range reading must be >= 0 or NaN")
-    missing = ~np.isfinite(r) | (r == 0.0)
-    rejected = ~missing & (r > MODEL_MAX_RANGE_CM / 100.0)
-    valid = ~missing & ~rejected
-    rej = (bool(rejected[0]), bool(rejected[1]), bool(rejected[2]))
-    mis = (bool(missing[0]), bool(missing[1]), bool(missing[2]))
-    if not valid.any():
+    mis = _three(not math.isfinite(v) or v == 0.0 for v in r)
+    rej = _three(not m and v > MODEL_MAX_RANGE_CM / 100.0 for v, m in zip(r, mis, strict=True))
+    valid = _three(not m and not j for m, j in zip(mis, rej, strict=True))
+    if not any(valid):
         return FusionResult(None, math.nan, 0.0, 0.0, (False, False, False), rej, mis, consistent=False)
-    d = float(r[valid].min())
+    d = min(v for v, ok in zip(r, valid, strict=True) if ok)
     # inclusive "+- threshold"; 1 nm slack so 0.52 - 0.49 counts as 3 cm despite float rounding
-    agreeing = valid & (np.abs(r - d) <= threshold_m + 1e-9)
-    key = (bool(agreeing[0]), bool(agreeing[1]), bool(agreeing[2]))
+    key = _three(ok and abs(v - d) <= threshold_m + 1e-9 for v, ok in zip(r, valid, strict=True))
     zone = _ZONE_OF_AGREEMENT.get(key)
     if zone is not None:
         alpha, theta = tables.lookup(zone, d)
@@ -381,7 +404,7 @@ def fuse_array(
             return FusionResult(zone, d, alpha, theta, key, rej, mis, consistent=True)
     # no usable zone interval: keep the obstacle anywhere the agreeing sonars could have seen it
     # (for {1, 3} that may be two targets, one in each outer beam, so not their intersection)
-    alpha, theta = _hull(sonar_intervals_deg(d * 100.0, tables.outer_deg)[agreeing])
+    alpha, theta = _hull(sonar_intervals_deg(d * 100.0, tables.outer_deg)[np.array(key)])
     return FusionResult(zone, d, alpha, theta, key, rej, mis, consistent=False)
 
 

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -237,6 +238,8 @@ class Perception:
         self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
         self.map_ms: list[float] = []
+        #: CPU-side seconds spent in each map's inserts (``{layer: s}``; "matching" for registration)
+        self.layer_s: dict[str, float] = {}
         self.stats = {
             "depth_frames": 0,
             "points_in": 0,
@@ -360,27 +363,34 @@ class Perception:
         poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
         if self.matcher is not None:
             # the frame, placed by odometry in odom, is registered against the matched map first
+            t0 = time.perf_counter()
             res = self.matcher.match(
                 transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"], t_odom_sensor
             )
             poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor
             with self._lock:
+                self.layer_s["matching"] = self.layer_s.get("matching", 0.0) + time.perf_counter() - t0
                 self.match_ms.append(res.ms)
                 self.stats["matches_accepted" if res.accepted else "matches_rejected"] += 1
         main = [(self.zoom if self.zoom is not None and self.zoom.coarse is self.map else self.map,
                  poses[self.pose], True)]  # fmt: skip
+        names = [self.pose]
         if self.zoom is not None:
             t_main_base = poses[self.pose] @ np.linalg.inv(t_base_sensor)
             self.zoom.follow(t_main_base[0, 3], t_main_base[1, 3], self.zoom_half_width)
             if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
                 main.append((self.zoom, poses[self.pose], False))
+                names.append("zoom")
         others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
+        names += [k for k, m in self.pose_maps.items() if m is not self.map]
+        names += [ly.name for ly in self.layers]
         r = self._camera_range if self.clear_no_return else None
         far = self._no_return_points(frame, r) if r else None
         from mapping.probabilistic import ProbabilisticVHV
 
         stamp = {"stamp": frame.stamp_ns * 1e-9}
-        for m, t, is_main in main + others + placed:
+        for name, (m, t, is_main) in zip(names, main + others + placed, strict=True):
+            t0 = time.perf_counter()
             kw = stamp if isinstance(m, ProbabilisticVHV) and m.now <= stamp.get("stamp", m.now) else {}
             s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3], **kw)
             if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
@@ -394,6 +404,8 @@ class Perception:
                 fw = transform_points(t, far, np.float32)
                 f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3], **kw)
                 free_ms = float(getattr(f, "build_ms", 0.0))
+            with self._lock:
+                self.layer_s[name] = self.layer_s.get(name, 0.0) + time.perf_counter() - t0
             if is_main and s is not None:
                 with self._lock:
                     self.map_ms.append(float(getattr(s, "build_ms", math.nan)) + free_ms)
@@ -534,6 +546,7 @@ class Perception:
             self.stats["sonar_fusions_with_obstacle"] += 1
         joint = arrays.joint_angle(reading.servo_angle_deg)
         insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
+        t0 = time.perf_counter()
         if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
             insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
@@ -542,6 +555,8 @@ class Perception:
             t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
             self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
+        with self._lock:
+            self.layer_s["sonar"] = self.layer_s.get("sonar", 0.0) + time.perf_counter() - t0
         if mount.joint is None:
             return None
         cmd = servo_command_deg(

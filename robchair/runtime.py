@@ -576,6 +576,7 @@ class Runtime:
         res.extra["frames"] = dict(p.stats)
         res.extra["mapping_ms_per_frame_median"] = float(np.median(ms)) if p.map_ms else None
         res.extra["mapping_ms_total"] = float(np.sum(ms)) if p.map_ms else 0.0
+        res.extra["mapping_s_by_layer"] = dict(getattr(p, "layer_s", {}))
         zoom = getattr(p, "zoom", None)
         if zoom is not None and zoom.fine is not None:
             res.maps["zoom"] = zoom.fine

@@ -8,10 +8,12 @@ as the documented pure functions in :mod:`sim.kinect` (the tests compare the two
 from __future__ import annotations
 
 import math
+import sys
 
 import numba
 import numpy as np
 
+from mapping._deps import announce_compilation
 from sim.kinect_params import (
     KINECT1_BASELINE_M,
     KINECT1_FOCAL_PX,
@@ -553,3 +555,7 @@ def sonar_first_echo(
         if best < np.inf:
             out[s] = best
     return out
+
+
+# first run after an install or a change here: say why the first frame takes tens of seconds
+announce_compilation(sys.modules[__name__], "Kinect kernels")

@@ -43,6 +43,27 @@ CONFIGS: tuple[dict[str, Any], ...] = (
 )
 
 
+#: Steps/s of a configuration over the physics-only baseline, same run (median).
+TARGET_RATIO_PHYSICS = {"light (Navigation-v1)": 0.70, "Kinect (NavigationKinect-v1)": 0.35}
+#: Steps/s of two Async workers over one env of the same id, same run (median).
+TARGET_SPEEDUP = {"light, 2 Async workers": 1.7, "Kinect, 2 Async workers": 1.7}
+
+
+def print_targets(rows: list[dict[str, Any]]) -> None:
+    """One line per target: the measured ratio, the target and "met" or "missed"."""
+    from robchair.commands.bench_output import verdict
+
+    by = {r["config"]: r for r in rows}
+    for targets, key, what in ((TARGET_RATIO_PHYSICS, "ratio_to_physics_only", "of physics only"),
+                               (TARGET_SPEEDUP, "speedup_vs_one_env", "one env")):  # fmt: skip
+        for name, goal in targets.items():
+            got = by.get(name, {}).get(key)
+            if got is None:
+                print(f"{name}: not measured (target >= {goal}x {what}: missed)")
+            else:
+                print(f"{name}: {got:.2f}x {what} (target >= {goal}x: {verdict(got >= goal)})")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser("env", help="agent steps per second of the Gymnasium navigation environments")
     p.add_argument("--steps", type=int, default=200, help="agent steps per run (default 200)")
@@ -83,16 +104,20 @@ def _office() -> Any:
     return load_scene(SCENES / "office.toml")
 
 
-def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float]:
-    """Wall and CPU seconds for ``steps`` agent steps of ``env`` with seeded random actions."""
+def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
+    """Wall and CPU seconds for ``steps`` agent steps of ``env`` with seeded random actions, and the
+    number of steps in which the safety layer stopped the chair (``info["safety"]``)."""
     env.reset(seed=seed)
     env.action_space.seed(seed)
+    stops = 0
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        reason = (info.get("safety") or {}).get("reason")
+        stops += bool(reason) and not str(reason).startswith("limited")
         if terminated or truncated:
             env.reset()
-    return time.perf_counter() - t0, time.process_time() - c0
+    return time.perf_counter() - t0, time.process_time() - c0, stops
 
 
 def _vec_run(envs: Any, steps: int, seed: int) -> float:
@@ -111,6 +136,7 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
     workers = int(config.get("workers", 1))
     cpu: list[float] | None = None
+    safety_stops: int | None = None
     if config.get("physics_only"):
         _physics_only(5, seed)  # warm-up
         runs = [_physics_only(steps, seed + k) for k in range(repeats)]
@@ -137,16 +163,19 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
         env = gymnasium.make(config["id"], **config["kwargs"])
         try:
             _env_run(env, 5, seed)  # warm-up: numba kernels, Embree scene
-            runs = [_env_run(env, steps, seed + k) for k in range(repeats)]
+            env_runs = [_env_run(env, steps, seed + k) for k in range(repeats)]
         finally:
             env.close()
-        secs, cpu = [r[0] for r in runs], [r[1] for r in runs]
+        secs, cpu = [r[0] for r in env_runs], [r[1] for r in env_runs]
+        safety_stops = sum(r[2] for r in env_runs)
     rates = [steps / s for s in secs]
     out: dict[str, Any] = {"steps_per_s": rates, "median_steps_per_s": statistics.median(rates)}
     if cpu is not None:
         ms = [1e3 * c / steps for c in cpu]
         out["cpu_ms_per_step"] = ms
         out["median_cpu_ms_per_step"] = statistics.median(ms)
+    if safety_stops is not None:
+        out["safety_stop_steps"] = safety_stops
     return out
 
 
@@ -190,8 +219,14 @@ def _run(args: argparse.Namespace) -> int:
             r["one_core_steps_per_s"] = 1e3 / cms if cms > 0 else None
             line += f" {cms:12.2f} {1e3 / cms if cms > 0 else float('nan'):15.1f}"
         print(line)
+    print_targets(rows)
+    stops = {r["config"]: r["safety_stop_steps"] for r in rows if r.get("safety_stop_steps")}
+    if stops:
+        print("safety stops (steps the safety layer stopped the chair; logged at INFO, in info['safety']): "
+              + ", ".join(f"{k} {v}" for k, v in stops.items()))  # fmt: skip
     result = {
         "agent_hz": AGENT_HZ,
+        "targets": {"ratio_to_physics_only": TARGET_RATIO_PHYSICS, "speedup_vs_one_env": TARGET_SPEEDUP},
         "steps": args.steps,
         "repeats": args.repeats,
         "seed": args.seed,

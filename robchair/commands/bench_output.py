@@ -9,6 +9,25 @@ from pathlib import Path
 from typing import Any
 
 
+def verdict(ok: bool) -> str:
+    """The word printed beside a target: ``"met"`` or ``"missed"``."""
+    return "met" if ok else "missed"
+
+
+def median_of(runs: list[dict[str, Any]]) -> dict[str, float]:
+    """Median of every numeric field over ``runs``; a field that is None or absent in a run is taken
+    over the runs that have it, and left out when none has it."""
+    import statistics
+
+    keys = dict.fromkeys(k for r in runs for k in r)
+    out: dict[str, float] = {}
+    for k in keys:
+        vals = [r[k] for r in runs if isinstance(r.get(k), int | float) and not isinstance(r.get(k), bool)]
+        if vals:
+            out[k] = float(statistics.median(vals))
+    return out
+
+
 def write_results(
     out: str | Path,
     result: dict[str, Any],

@@ -290,7 +290,9 @@ def build_chair(spec: RobChairSpec, scene: Scene, *, sensor: str | None, decimat
     chair = SimChair(spec, scene, (0.0, 0.0, 0.0), sensor=model, sonars=sonars, seed=0,
                      camera_backend=camera_backend, noise=noise,
                      tyre_radius_error=0.0,  # drawn per episode instead (domain randomisation)
-                     laser=laser)  # fmt: skip
+                     # one Embree thread: an env casts a few thousand rays a step, where a thread pool
+                     # costs more than it gains, and the workers of a vector env each get their own core
+                     raycast_threads=1, laser=laser)  # fmt: skip
     try:
         # The Kinect models' lateral noise is in pixels of the full image (1.6 px for the v2); applied
         # to a decimated image it would be `decimation` times too wide and smear the floor into

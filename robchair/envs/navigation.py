@@ -36,6 +36,7 @@ re-exported here.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any, SupportsFloat
 
@@ -54,6 +55,7 @@ from robchair.envs.render import top_down_picture
 from robchair.loop_types import CycleResult
 from robchair.perception import Perception
 from robchair.platform.kinematics import DiffDrive, Pose2D
+from robchair.platform.safety import SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec, load_spec
 from robchair.runtime import Runtime, RuntimeConfig
 from robchair.sources import Command
@@ -318,6 +320,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             spec=self.spec_robot,
             config=RuntimeConfig(rate_hz=float(self.agent_hz), camera_every=1, sonar_every=1),
             perception=self._new_perception(),
+            # a stop is part of what the agent learns from (info["safety"]): INFO, not a warning per stop
+            safety=SafetyLayer(SafetyLimits.from_spec(self.spec_robot), log_level=logging.INFO),
             safety_enabled=self.safety_enabled,
         )
         self._closed = False

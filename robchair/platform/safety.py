@@ -23,8 +23,9 @@ The runtime adds stops found when the command is about to be written (:meth:`Saf
 a deadline or freshness limit passed while the cycle ran, or a gap since the last command longer than
 the motor controller's watchdog (``controller_watchdog``: the controller has stopped the motors).
 
-A stop is logged (``logging.warning``) and recorded in :attr:`SafetyLayer.stops` once when it starts,
-with its reason and a detail text; it is not logged again while the same reason persists.
+A stop is logged (``logging.warning``, or at :attr:`SafetyLayer.log_level`) and recorded in
+:attr:`SafetyLayer.stops` once when it starts, with its reason and a detail text; it is not logged
+again while the same reason persists.
 """
 
 from __future__ import annotations
@@ -166,6 +167,9 @@ class SafetyLayer:
 
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     stops: list[StopRecord] = field(default_factory=list)
+    #: ``logging`` level of the line each new stop logs (WARNING on a chair; the Gymnasium envs and the
+    #: benchmarks, where stops are part of learning and are counted in ``info["safety"]``, use INFO)
+    log_level: int = logging.WARNING
     _v: float = 0.0
     _w: float = 0.0
     _fault: str | None = None
@@ -201,9 +205,12 @@ class SafetyLayer:
 
     def stop_now(self, stamp_ns: int, reason: StopReason, detail: str) -> SafetyDecision:
         """Stop this cycle for ``reason`` (found after :meth:`filter`, when the command is written)."""
+        return self._stop(stamp_ns, reason, detail)
+
+    def _stop(self, stamp_ns: int, reason: StopReason, detail: str) -> SafetyDecision:
         if reason != self._active:
             self.stops.append(StopRecord(stamp_ns, reason, detail))
-            log.warning("safety stop: %s (%s)", reason.value, detail)
+            log.log(self.log_level, "safety stop: %s (%s)", reason.value, detail)
         self._active = reason
         self._v = self._w = 0.0
         return SafetyDecision(0.0, 0.0, reason, detail)
@@ -217,13 +224,7 @@ class SafetyLayer:
         else:
             stop = self._stop_reason(v, inputs)
         if stop is not None:
-            reason, detail = stop
-            if reason != self._active:
-                self.stops.append(StopRecord(inputs.stamp_ns, reason, detail))
-                log.warning("safety stop: %s (%s)", reason.value, detail)
-            self._active = reason
-            self._v = self._w = 0.0
-            return SafetyDecision(0.0, 0.0, reason, detail)
+            return self._stop(inputs.stamp_ns, *stop)
         self._active = None
         lim = self.limits
         v_out = min(max(v, -lim.max_speed), lim.max_speed)

@@ -52,6 +52,20 @@ def test_half_aperture_bearing_lies_on_the_boundary_curve(d_cm):
     )
 
 
+def test_a_range_asked_again_gets_the_same_edges_and_a_caller_cannot_change_them():
+    """A repeated range (readings come in whole centimetres) returns the boundary-curve edges again
+    (the same check as above: the circle meets the curve), whatever the previous caller did to its copy."""
+    first_left, first_right = sonar.half_apertures_deg(42.0)
+    first_left *= 0.0
+    first_right += 90.0
+    left, right = sonar.half_apertures_deg(42.0)
+    lr, rr = math.radians(float(left)), math.radians(float(right))
+    assert 42.0 * math.sin(lr) == pytest.approx(float(sonar.top_boundary_cm(42.0 * math.cos(lr))), abs=1e-9)
+    assert -42.0 * math.sin(rr) == pytest.approx(
+        float(sonar.bottom_boundary_cm(42.0 * math.cos(rr))), abs=1e-9
+    )
+
+
 def test_half_aperture_at_one_metre_is_bracketed_by_hand_points():
     # at 35 deg the point (81.9, 57.4) is under top(81.9) = 63.9 (inside); at 40 deg (76.6, 64.3) is over
     # top(76.6) = 60.1 (outside). Right side: 36 deg (80.9, -58.8) inside bottom(80.9) = -60.3, 38 deg

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import pytest
@@ -172,3 +173,28 @@ def test_limits_from_spec_use_the_platform_maximum_and_reject_faster_caps() -> N
 def test_non_positive_or_non_finite_limit_is_a_config_error(bad: float) -> None:
     with pytest.raises(ConfigError, match=r"^safety\.max_accel = .*: expected a finite number > 0$"):
         SafetyLimits(max_accel=bad)
+
+
+def test_a_layer_asked_for_info_logs_each_new_stop_at_info_and_not_as_a_warning(caplog) -> None:
+    """The Gymnasium envs and benchmarks log stops at INFO (they count them in ``info["safety"]``);
+    a chair keeps WARNING. One stop, one record at the asked level (the module docstring's rule)."""
+    s = SafetyLayer(LIM, log_level=logging.INFO)
+    s._v = 0.4
+    with caplog.at_level(logging.DEBUG, logger="robchair.platform.safety"):
+        s.filter(0.4, 0.0, SafetyInputs(sonar_distance_m=0.2), DT)
+        s.filter(0.4, 0.0, SafetyInputs(sonar_distance_m=0.2), DT)
+    assert [r.levelno for r in caplog.records] == [logging.INFO]
+    assert SafetyLayer(LIM).log_level == logging.WARNING
+
+
+def test_the_navigation_env_logs_safety_stops_at_info() -> None:
+    """``bench env`` and training loops must not get one WARNING line per stop on stderr."""
+    import gymnasium
+
+    import sim.envs  # noqa: F401  (registers the ids)
+
+    env = gymnasium.make("RobChair/Navigation-v1")
+    try:
+        assert env.unwrapped.runtime.safety.log_level == logging.INFO
+    finally:
+        env.close()

@@ -213,3 +213,35 @@ def test_sim_sensors_behind_the_interfaces_see_the_office_where_it_is():
         assert reading.ranges_m[1] == pytest.approx(
             wall_y - backend.chair.spec.mounts["sonar_array_left"].xyz[1], abs=0.02
         )
+
+
+def test_the_chair_drives_the_same_path_at_120_hz_physics_as_at_240_hz():
+    """Is 240 Hz needed for the chair's own motion? Drive the same closed-loop twist profile (straight,
+    arc, turn in place, 4 s, 10 Hz commands) at both rates: the poses stay within 1 cm and 0.5 deg
+    (measured: 2.8 mm and 0.24 deg over 1.2 m). The motor controller runs at 1 kHz either way; what
+    120 Hz would lose is contact resolution against obstacles, which this drive does not test."""
+    from sim.robot import SimRobot
+    from sim.world import World
+
+    spec = load_spec()
+
+    def drive(hz: int) -> np.ndarray:
+        world = World(physics_hz=hz)
+        try:
+            robot = SimRobot(world, spec, closed_loop=True)
+            world.step(hz // 4)
+            poses = []
+            for k in range(40):
+                v, w = (0.6, 0.0) if k < 10 else ((0.4, 0.6) if k < 25 else (0.0, -0.8))
+                robot.set_motor_rpm(*robot.drive.motor_rpm(v, w))
+                world.step(hz // 10)
+                p = robot.pose2d()
+                poses.append((p.x, p.y, p.theta))
+            return np.array(poses)
+        finally:
+            world.close()
+
+    a, b = drive(240), drive(120)
+    assert np.hypot(*np.diff(a[:, :2], axis=0).T).sum() > 1.0  # it did drive
+    assert np.hypot(*(a[:, :2] - b[:, :2]).T).max() < 0.01
+    assert np.abs(a[:, 2] - b[:, 2]).max() < math.radians(0.5)

@@ -1,0 +1,35 @@
+"""What every benchmark prints and keeps: medians over repeated runs and the verdict beside a target."""
+
+from __future__ import annotations
+
+from robchair.commands.bench_output import median_of, verdict
+from robchair.commands.bench_sim import TARGET_RATIO_OLD, print_stage_table
+
+
+def test_medians_of_repeated_runs_skip_fields_a_run_could_not_measure() -> None:
+    """``bench sim --repeats 3`` took the median of the replaced runner's rows, whose matching time is
+    None (it had no matching): a TypeError. Hand values: median(1, 3, 2) = 2, median(10, 30) = 20."""
+    runs = [
+        {"rtf": 1.0, "matching_ms_per_frame": None, "map odometry ms/s": 10.0},
+        {"rtf": 3.0, "matching_ms_per_frame": None},
+        {"rtf": 2.0, "matching_ms_per_frame": None, "map odometry ms/s": 30.0},
+    ]
+    assert median_of(runs) == {"rtf": 2.0, "map odometry ms/s": 20.0}
+
+
+def test_a_target_is_met_or_missed_and_the_loop_target_is_the_documented_one() -> None:
+    """The loop must reach 1.5x the replaced runner on two cores in the same run (performance target)."""
+    assert (verdict(True), verdict(False)) == ("met", "missed")
+    assert TARGET_RATIO_OLD["2 cores"] == 1.5
+
+
+def test_the_stage_table_gives_each_stage_and_the_rest_in_ms_per_simulated_second(capsys) -> None:
+    """2 sim s in a 3 s loop = 1500 ms per sim s; render 400 + sonar 100 + physics 200 + map 300 = 1000,
+    so the rest is 500 (hand sum)."""
+    row = {"config": {"name": "1 core"}, "median": {
+        "kinect_ms_per_sim_s": 400.0, "sonar_ms_per_sim_s": 100.0, "physics_ms_per_sim_s": 200.0,
+        "map odometry ms/s": 300.0, "loop_wall_s": 3.0, "sim_time_s": 2.0}}  # fmt: skip
+    print_stage_table([row])
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].split()[-8:] == ["render", "sonar", "cast", "physics", "map", "odometry", "rest", "loop"]
+    assert out[2].split()[-6:] == ["400.0", "100.0", "200.0", "300.0", "500.0", "1500.0"]
