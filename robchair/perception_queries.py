@@ -19,24 +19,34 @@ from robchair.platform.spec import RobChairSpec
 
 @dataclass(frozen=True)
 class Corridor:
-    """The strip the chair will sweep driving forward, in ``base_link`` (x forward, y left)."""
+    """The strip the chair will sweep driving forward, in ``base_link`` (x forward, y left).
+
+    Ahead of the front edge it is the chair's width plus a lateral margin on each side. Beside the body
+    (between ``base_link`` and the front edge) only the footprint itself counts: a point there is
+    touching the chair (distance 0), while one in the lateral margin beside it is passed, not driven
+    into (a door post 5 cm beside the chair's side, or one that a pose correction of a few centimetres
+    moves into the margin, is no obstacle ahead).
+    """
 
     front_x: float  # x of the footprint's front edge, m
     half_width: float  # half of the chair's width plus a lateral margin, m
+    body_half_width: float | None = None  # half of the chair's width, m (None: half_width)
 
     @classmethod
     def from_spec(cls, spec: RobChairSpec, lateral_margin: float = 0.05) -> Corridor:
         b = spec.body
-        return cls(b.centre_x + 0.5 * b.depth, 0.5 * b.width + lateral_margin)
+        return cls(b.centre_x + 0.5 * b.depth, 0.5 * b.width + lateral_margin, 0.5 * b.width)
 
     def distance_ahead(self, xy: np.ndarray) -> float | None:
         """Distance from the front edge to the nearest point (N, 2) in the corridor ahead (None: none)."""
         if xy.size == 0:
             return None
-        inside = (np.abs(xy[:, 1]) <= self.half_width) & (xy[:, 0] > 0.0)
+        x, ay = xy[:, 0], np.abs(xy[:, 1])
+        beside = self.half_width if self.body_half_width is None else self.body_half_width
+        inside = ((ay <= self.half_width) & (x > self.front_x)) | ((ay <= beside) & (x > 0.0))
         if not inside.any():
             return None
-        return max(0.0, float(xy[inside, 0].min()) - self.front_x)
+        return max(0.0, float(x[inside].min()) - self.front_x)
 
 
 def _travelled(measured: tuple[float | None, Pose2D] | None, pose: Pose2D) -> float | None:

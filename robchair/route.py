@@ -90,13 +90,16 @@ def _as_lists(v: Any) -> Any:
 class PurePursuit:
     """Follow a :class:`Route` with pure pursuit (Coulter 1992) on the differential drive.
 
-    The goal point is ``lookahead_m`` along the path beyond the closest point of the path (progress
-    never goes backwards). Curvature to reach it: ``k = 2 y_r / l^2`` with ``y_r`` its lateral offset
-    in the chair's frame and ``l`` its distance; ``w = v k``. The speed is the cruise speed, lowered
+    The goal point is ``lookahead_m`` along the path beyond the progress: the arc length of the closest
+    path point within a search window of two look-aheads ahead of the previous progress (progress never
+    goes backwards, and never jumps to a later stretch of the path that passes nearby). Curvature to
+    reach it: ``k = 2 y_r / l^2`` with ``y_r`` its lateral offset in the chair's frame and ``l`` its
+    distance; ``w = v k``. The speed is the cruise speed, lowered
     in tight turns (``v / (1 + 0.6 |k|)``) and so the chair can stop at the last waypoint
-    (``v <= sqrt(2 a d)``); the twist is scaled to the platform's wheel limits keeping the curvature.
-    A goal point behind the chair turns it in place. Done within ``goal_tolerance_m`` of the last
-    waypoint once the progress is within one look-ahead of the end.
+    (``v <= sqrt(2 a d)``, ``d`` the path left, at least the distance to the last waypoint); the twist
+    is scaled to the platform's wheel limits keeping the curvature. A goal point behind the chair turns
+    it in place. Done within ``goal_tolerance_m`` of the last waypoint once the progress along the path
+    is within ``goal_tolerance_m`` of its end.
     """
 
     def __init__(self, route: Route, drive: DiffDrive, decel: float = 0.4) -> None:
@@ -109,6 +112,8 @@ class PurePursuit:
         self._cum = np.concatenate([[0.0], np.cumsum(self._seg_len)])
         self.length = float(self._cum[-1])
         self._s = 0.0  # progress along the path, m
+        #: how far ahead of the progress the closest path point is searched, m
+        self.search_window_m = 2.0 * route.lookahead_m
         self.done = False
 
     def _point_at(self, s: float) -> np.ndarray:
@@ -119,16 +124,23 @@ class PurePursuit:
         return self._pts[i] + t * (self._pts[i + 1] - self._pts[i])  # type: ignore[no-any-return]
 
     def _project(self, p: np.ndarray) -> float:
-        """Arc length of the closest path point to ``p`` at or after the current progress."""
-        a, b, ln = self._pts[:-1], self._pts[1:], self._seg_len
-        ab = b - a
-        ok = (ln > 0) & (self._cum[1:] >= self._s)
+        """Arc length of the closest path point to ``p`` within the search window ahead of the progress.
+
+        Only the stretch ``[s, s + window]`` of the path (``window`` = :attr:`search_window_m`) is
+        searched, so progress moves along the path: where the path passes near a later stretch of
+        itself (a loop whose end lies on the way in), the later stretch is out of reach until the
+        progress gets there.
+        """
+        a, ln, c0 = self._pts[:-1], self._seg_len, self._cum[:-1]
+        lo, hi = self._s, self._s + self.search_window_m
+        ok = (ln > 0) & (self._cum[1:] >= lo) & (c0 <= hi)
         if not ok.any():
             return self._s
         safe = np.where(ln > 0, ln, 1.0)
-        t = np.clip(np.einsum("ij,ij->i", p - a, ab) / safe**2, 0.0, 1.0)
-        s = np.maximum(self._cum[:-1] + t * ln, self._s)
-        on = a + ((s - self._cum[:-1]) / safe)[:, None] * ab  # the point at arc length s on segment i
+        ab = self._pts[1:] - a
+        t = np.einsum("ij,ij->i", p - a, ab) / safe**2
+        s = np.clip(c0 + np.clip(t, 0.0, 1.0) * ln, lo, hi)  # arc length of the nearest point in the window
+        on = a + ((s - c0) / safe)[:, None] * ab  # the point at arc length s on segment i
         d = np.where(ok, np.hypot(*(p - on).T), np.inf)
         return float(s[int(np.argmin(d))])
 
@@ -143,9 +155,8 @@ class PurePursuit:
         goal = self._pts[-1]
         to_goal = float(np.hypot(*(goal - p)))
         self._s = self._project(p)
-        if self.done or (
-            to_goal <= self.route.goal_tolerance_m and self._s >= self.length - self.route.lookahead_m
-        ):
+        tol = self.route.goal_tolerance_m
+        if self.done or (to_goal <= tol and self._s >= self.length - tol):
             self.done = True
             return Command(0.0, 0.0, done=True)
         target = self._point_at(self._s + self.route.lookahead_m)
@@ -158,6 +169,8 @@ class PurePursuit:
             w = math.copysign(0.5 * self.drive.max_yaw_rate, y_r if y_r != 0 else 1.0)
             return Command(0.0, w)
         k = 2.0 * y_r / l2 if l2 > 0 else 0.0
-        v = min(self.route.speed / (1.0 + 0.6 * abs(k)), math.sqrt(2.0 * self.decel * to_goal))
+        # slow down for the end of the path, not for the goal point: a loop passes its goal on the way in
+        to_end = max(self.length - self._s, to_goal)
+        v = min(self.route.speed / (1.0 + 0.6 * abs(k)), math.sqrt(2.0 * self.decel * to_end))
         v, w = self.drive.limit(v, v * k)
         return Command(v, w)

@@ -42,7 +42,7 @@ import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -172,7 +172,11 @@ class Runtime:
         self.spec = spec if spec is not None else load_spec()
         self.config = config or RuntimeConfig()
         self.drive = DiffDrive(self.spec)
-        self.safety = safety if safety is not None else SafetyLayer(SafetyLimits.from_spec(self.spec))
+        self.safety = (
+            safety
+            if safety is not None
+            else SafetyLayer(SafetyLimits.from_spec(self.spec), self.spec.wheel_separation)
+        )
         self.safety_enabled = bool(safety_enabled)
         self.perception = (
             perception if perception is not None else Perception(self.spec, map_kind=self.config.map_kind)
@@ -536,7 +540,14 @@ class Runtime:
                     decision = self.safety.stop_now(
                         now, StopReason.STALE_SENSOR, f"no fresh data from {', '.join(stale)} when writing"
                     )
-        left, right = self.drive.motor_rpm(decision.v, decision.w) if self._fault is None else (0.0, 0.0)
+        left, right = 0.0, 0.0
+        if self._fault is None:
+            # the one exact wheel limit: the safety layer's speed diamond can round a full-speed twist
+            # to one ulp above the motor cap, which the motor driver must refuse
+            v, w = self.drive.limit(decision.v, decision.w)
+            if (v, w) != (decision.v, decision.w):
+                decision = replace(decision, v=v, w=w)
+            left, right = self.drive.motor_rpm(v, w)
         try:
             self.backend.motors.set_speeds_rpm(left, right)
         except HardwareError as exc:

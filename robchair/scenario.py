@@ -284,9 +284,9 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     if o["progress"]:
         observers.append(ProgressBar(scenario.name, duration))
     follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))
-    limits = o["safety_limits"] or SafetyLimits.from_spec(spec)
+    safety = SafetyLayer(o["safety_limits"] or SafetyLimits.from_spec(spec), spec.wheel_separation)
     backend.open()
-    rt = Runtime(backend, follower, spec=spec, config=config, safety=SafetyLayer(limits),
+    rt = Runtime(backend, follower, spec=spec, config=config, safety=safety,
                  perception=perception, observers=observers, start_pose=Pose2D(*scenario.start),
                  safety_enabled=o["safety"])  # fmt: skip
     setup_s = time.perf_counter() - o["wall0"]

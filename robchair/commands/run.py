@@ -130,7 +130,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.map is not None:
         overrides["map_kind"] = args.map
     runtime_config = RuntimeConfig.from_dict(cfg.table("runtime", {}), **overrides)
-    safety = SafetyLayer(SafetyLimits.from_spec(spec, cfg.table("safety", {})))
+    safety = SafetyLayer(SafetyLimits.from_spec(spec, cfg.table("safety", {})), spec.wheel_separation)
     route = None
     if args.route is not None:
         route = Route.load(args.route)

@@ -75,18 +75,26 @@ class EpisodeSampler:
             )
 
     def sample(
-        self, rng: np.random.Generator, start: Any = None, goal: Any = None
+        self, rng: np.random.Generator, start: Any = None, goal: Any = None, goal_tolerance: float = 0.0
     ) -> tuple[Pose2D, tuple[float, float]]:
         """Start pose and goal of an episode: the given ones (checked) or drawn from ``rng``.
 
+        Args:
+            rng: the episode's random stream.
+            start, goal: a given (x, y, theta) start and (x, y) goal, m and rad, or None to draw one.
+            goal_tolerance: the episode's success radius, m: a goal this close to the start is refused.
+
         Raises:
-            NavigationEnvError: a given point outside the map, a goal where the chair cannot stand or
-                that no passage wide enough joins to the start, or no start/goal at ``goal_distance``.
+            NavigationEnvError: a given point outside the map (said before anything is drawn), a goal
+                within ``goal_tolerance`` of the start, a goal where the chair cannot stand or that no
+                passage wide enough joins to the start, or no start/goal at ``goal_distance``.
         """
         if start is not None:
             start = Pose2D(*pose_arg(start, 3, "start"))
+            self._check_on_map("start", (start.x, start.y))
         if goal is not None:
             goal = pose_arg(goal, 2, "goal")
+            self._check_on_map("goal", goal)
             if start is None:
                 start = self._sample_start(rng, np.array(goal))
         elif start is not None:
@@ -105,12 +113,19 @@ class EpisodeSampler:
                     f"scene {self.scene.name!r}: found no start with a goal at {self.goal_distance} m "
                     "in 100 tries"
                 )
-        for name, xy in (("start", (start.x, start.y)), ("goal", goal)):
-            i, j = self.grid.world_to_index(xy[0], xy[1])
-            if not bool(self.grid.contains_index(i, j)):
-                raise NavigationEnvError(f"{name} {xy} lies outside the scene's map {self.grid.extent}")
+        gap = math.hypot(goal[0] - start.x, goal[1] - start.y)
+        if gap <= goal_tolerance:
+            raise NavigationEnvError(
+                f"goal {tuple(goal)} is {gap:.2f} m from the start {(start.x, start.y)}, within the goal "
+                f"tolerance {goal_tolerance} m: the episode would be over before it began"
+            )
         self.check_goal(start, goal)
         return start, goal
+
+    def _check_on_map(self, name: str, xy: Any) -> None:
+        i, j = self.grid.world_to_index(xy[0], xy[1])
+        if not bool(self.grid.contains_index(i, j)):
+            raise NavigationEnvError(f"{name} {tuple(xy)} lies outside the scene's map {self.grid.extent}")
 
     def check_goal(self, start: Pose2D, goal: tuple[float, float]) -> None:
         """The goal must leave room for the chair and be reachable from the start.

@@ -362,7 +362,10 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if self.rooms_config is not None:
             self._next_floor(opts.get("room_seed"))
         start, goal = self.sampler.sample(
-            self.np_random, opts.get("start", self.fixed_start), opts.get("goal", self.fixed_goal)
+            self.np_random,
+            opts.get("start", self.fixed_start),
+            opts.get("goal", self.fixed_goal),
+            self.goal_tolerance,
         )
         self.start_pose, self.goal = start, goal
         # one child stream for all sensor noise, drawn after start and goal so they stay put

@@ -43,17 +43,30 @@ def action_to_twist(
     scaled down uniformly so no motor exceeds its maximum RPM (:meth:`DiffDrive.limit`).
 
     Raises:
-        NavigationEnvError: not an action of ``space`` (discrete) or not two finite numbers.
+        NavigationEnvError: not an action of ``space`` (discrete; a bool is not one), or not two finite
+            real numbers of shape (2,) (a string, a bool or complex array, shape (1, 2) or (2, 1)).
     """
     if isinstance(space, spaces.Discrete):
-        if not space.contains(action):
+        if isinstance(action, bool | np.bool_) or not space.contains(action):
             raise NavigationEnvError(
                 f"action={action!r}: expected an integer in [0, {len(DISCRETE_ACTIONS)})"
             )
         action = DISCRETE_ACTIONS[int(action)]
-    a = np.asarray(action, dtype=np.float64).reshape(-1)
-    if a.shape != (2,) or not np.isfinite(a).all():
-        raise NavigationEnvError(f"action={action!r}: expected two finite numbers in [-1, 1]")
+    want = "two finite real numbers (v, w) in [-1, 1], shape (2,)"
+    shown = " ".join(repr(action).split())  # one line, whatever the array's repr
+    try:
+        raw = np.asarray(action)
+    except (TypeError, ValueError):  # e.g. a ragged sequence
+        raise NavigationEnvError(f"action={shown}: expected {want}") from None
+    if raw.dtype.kind not in "iuf":  # bool, complex, str, object: not two real numbers
+        raise NavigationEnvError(
+            f"action={shown}: dtype {raw.dtype} is not a real number type; expected {want}"
+        )
+    if raw.shape != (2,):
+        raise NavigationEnvError(f"action={shown}: shape {raw.shape}; expected {want}")
+    a = raw.astype(np.float64)
+    if not np.isfinite(a).all():
+        raise NavigationEnvError(f"action={shown}: expected {want}")
     a = np.clip(a, -1.0, 1.0)
     return drive.limit(float(a[0]) * max_speed, float(a[1]) * max_yaw_rate)
 

@@ -124,16 +124,29 @@ class DiffDrive:
         return self.twist(self.rpm_to_wheel(left_rpm), self.rpm_to_wheel(right_rpm))
 
     def limit(self, v: float, w: float) -> tuple[float, float]:
-        """Scale (v, w) down uniformly so neither motor exceeds ``max_motor_rpm``.
+        """Scale (v, w) down uniformly so neither motor exceeds ``max_motor_rpm``, exactly.
 
-        The scaling keeps the ratio w / v, so the chair follows the same curve, only slower.
+        The scaling keeps the ratio w / v, so the chair follows the same curve, only slower. The
+        guarantee holds for the floating-point result: ``motor_rpm(*limit(v, w))`` never exceeds the cap
+        by even one rounding step (the scale ``cap / peak`` alone can give 1000.0000000000002 RPM, which
+        a motor driver checking its range must refuse), because the scale is lowered by one ulp until the
+        recomputed RPMs fit.
+
+        Raises:
+            KinematicsError: ``v`` or ``w`` is not finite.
         """
-        left, right = self.motor_rpm(v, w)
-        peak = max(abs(left), abs(right))
-        if peak <= self.spec.max_motor_rpm:
+        cap = self.spec.max_motor_rpm
+        peak = self._peak_rpm(v, w)
+        if peak <= cap:
             return (v, w)
-        k = self.spec.max_motor_rpm / peak
+        k = cap / peak
+        while self._peak_rpm(v * k, w * k) > cap:  # a few rounding steps at most; k = 0 always fits
+            k = math.nextafter(k, 0.0)
         return (v * k, w * k)
+
+    def _peak_rpm(self, v: float, w: float) -> float:
+        left, right = self.motor_rpm(v, w)
+        return max(abs(left), abs(right))
 
     # -- wheels <-> encoder counts -----------------------------------------------------------------
     def wheel_angle_to_counts(self, angle_rad: float) -> float:

@@ -11,7 +11,8 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
    obstacle ahead closer than the stopping distance for the speed the chair would have);
 2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
    motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
-   change per cycle to the acceleration limits.
+   change per cycle to the acceleration limits: of the body (``max_accel``, ``max_yaw_accel``) and of
+   each wheel (``max_wheel_accel``, the ramp the motor speed loop follows without a loop-error stop).
 
 Stopping distance grows with speed: ``d_stop(v) = margin + v * reaction_time + v**2 / (2 * brake_decel)``.
 Obstacle distances are measured from the front of the chair (sonar ranges from the sonar face, map
@@ -62,6 +63,14 @@ class SafetyLimits:
         max_yaw_rate: |w| cap, rad/s.
         max_accel: |dv/dt| while not stopping, m/s^2 (a comfortable value for a seated person).
         max_yaw_accel: |dw/dt|, rad/s^2.
+        max_wheel_accel: |d/dt| of each wheel's rim speed ``v -+ w b / 2``, m/s^2. The Roboteq speed
+            loop (SPEC 5 design, type 1) follows a ramp of ``a`` motor RPM/s ``a / (K k_i)`` RPM behind
+            (plant gain K = 1, k_i = 3.2 /s on channel 2 in firmware 1.x units, 3.7 /s on channel 1);
+            the controller stops a channel whose error stays above 250 RPM for 500 ms (``^CLERD`` level
+            2, the manual's default, which the driver writes). 0.4 m/s^2 is 644 motor RPM/s
+            (x 60 / (2 pi 0.172 m) x 29), a 201 RPM lag: 80 % of that threshold. The body limits alone
+            let a wheel ramp at ``max_accel + max_yaw_accel b / 2`` = 0.935 m/s^2 (1505 RPM/s, a
+            470 RPM lag), which trips the loop-error stop.
         brake_decel: deceleration assumed when braking, m/s^2 (for the stopping distance).
         reaction_time_s: delay before braking starts (one loop + controller + plant lag), s.
         margin_m: gap kept to an obstacle when stopped, m.
@@ -72,6 +81,7 @@ class SafetyLimits:
     max_yaw_rate: float = field(default=2.14, metadata=bounds(gt=0))
     max_accel: float = field(default=0.5, metadata=bounds(gt=0))
     max_yaw_accel: float = field(default=1.5, metadata=bounds(gt=0))
+    max_wheel_accel: float = field(default=0.4, metadata=bounds(gt=0))
     brake_decel: float = field(default=0.8, metadata=bounds(gt=0))
     reaction_time_s: float = field(default=0.3, metadata=bounds(gt=0))
     margin_m: float = field(default=0.15, metadata=bounds(gt=0))
@@ -161,11 +171,22 @@ class SafetyDecision:
     limited: bool = False  # the twist was changed by a speed or acceleration limit
 
 
+def _default_wheel_separation() -> float:
+    from robchair.platform.spec import load_spec
+
+    return load_spec().wheel_separation
+
+
 @dataclass
 class SafetyLayer:
-    """Stateful filter: remembers the last output (for acceleration limits) and the latched fault."""
+    """Stateful filter: remembers the last output (for acceleration limits) and the latched fault.
+
+    ``wheel_separation`` (m, the platform's; default the default spec's) turns the body twist into the
+    wheel rim speeds ``max_wheel_accel`` bounds.
+    """
 
     limits: SafetyLimits = field(default_factory=SafetyLimits)
+    wheel_separation: float = field(default_factory=_default_wheel_separation)
     stops: list[StopRecord] = field(default_factory=list)
     #: ``logging`` level of the line each new stop logs (WARNING on a chair; the Gymnasium envs and the
     #: benchmarks, where stops are part of learning and are counted in ``info["safety"]``, use INFO)
@@ -236,8 +257,14 @@ class SafetyLayer:
         dv_max, dw_max = lim.max_accel * dt, lim.max_yaw_accel * dt
         v_out = min(max(v_out, self._v - dv_max), self._v + dv_max)
         w_out = min(max(w_out, self._w - dw_max), self._w + dw_max)
-        # the acceleration clamp moves v and w separately and can leave the diamond again: the wheel
-        # limit is a hard one, so it wins over the acceleration limit
+        # each wheel's change: shrink the step (dv, dw) from the last output, keeping its direction
+        dv, dw = v_out - self._v, w_out - self._w
+        wheel_step = abs(dv) + abs(dw) * 0.5 * self.wheel_separation  # the faster-changing wheel
+        if wheel_step > lim.max_wheel_accel * dt:
+            k = lim.max_wheel_accel * dt / wheel_step
+            v_out, w_out = self._v + k * dv, self._w + k * dw
+        # the acceleration clamps move v and w separately and can leave the diamond again: the wheel
+        # speed limit is a hard one, so it wins over the acceleration limits
         load = abs(v_out) / lim.max_speed + abs(w_out) / lim.max_yaw_rate
         if load > 1.0:
             v_out, w_out = v_out / load, w_out / load

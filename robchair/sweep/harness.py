@@ -35,6 +35,7 @@ SAFETY_FIELDS: tuple[str, ...] = (
     "max_yaw_rate",
     "max_accel",
     "max_yaw_accel",
+    "max_wheel_accel",
     "brake_decel",
     "reaction_time_s",
     "margin_m",

@@ -423,6 +423,50 @@ def test_bad_actions_and_options_are_refused_with_a_clear_error(env):
         env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (500.0, 0.0)})
 
 
+@pytest.mark.parametrize(
+    ("action", "says"),
+    [
+        (np.array([[0.5, 0.0]]), r"shape \(1, 2\)"),
+        (np.array([[0.5], [0.0]]), r"shape \(2, 1\)"),
+        (np.array([True, False]), "dtype bool"),
+        (np.array([0.5 + 1j, 0.0]), "dtype complex128"),
+        ("go", "dtype <U2"),
+        ([0.5, "left"], "dtype <U"),
+        ([[0.5, 0.0], [0.1]], "two finite real numbers"),
+    ],
+    ids=["shape-1x2", "shape-2x1", "bool", "complex", "string", "mixed", "ragged"],
+)
+def test_an_action_that_is_not_two_real_numbers_is_refused_with_a_clear_error(env, action, says):
+    """The action space is Box(-1, 1, (2,)): only a shape-(2,) array of real numbers belongs to it."""
+    env.reset(seed=0)
+    with pytest.raises(NavigationEnvError, match=f"^action=[^\n]*{says}"):
+        env.step(action)
+
+
+def test_a_bool_is_not_a_discrete_action():
+    from robchair.envs.observation import action_space, action_to_twist
+    from robchair.platform.kinematics import DiffDrive
+
+    space, drive = action_space("discrete"), DiffDrive()
+    assert action_to_twist(1, space, drive, 0.6, 2.0) == pytest.approx((0.18, 0.0))  # 0.3 x 0.6 m/s
+    with pytest.raises(NavigationEnvError, match="expected an integer"):
+        action_to_twist(True, space, drive, 0.6, 2.0)
+
+
+def test_a_goal_far_off_the_floor_is_refused_as_outside_the_map_even_without_a_start(env):
+    with pytest.raises(NavigationEnvError, match=r"^goal \(500\.0, 0\.0\) lies outside the scene's map"):
+        env.reset(options={"goal": (500.0, 0.0)})
+
+
+def test_a_goal_at_the_start_is_refused_at_reset(env):
+    # the default goal tolerance is 0.3 m: a goal 0.2 m from the start is reached before any step
+    _, info = env.reset(seed=0)
+    x, y, theta = info["pose"]
+    for goal in ((x, y), (x + 0.2, y)):
+        with pytest.raises(NavigationEnvError, match=r"within the goal tolerance 0\.3 m"):
+            env.reset(options={"start": (x, y, theta), "goal": goal})
+
+
 def test_bad_constructor_arguments_are_refused_before_anything_is_built():
     from robchair.envs.navigation import RobChairNavigationEnv
 

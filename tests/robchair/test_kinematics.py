@@ -57,10 +57,18 @@ def test_twist_to_wheels_to_rpm_and_back_is_identity(v, w):
 def test_limit_keeps_the_curve_and_respects_max_rpm(v, w):
     lv, lw = DD.limit(v, w)
     left, right = DD.motor_rpm(lv, lw)
-    assert max(abs(left), abs(right)) <= 1000.0 * (1 + 1e-12)
+    assert max(abs(left), abs(right)) <= 1000.0
     assert lv * w == pytest.approx(lw * v, abs=1e-12)  # same ratio w / v
     if max(abs(x) for x in DD.motor_rpm(v, w)) <= 1000.0:
         assert (lv, lw) == (v, w)
+
+
+@pytest.mark.parametrize("v", [0.62, 0.75, 2.0])
+def test_limit_at_full_speed_never_exceeds_1000_rpm_at_any_of_4001_turn_rates(v):
+    """The cap is Table 9.1's 1000 RPM exactly: the Roboteq driver refuses anything above it."""
+    for w in [-2.14 + 4.28 * i / 4000 for i in range(4001)]:
+        left, right = DD.motor_rpm(*DD.limit(v, w))
+        assert max(abs(left), abs(right)) <= 1000.0, (v, w, left, right)
 
 
 def test_non_finite_twist_is_refused():

@@ -94,6 +94,16 @@ def test_corridor_distance_counts_only_points_ahead_within_the_width(spec) -> No
     assert c.distance_ahead(np.array([[0.9, 0.5]])) is None
 
 
+def test_a_post_beside_the_chair_in_the_lateral_margin_is_no_obstacle_ahead(spec) -> None:
+    """``--pose matched`` in office_tour stopped for good on a door post 0.369 m right of base_link,
+    0.3 m forward: beside the body (0.32 m half width, front edge 0.58 m), inside the 0.37 m margin."""
+    c = Corridor.from_spec(spec)
+    assert c.distance_ahead(np.array([[0.30, -0.369]])) is None  # passed alongside, not driven into
+    assert c.distance_ahead(np.array([[0.30, -0.30]])) == 0.0  # inside the footprint: touching it
+    assert c.distance_ahead(np.array([[0.70, -0.369]])) == pytest.approx(0.70 - 0.58)  # ahead, in the margin
+    assert c.distance_ahead(np.array([[-0.2, 0.0]])) is None  # behind base_link
+
+
 def test_sonar_arc_from_five_zone_fusion_lies_ahead_or_beside_as_the_servo_turns(spec) -> None:
     from mapping.sonar import fuse_array
 

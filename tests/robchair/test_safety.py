@@ -15,8 +15,9 @@ from robchair.platform.safety import SafetyInputs, SafetyLayer, SafetyLimits, St
 from robchair.platform.spec import load_spec
 
 DT = 0.1
+# max_wheel_accel above what the body limits give a wheel (0.5 + 1.5 x 0.29 m/s^2): the body limits act
 LIM = SafetyLimits(max_speed=0.6, max_yaw_rate=2.0, max_accel=0.5, max_yaw_accel=1.5, brake_decel=0.8,
-                   reaction_time_s=0.3, margin_m=0.15, stale_after_s=0.5)  # fmt: skip
+                   reaction_time_s=0.3, margin_m=0.15, stale_after_s=0.5, max_wheel_accel=1.0)  # fmt: skip
 
 
 def cruising(v: float = 0.4) -> SafetyLayer:

@@ -81,6 +81,22 @@ def test_chair_follows_the_route_to_its_goal_on_odometry() -> None:
     assert m["collisions"] == 0
 
 
+# office_tour's route by hand: (0, 0) -> (7.5, 0) -> (8.5, -1) -> (10.3, -1) -> (10.6, 0) -> (8, -0.1)
+# -> (7.2, 0): 7.5 + 1.414 + 1.8 + 1.044 + 2.602 + 0.806 = 15.17 m; its end lies on the way in.
+OFFICE_TOUR_M = 15.17
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["office_corridor", "office_tour"])
+def test_the_office_scenarios_reach_their_goals_with_matched_poses(scenario) -> None:
+    res = run_scenario(scenario, pose="matched", write=False, progress=False)
+    m = res.metrics()
+    assert m["route"]["goal_reached"], m["safety"]["stops"]
+    assert m["collisions"] == 0
+    if scenario == "office_tour":  # the whole loop, corners cut by pure pursuit
+        assert m["route"]["distance_travelled_m"] > OFFICE_TOUR_M - 1.0
+
+
 def _arrays(res) -> dict[str, np.ndarray]:
     out = {f"path_{k}": v for k, v in res.paths.items()}
     for name, mp in res.maps.items():
