@@ -40,6 +40,10 @@ class RecordingMotors:
     def emergency_stop(self) -> None:
         self.estops += 1
 
+    def release_stop(self) -> None: ...
+
+    def configure_pid(self, left: object, right: object) -> None: ...
+
 
 @pytest.fixture(scope="module")
 def spec():
