@@ -127,3 +127,27 @@ def test_a_command_given_to_step_is_written_as_wheel_rpm_of_the_spec(spec) -> No
     assert left == pytest.approx(499.1, abs=0.5)
     assert right == pytest.approx(499.1, abs=0.5)
     rt.stop()
+
+
+def test_a_20_hz_loop_with_a_far_wall_reads_no_phantom_obstacle(spec) -> None:
+    """Every emulated SRF08 hears a wall at 3 m, beyond the 2 m range setting (2.021 m: SRF08 datasheet,
+    range register 46 = (46 + 1) x 43 mm), so every reading is "no echo" (+inf, REP-117). Fired
+    sooner than 65 ms after an earlier ping (datasheet: fire every 65 ms or slower), a sonar would hear
+    that ping's 3 m echo early: one ranging (11.9 ms) later it reads as 3 - 343 x 0.0119 / 2 = 0.96 m,
+    a phantom obstacle inside the range setting (README, "Sonar timing")."""
+    from robchair.backends import get_backend
+    from robchair.runtime import run_to_dir
+
+    backend = get_backend("emulated", {"timeout_s": 0.1, "sonar_range_m": 3.0})
+    bus = backend.extras["srf08_bus"]
+    seen: list[float] = []
+
+    def policy(obs) -> tuple[float, float]:
+        seen.extend(r for reading in obs.sonars for r in reading.ranges_m)
+        return 0.2, 0.0
+
+    res = run_to_dir(backend, PolicySource(policy), 1.0, None, spec=spec, config=RuntimeConfig(rate_hz=20.0))
+    assert len(seen) >= 6 * 19
+    assert all(r == float("inf") for r in seen), sorted(set(seen))
+    assert bus.stale_echoes == 0
+    assert res.stops == [] and res.min_sonar_distance_m is None
