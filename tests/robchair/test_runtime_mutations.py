@@ -139,7 +139,7 @@ def test_a_20_hz_loop_with_a_far_wall_reads_no_phantom_obstacle(spec) -> None:
     from robchair.runtime import run_to_dir
 
     backend = get_backend("emulated", {"timeout_s": 0.1, "sonar_range_m": 3.0})
-    bus = backend.extras["srf08_bus"]
+    bus = backend.extras["srf08_bus"]  # type: ignore[attr-defined]
     seen: list[float] = []
 
     def policy(obs) -> tuple[float, float]:
