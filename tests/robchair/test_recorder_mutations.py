@@ -50,7 +50,7 @@ def test_the_sonar_arrays_are_on_tf_at_the_spec_mounts(bag) -> None:
     [mounts.sonar_array_right] xyz = [0.55, -0.29, 0.40], parent base_link; the emulated arrays have no
     servo, so the joint is at its centre (0 rad) and the rotation is the identity."""
     want = {"sonar_array_left": (0.55, 0.29, 0.40), "sonar_array_right": (0.55, -0.29, 0.40)}
-    seen = {c: [] for c in want}
+    seen: dict[str, list[tuple[tuple, tuple]]] = {c: [] for c in want}
     for _, parent, child, xyz, q in _transforms(bag, "/tf"):
         if child in want:
             assert parent == "base_link"
