@@ -34,14 +34,16 @@ def test_open_stops_a_running_stream_with_qt_before_its_first_command_without_re
     and every reply it parses answers its own command. The scan then shows the wall 1.5 m ahead."""
     emu = HokuyoEmulator(Scene2D(segments=(((WALL_X, -10.0), (WALL_X, 10.0)),)))
     emu.start()
+    path = emu.device_path
+    assert path is not None
     try:
-        fd = os.open(emu.device_path, os.O_RDWR | os.O_NOCTTY)
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
         try:
             os.write(fd, f"SCIP2.0\n{STREAM}\n".encode())
             assert _wait_for(lambda: emu.scans_sent >= 3)  # scans pile up unread
         finally:
             os.close(fd)
-        with HokuyoURG(emu.device_path, mode="GD", retries=0) as laser:
+        with HokuyoURG(path, mode="GD", retries=0) as laser:
             assert emu.received[:3] == ["SCIP2.0", STREAM, "QT"]
             assert laser.n_retries == 0
             scan = laser.read()
