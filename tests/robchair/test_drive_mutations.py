@@ -131,3 +131,47 @@ def test_an_open_route_is_completed_within_the_goal_tolerance(drive) -> None:
     _, travelled, (x, y) = _drive_route(Route(((0.0, 0.0), (3.0, 0.0)), speed=0.4), drive)
     assert math.hypot(x - 3.0, y) <= 0.1 + 1e-9
     assert 2.9 - 1e-9 <= travelled <= 3.1
+
+
+@pytest.mark.parametrize(
+    ("theta", "wrapped"),
+    [
+        (-math.pi, math.pi),
+        (3.0 * math.pi, math.pi),
+        (4.0, 4.0 - 2.0 * math.pi),
+        (-2.5 * math.pi, -0.5 * math.pi),
+    ],
+)
+def test_angles_wrap_to_minus_pi_exclusive_to_pi_inclusive(theta, wrapped) -> None:
+    """REP-103 yaw in (-pi, pi]: -pi is pi, 3 pi is pi, 4 rad is 4 - 2 pi, -2.5 pi is -0.5 pi."""
+    from robchair.kinematics import wrap_angle
+
+    assert wrap_angle(theta) == pytest.approx(wrapped, abs=1e-12)
+
+
+@pytest.mark.parametrize("wheels", [(math.nan, 0.0), (0.0, math.inf)])
+def test_a_non_finite_wheel_speed_is_refused_by_twist(drive, wheels) -> None:
+    """Either wheel speed not finite: a KinematicsError naming it, not a NaN twist."""
+    from robchair.kinematics import KinematicsError
+
+    name = "wl" if math.isnan(wheels[0]) else "wr"
+    with pytest.raises(KinematicsError, match=name):
+        drive.twist(*wheels)
+
+
+def test_odometry_reset_puts_the_pose_zeroes_the_distance_and_relatches_the_counters() -> None:
+    """Spec: 1000 PPR x 4 (quadrature) x 29 (gear) = 116 000 counts per wheel revolution on the motor
+    shaft; both wheels one revolution forward is 2 pi x 0.172 m = 1.0807 m. After a reset to (1, 2, 0.5)
+    the distance is 0 and the next reading only latches the counters (the pose stays)."""
+    from robchair.kinematics import Odometry
+
+    odo = Odometry(load_spec())
+    odo.update(0, 0)
+    odo.update(116_000, 116_000)
+    assert odo.distance == pytest.approx(2 * math.pi * R, rel=1e-9)
+    assert (odo.pose.x, odo.pose.y) == pytest.approx((2 * math.pi * R, 0.0), abs=1e-9)
+    odo.reset(Pose2D(1.0, 2.0, 0.5))
+    assert odo.distance == 0.0
+    assert odo.update(500_000, -7) == Pose2D(1.0, 2.0, 0.5)
+    odo.reset()
+    assert odo.pose == Pose2D() and odo.distance == 0.0
