@@ -175,3 +175,38 @@ def test_odometry_reset_puts_the_pose_zeroes_the_distance_and_relatches_the_coun
     assert odo.update(500_000, -7) == Pose2D(1.0, 2.0, 0.5)
     odo.reset()
     assert odo.pose == Pose2D() and odo.distance == 0.0
+
+
+def test_odometry_adds_up_the_distance_of_every_reading_and_uses_its_own_spec() -> None:
+    """Two readings of one wheel revolution each (116 000 counts, see above) are 2 x 2 pi x 0.172 m =
+    2.1614 m from a distance of 0; with a spec whose wheel radius is 0.2 m, one revolution is 2 pi x 0.2 m
+    = 1.2566 m (the odometry's own spec, not the default one)."""
+    import dataclasses
+
+    from robchair.kinematics import Odometry
+
+    spec = load_spec()
+    odo = Odometry(spec)
+    assert odo.distance == 0.0
+    for counts in (0, 116_000, 232_000):
+        odo.update(counts, counts)
+    assert odo.distance == pytest.approx(2 * 2 * math.pi * R, rel=1e-9)
+    big = Odometry(dataclasses.replace(spec, drive=dataclasses.replace(spec.drive, wheel_radius=0.2)))
+    big.update(0, 0)
+    big.update(116_000, 116_000)
+    assert big.distance == pytest.approx(2 * math.pi * 0.2, rel=1e-9)
+
+
+def test_odometry_and_wheel_speeds_name_the_bad_input() -> None:
+    """A count that is not an integer names its side; a non-finite w is refused by wheel_speeds."""
+    from robchair.kinematics import KinematicsError, Odometry
+
+    with pytest.raises(KinematicsError, match="counts_right"):
+        Odometry(load_spec()).update(0, 1.5)  # type: ignore[arg-type]
+    with pytest.raises(KinematicsError, match="w = nan"):
+        DiffDrive(load_spec()).wheel_speeds(0.0, math.nan)
+
+
+def test_a_drive_without_a_spec_uses_the_platform_spec() -> None:
+    """DiffDrive() loads assets/robchair.toml: the same 0.62110 m/s maximum as computed above."""
+    assert DiffDrive().max_speed == pytest.approx(V_MAX, rel=1e-9)
