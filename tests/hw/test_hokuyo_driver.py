@@ -36,6 +36,18 @@ def emu():
     e.stop()
 
 
+def _wait_for(cond, timeout_s: float = 5.0) -> bool:
+    """Poll ``cond`` every 10 ms until it holds (True) or ``timeout_s`` of real time passed (False)."""
+    import time
+
+    end = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 def _check_wall(scan, wall_x=WALL_X, reach_m=5.6):
     a = scan.angles()
     facing = np.cos(a) > wall_x / (reach_m - 0.001)  # beams that meet the wall within reach
@@ -153,9 +165,7 @@ def test_stream_left_running_by_another_program_is_stopped_on_open(emu):
     fd = os.open(emu.device_path, os.O_RDWR | os.O_NOCTTY)
     try:
         os.write(fd, b"SCIP2.0\nMD0044072501000\n")
-        import time
-
-        time.sleep(0.35)  # scans pile up unread
+        assert _wait_for(lambda: emu.scans_sent >= 3)  # scans pile up unread
     finally:
         os.close(fd)
     with HokuyoURG(emu.device_path, mode="GD") as laser:
@@ -164,11 +174,10 @@ def test_stream_left_running_by_another_program_is_stopped_on_open(emu):
 
 
 def test_md_returns_the_newest_scan_when_several_wait(emu):
-    import time
-
     with HokuyoURG(emu.device_path) as laser:
         laser.read()
-        time.sleep(0.5)  # about five revolutions
+        sent = emu.scans_sent
+        assert _wait_for(lambda: emu.scans_sent >= sent + 4)  # four revolutions wait unread
         laser.read()
         assert laser.n_dropped_scans >= 2
 

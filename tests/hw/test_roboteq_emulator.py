@@ -84,7 +84,10 @@ def test_a_late_ack_and_a_rejected_ex_never_pass_for_a_latched_stop(emu, clock) 
     drv.set_speeds_rpm(400, 400)
     emu.inject(delay_s=0.25, delay_n=1)
     drv.set_speeds_rpm(400, 400)  # first try times out, the retry is answered; its late '+' follows
-    time.sleep(0.3)
+    end = time.monotonic() + 2.0
+    while emu._pending and time.monotonic() < end:  # until the late '+' has been written
+        time.sleep(0.005)
+    assert not emu._pending
     emu.inject(reject=3)  # every try of !EX is corrupted in transit: the controller answers '-'
     with pytest.raises(HardwareError):
         drv.emergency_stop()

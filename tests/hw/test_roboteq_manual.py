@@ -270,7 +270,8 @@ def plant_late_ack(fake: ManualRoboteq, drv: RoboteqMDC2230) -> None:
     """Leave a '+' for an earlier command in the input buffer, 250 ms late."""
     fake.plan("!S 1 400", ("delay", 0.25))
     drv.set_speeds_rpm(400, 400)
-    time.sleep(0.3)
+    wait_for(lambda: not fake._later)  # the late '+' has been written
+    assert not fake._later
 
 
 def test_emergency_stop_after_a_late_ack_and_a_rejected_ex_is_retried_until_the_controller_latches(fake):

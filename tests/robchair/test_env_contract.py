@@ -189,7 +189,18 @@ def test_an_environment_built_with_an_explicit_spec_pickles_too():
     e = RobChairNavigationEnv(sensor=None, sonars=True, spec=spec)
     try:
         clone = pickle.loads(pickle.dumps(e))
-        clone.close()
+        try:
+            assert clone.spec_robot == spec  # the explicit spec, not the default one loaded again
+            obs = [x.reset(seed=7)[0] for x in (e, clone)]
+            assert obs[0].keys() == obs[1].keys()
+            for k in obs[0]:
+                np.testing.assert_array_equal(obs[1][k], obs[0][k])
+            steps = [x.step(np.array([0.5, 0.2], dtype=np.float32)) for x in (e, clone)]
+            assert steps[0][1] == steps[1][1]  # the same reward
+            for k in steps[0][0]:
+                np.testing.assert_array_equal(steps[1][0][k], steps[0][0][k])
+        finally:
+            clone.close()
     finally:
         e.close()
 

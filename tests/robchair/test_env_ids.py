@@ -118,11 +118,21 @@ def test_depth_image_and_elevation_map_options_add_their_observations():
 
 @pytest.mark.parametrize("env_id", FAST_IDS)
 def test_a_sync_vector_env_runs_every_fast_id(env_id):
+    """Two copies of each id in one vector env: every batched observation lies in the batched space,
+    rewards are finite, one per copy, and the two copies (seeds 3 and 4) start apart."""
     envs = gymnasium.make_vec(env_id, num_envs=2, vectorization_mode="sync")
     try:
-        envs.reset(seed=3)
+        obs, _ = envs.reset(seed=3)
+        assert envs.observation_space.contains(obs)
+        flat = [np.asarray(v) for v in (obs.values() if isinstance(obs, dict) else [obs])]
+        assert all(v.shape[0] == 2 for v in flat)
+        assert any(not np.array_equal(v[0], v[1]) for v in flat)  # seeds 3 and 4 differ
+        envs.action_space.seed(3)
         for _ in range(3):
-            envs.step(envs.action_space.sample())
+            obs, reward, term, trunc, _ = envs.step(envs.action_space.sample())
+            assert envs.observation_space.contains(obs)
+            assert reward.shape == (2,) and np.isfinite(reward).all()
+            assert term.shape == trunc.shape == (2,) and term.dtype == trunc.dtype == np.bool_
     finally:
         envs.close()
 

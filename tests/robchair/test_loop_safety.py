@@ -1,4 +1,5 @@
-"""Safety of the drive loop itself, on the emulated chair running in real time (the loop really sleeps).
+"""Safety of the drive loop itself, on the emulated chair in simulated time (the backend's SyncedClock:
+every wait of the loop, the drivers and the emulators moves simulated time, nothing waits on the wall).
 
 Each test reproduces a way the loop could drive without fresh information or without anyone commanding:
 a sensing blackout longer than the freshness limit, an exception anywhere in the loop, and a controller
@@ -29,7 +30,7 @@ def spec():
 def emulated(**cfg):
     from robchair.backends import get_backend
 
-    return get_backend("emulated", {"timeout_s": 0.1, "realtime": True, **cfg})
+    return get_backend("emulated", {"timeout_s": 0.1, **cfg})
 
 
 def _speed_commands(emu) -> list[tuple[int, int]]:
@@ -144,7 +145,7 @@ def test_the_controller_watchdog_follows_the_loop_and_a_trip_is_a_stop(spec) -> 
     def stalling_policy(obs: Observation) -> tuple[float, float]:
         calls["n"] += 1
         if calls["n"] == 12:
-            time.sleep(2.0)  # the policy stalls for 2 s
+            backend.clock.advance(2.0)  # the policy stalls for 2 s (of the motors' simulated time)
         return 0.3, 0.0
 
     res = run_to_dir(backend, PolicySource(stalling_policy), 4.0, None, spec=spec,

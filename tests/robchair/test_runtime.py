@@ -202,7 +202,9 @@ def test_emulated_backend_also_runs_in_real_time(spec) -> None:
     # the emulator steps its motors by the real elapsed time; the loop really sleeps
     backend = emulated(realtime=True, sonars=False)
     res = run_to_dir(backend, PolicySource(lambda obs: (0.3, 0.0)), 1.5, None, spec=spec)
-    assert res.driver_fault is None and res.cycles == 15
+    # how many cycles fit depends on the machine's load (a late cycle restarts the schedule): only the
+    # schedule's bound, 1.5 s at 10 Hz = 15 cycles, is a property of the loop
+    assert res.driver_fault is None and 1 <= res.cycles <= 15 and len(res.poses) == res.cycles
     assert res.sim_time_s >= 1.5
     assert res.distance_m > 0.05  # it moved (how far depends on how loaded the machine is)
 

@@ -1,0 +1,97 @@
+"""The recorder's /tf, read back from a bag the project wrote, by an independent reader (``mcap`` with
+``mcap-ros2-support``, not rosbags), against the mounts of the spec and the chair's driven path."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("mcap_ros2", reason="the viz extra (mcap, mcap-ros2-support) is not installed")
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from robchair.backends import get_backend
+from robchair.observers.recorder import RunRecorder
+from robchair.platform.spec import load_spec
+from robchair.run_output import run_to_dir
+from robchair.runtime import RuntimeConfig
+from robchair.sources import PolicySource
+
+
+def _transforms(bag: Path, topic: str) -> list[tuple[int, str, str, tuple[float, float, float], tuple]]:
+    """(stamp ns, parent, child, translation, rotation xyzw) of every transform on ``topic``."""
+    out = []
+    for f in sorted(bag.glob("*.mcap")):
+        with f.open("rb") as fh:
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            for _schema, _channel, _msg, decoded in reader.iter_decoded_messages(topics=[topic]):
+                for ts in decoded.transforms:
+                    tr, q = ts.transform.translation, ts.transform.rotation
+                    stamp = ts.header.stamp.sec * 1_000_000_000 + ts.header.stamp.nanosec
+                    out.append((stamp, ts.header.frame_id, ts.child_frame_id, (tr.x, tr.y, tr.z),
+                                (q.x, q.y, q.z, q.w)))  # fmt: skip
+    return out
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory) -> Path:
+    """1.5 s of the emulated chair driving straight at 0.3 m/s, recorded."""
+    path = tmp_path_factory.mktemp("tf") / "bag"
+    backend = get_backend("emulated", {"timeout_s": 0.1})
+    run_to_dir(backend, PolicySource(lambda obs: (0.3, 0.0)), 1.5, None, spec=load_spec(),
+               observers=[RunRecorder(path)], config=RuntimeConfig(rate_hz=10.0))  # fmt: skip
+    return path
+
+
+def test_the_sonar_arrays_are_on_tf_at_the_spec_mounts(bag) -> None:
+    """assets/robchair.toml, [mounts.sonar_array_left] xyz = [0.55, 0.29, 0.40] and
+    [mounts.sonar_array_right] xyz = [0.55, -0.29, 0.40], parent base_link; the emulated arrays have no
+    servo, so the joint is at its centre (0 rad) and the rotation is the identity."""
+    want = {"sonar_array_left": (0.55, 0.29, 0.40), "sonar_array_right": (0.55, -0.29, 0.40)}
+    seen: dict[str, list[tuple[tuple, tuple]]] = {c: [] for c in want}
+    for _, parent, child, xyz, q in _transforms(bag, "/tf"):
+        if child in want:
+            assert parent == "base_link"
+            seen[child].append((xyz, q))
+    for child, xyz_want in want.items():
+        assert len(seen[child]) >= 5, child
+        for xyz, q in seen[child]:
+            assert xyz == pytest.approx(xyz_want, abs=1e-9)
+            assert q == pytest.approx((0.0, 0.0, 0.0, 1.0), abs=1e-9)
+
+
+def test_the_sonar_frames_are_turned_by_the_outer_sonar_angle_on_tf_static(bag) -> None:
+    """assets/robchair.toml, [sonar_arrays] outer_sonar_deg = 30: sonar 1 looks 30 deg left, sonar 2
+    straight, sonar 3 30 deg right of its array (a yaw of +-30 deg: quaternion z = sin(15 deg) =
+    0.2588, w = cos(15 deg) = 0.9659), with no offset of their origins."""
+    statics = {(p, c): (xyz, q) for _, p, c, xyz, q in _transforms(bag, "/tf_static")}
+    s = math.sin(math.radians(15.0))
+    c = math.cos(math.radians(15.0))
+    for array in ("sonar_array_left", "sonar_array_right"):
+        frames = sorted(k for k in statics if k[0] == array)
+        assert len(frames) == 3, frames
+        zs = []
+        for key in frames:
+            xyz, q = statics[key]
+            assert xyz == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+            zs.append(q[2] if q[3] >= 0 else -q[2])
+        assert sorted(zs) == pytest.approx([-s, 0.0, s], abs=1e-9)
+        assert all(abs(q[3]) == pytest.approx(c, abs=1e-9) or q[2] == 0.0 for _, q in statics.values())
+
+
+def test_odom_to_base_link_on_tf_follows_the_chair_forward(bag) -> None:
+    """Driving straight ahead at 0.3 m/s (after the 0.5 m/s^2 ramp of the safety layer: 0.09 m in the
+    first 0.6 s, then 0.3 m/s) for 1.5 s moves base_link along +x of odom only: at most 0.3 x 1.5 =
+    0.45 m, at least 0.45 - 0.09 - 0.3 (one cycle of motor lag and the last cycle) = 0.06 m; z stays 0
+    (REP-105: odom is a planar, world-fixed frame) and y within 2 cm (the two wheels' closed loops
+    settle a little apart)."""
+    odom = [(t, xyz) for t, p, c, xyz, _ in _transforms(bag, "/tf") if (p, c) == ("odom", "base_link")]
+    assert len(odom) >= 10
+    xs = [xyz[0] for _, xyz in odom]
+    assert all(b >= a - 1e-12 for a, b in itertools.pairwise(xs))  # never backwards
+    assert 0.06 <= xs[-1] <= 0.45 + 1e-9
+    assert all(abs(xyz[1]) < 0.02 and xyz[2] == 0.0 for _, xyz in odom)
