@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from robchair.commands.live import add_arguments as add_live_arguments
 from robchair.config import ConfigSource, ConfigTable
 
 if TYPE_CHECKING:
@@ -60,6 +61,7 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="release an emergency stop the motor controller still holds from an earlier run (!MG)",
     )
+    add_live_arguments(p)
     p.set_defaults(func=_run)
 
 
@@ -99,20 +101,29 @@ def _scenario_route(name: str, spec: RobChairSpec) -> tuple[Route, Pose2D]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.backends import BACKENDS, get_backend
+    from robchair.backends import BACKENDS
+    from robchair.commands.live import live_observers
+    from robchair.outdir import check_output_dir
+
+    if args.backend not in BACKENDS:
+        raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
+    if args.out is not None:
+        check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
+    with live_observers(args) as live:  # a port in use is refused before the chair is opened too
+        return _drive(args, live)
+
+
+def _drive(args: argparse.Namespace, live: list[Any]) -> int:
+    from robchair.backends import get_backend
     from robchair.errors import ConfigError
     from robchair.kinematics import DiffDrive
-    from robchair.outdir import check_output_dir, overwrite_allowed
+    from robchair.outdir import overwrite_allowed
     from robchair.route import PurePursuit, Route
     from robchair.runtime import RuntimeConfig, run_to_dir
     from robchair.safety import SafetyLayer, SafetyLimits
     from robchair.sources import JoystickSource
     from robchair.spec import load_spec
 
-    if args.backend not in BACKENDS:
-        raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
-    if args.out is not None:
-        check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     cfg = load_run_config(args.config)
     backend_table = cfg.table(args.backend, {})
     backend_cfg = dict(backend_table.data)
@@ -169,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
             safety=safety,
             start_pose=start_pose,
             safety_enabled=not args.no_safety,
-            observers=observers,
+            observers=observers + live,
         )
     print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1
