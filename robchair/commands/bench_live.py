@@ -6,12 +6,12 @@ three see the same machine load:
 
 * ``off``: no live view (the baseline);
 * ``no client``: the Foxglove server listening, nobody connected;
-* ``client``: a client on a thread of the bench, connected and subscribed to every channel before the
-  loop starts, receiving everything (it does not decode: a viewer does that in its own process).
+* ``client``: a client started by the bench (in a child process, as a viewer is), connected and
+  subscribed to every channel before the loop starts, receiving everything (it does not decode).
 
 Measured: the process's CPU time (``time.process_time``: the loop, the mapping and capture threads,
 the publisher thread and the server's threads) from the episode's start to its end (after the live
-queue has drained), minus the bench client thread's own CPU time, per simulated second. Targets: at
+queue has drained), per simulated second. Targets: at
 most 5 % more than ``off`` with a client, and nothing (at most 1 %, the measurement's noise) without
 one. Reported: medians of ``--repeats`` runs.
 """
@@ -22,6 +22,8 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
+import sys
 import threading
 import time
 from typing import Any
@@ -38,61 +40,79 @@ SUBSCRIBE_AFTER_S = 0.1
 
 
 class BenchClient:
-    """A Foxglove WebSocket client on a thread: subscribes to every advertised channel, counts frames."""
+    """A Foxglove WebSocket client in a child process (:func:`client_main`): its CPU time, and that of
+    the WebSocket library's reader thread, is not the live view's."""
 
     def __init__(self, port: int) -> None:
-        self.url = f"ws://127.0.0.1:{port}"
+        self.port = int(port)
         self.frames = 0
         self.bytes = 0
         self.subscribed = threading.Event()
-        self._stop = threading.Event()
-        self._clock: int | None = None
-        self._thread = threading.Thread(target=self._run, name="bench-live-client", daemon=True)
+        self._proc: subprocess.Popen[str] | None = None
+        self._reader = threading.Thread(target=self._read, name="bench-live-client-out", daemon=True)
 
     def start(self) -> None:
-        self._thread.start()
-
-    def cpu_s(self) -> float:
-        """CPU time this client's thread has used so far, s."""
-        return time.clock_gettime(self._clock) if self._clock is not None else 0.0
+        code = "from robchair.commands.bench_live import client_main; client_main()"
+        self._proc = subprocess.Popen([sys.executable, "-c", code, str(self.port)], stdout=subprocess.PIPE,
+                                      text=True)  # fmt: skip
+        self._reader.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(10.0)
+        """Wait for the client to end (the server closes the connection at the end of the run)."""
+        if self._proc is not None:
+            try:
+                self._proc.wait(30.0)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._reader.join(5.0)
 
-    def _run(self) -> None:
-        from websockets.exceptions import ConnectionClosed
-        from websockets.sync.client import connect
+    def _read(self) -> None:
+        assert self._proc is not None and self._proc.stdout is not None
+        for line in self._proc.stdout:
+            word, *rest = line.split()
+            if word == "subscribed":
+                self.subscribed.set()
+            elif word == "received" and len(rest) == 2:
+                self.frames, self.bytes = int(rest[0]), int(rest[1])
 
-        self._clock = time.pthread_getcpuclockid(threading.get_ident())
-        with connect(self.url, subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:  # type: ignore[list-item]
-            pending: list[dict[str, int]] = []
-            last_advertise, next_id = 0.0, 1
-            while not self._stop.is_set():
-                if pending and time.monotonic() - last_advertise > SUBSCRIBE_AFTER_S:
-                    ws.send(json.dumps({"op": "subscribe", "subscriptions": pending}))
-                    pending = []
-                    self.subscribed.set()
-                try:
-                    raw = ws.recv(timeout=0.05)
-                except TimeoutError:
-                    continue
-                except ConnectionClosed:
-                    return
-                if isinstance(raw, bytes):
-                    self.frames += 1
-                    self.bytes += len(raw)
-                    continue
-                msg = json.loads(raw)
-                if msg.get("op") == "advertise":
-                    last_advertise = time.monotonic()
-                    for ch in msg["channels"]:
-                        pending.append({"id": next_id, "channelId": ch["id"]})
-                        next_id += 1
+
+def client_main() -> None:
+    """The bench client (``python -c ... PORT``): subscribes to every advertised channel, receives until
+    the server closes, prints ``subscribed`` and at the end ``received FRAMES BYTES``."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    frames = nbytes = 0
+    url = f"ws://127.0.0.1:{int(sys.argv[1])}"
+    with connect(url, subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:  # type: ignore[list-item]
+        pending: list[dict[str, int]] = []
+        last_advertise, next_id = 0.0, 1
+        while True:
+            if pending and time.monotonic() - last_advertise > SUBSCRIBE_AFTER_S:
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": pending}))
+                pending = []
+                print("subscribed", flush=True)
+            try:
+                raw = ws.recv(timeout=0.05)
+            except TimeoutError:
+                continue
+            except ConnectionClosed:
+                break
+            if isinstance(raw, bytes):
+                frames, nbytes = frames + 1, nbytes + len(raw)
+                continue
+            msg = json.loads(raw)
+            if msg.get("op") == "advertise":
+                last_advertise = time.monotonic()
+                for ch in msg["channels"]:
+                    pending.append({"id": next_id, "channelId": ch["id"]})
+                    next_id += 1
+    print("received", frames, nbytes, flush=True)
 
 
 class CpuWindow(Observer):
-    """CPU time of the process from the episode's start to its end, less the bench client's."""
+    """CPU time of this process from the episode's start to its end (once the client subscribed)."""
 
     def __init__(self, client: BenchClient | None = None) -> None:
         self.client = client
@@ -104,13 +124,10 @@ class CpuWindow(Observer):
             if not self.client.subscribed.wait(SUBSCRIBE_TIMEOUT_S):
                 raise RuntimeError(f"the bench client did not subscribe within {SUBSCRIBE_TIMEOUT_S:g} s")
             time.sleep(0.05)  # the subscription requests reach the server
-        self._t0 = time.process_time() - self._client_cpu()
+        self._t0 = time.process_time()
 
     def episode_end(self, runtime: Any, result: Any) -> None:
-        self.cpu_s = time.process_time() - self._client_cpu() - self._t0
-
-    def _client_cpu(self) -> float:
-        return self.client.cpu_s() if self.client is not None else 0.0
+        self.cpu_s = time.process_time() - self._t0
 
 
 def measure(mode: str, scenario: str, duration: float, seed: int, map_kind: str) -> dict[str, Any]:

@@ -22,13 +22,14 @@ topic                  type                             content
 ``/map``               nav_msgs/OccupancyGrid           the run's main map in the safety height band
                                                         (100 occupied, 0 free, -1 unknown), frame
                                                         ``odom`` (odometry pose) or ``map``, every
-                                                        ``map_period_s`` and at the end
+                                                        ``map_period_s`` (1 s) and at the end
 ``/vhv/markers``       visualization_msgs/MarkerArray   the main map's VHV structures as boxes (one
                                                         CUBE_LIST per box size, namespace ``odometry``
-                                                        / ``matched`` / ``ground-truth``), with ``/map``
-``/sonar/cones``       visualization_msgs/MarkerArray   each sonar's cone section at its range (LINE_STRIP
-                                                        in the sonar's frame; no echo: grey, at the
-                                                        maximum range), with the ranges
+                                                        / ``matched`` / ``ground-truth``), every
+                                                        ``boxes_period_s`` (10 s) and at the end
+``/sonar/cones``       visualization_msgs/MarkerArray   each sonar's cone section at its range (one
+                                                        LINE_LIST per array, in the array's frame; no
+                                                        echo: grey, at the maximum range)
 ``/rosout``            rcl_interfaces/Log               the safety layer's decisions: each stop (WARN)
                                                         and the start and end of a limited twist (INFO)
 ``/diagnostics``       diagnostic_msgs/DiagnosticArray  the samples the bag gets (1 Hz)
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
@@ -73,11 +75,16 @@ QUEUE_SIZE = 32
 #: odometry and TF at most this often (a cycle with a sensor reading, a stop or a change of the
 #: safety decision always goes)
 RATE_HZ = 20.0
-MAP_PERIOD_S = 3.0
+MAP_PERIOD_S = 1.0
+#: the VHV boxes change slowly and cost most to build (one message object per box)
+BOXES_PERIOD_S = 10.0
 #: VHV boxes sent per map at most (an even subsample beyond)
 MAX_BOXES = 4000
 #: how long the end of a run waits for the queue to drain, s
 DRAIN_TIMEOUT_S = 10.0
+#: the types of the bag's topics (robchair.observers.recorder)
+LIVE_TYPES = ("nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/Range",
+              "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")  # fmt: skip
 INFO, WARN = 20, 30  # rcl_interfaces/msg/Log levels
 
 
@@ -132,7 +139,8 @@ class LiveObserver(Observer):
         sinks: where the messages go (opened at the episode's start, closed by :meth:`close`).
         queue_size: cycles waiting for the publisher thread at most (the oldest is dropped beyond).
         rate_hz: odometry and TF at most this often, Hz (:data:`RATE_HZ`).
-        map_period_s: time between maps on the run's clock, s.
+        map_period_s: time between 2D maps on the run's clock, s.
+        boxes_period_s: time between VHV box sets on the run's clock, s.
         max_boxes: VHV boxes per map at most.
 
     After the run, ``result.extra["live"]`` holds the counts: cycles queued, cycles skipped because no
@@ -141,25 +149,29 @@ class LiveObserver(Observer):
     """
 
     def __init__(self, sinks: list[LiveSink], queue_size: int = QUEUE_SIZE, rate_hz: float = RATE_HZ,
-                 map_period_s: float = MAP_PERIOD_S, max_boxes: int = MAX_BOXES) -> None:  # fmt: skip
+                 map_period_s: float = MAP_PERIOD_S, boxes_period_s: float = BOXES_PERIOD_S,
+                 max_boxes: int = MAX_BOXES) -> None:  # fmt: skip
         from mapping.export.meshes import height_colors  # matplotlib: imported here, not during the run
 
         self.sinks = list(sinks)
         self.scheme = RunTopics()
         self.period_ns = round(1e9 / float(rate_hz))
         self.map_period_ns = round(float(map_period_s) * 1e9)
+        self.boxes_period_ns = round(float(boxes_period_s) * 1e9)
         self.max_boxes = int(max_boxes)
         #: the box colours by height, as the recording's and the report's (viridis over the boxes' range)
         self._lut = np.round(height_colors(np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
         self.queued = self.skipped = self.thinned = self.dropped = self.errors = 0
+        self.publisher_cpu_s = 0.0  # CPU time of the publisher thread (set when it ends)
+        self._out = _Fanout(self.sinks)
+        self._out.precompile(sorted({*LIVE_TYPES, *LIVE_TOPICS.values()}))
         self._queue: deque[Any] = deque()
         self._size = int(queue_size)
         self._ready = threading.Condition()
         self._thread: threading.Thread | None = None
-        self._out: _Fanout | None = None
         self._diag: Any = None
         self._last_diag: Any = None
-        self._next_map_ns = self._next_ns = 0
+        self._next_map_ns = self._next_boxes_ns = self._next_ns = 0
         self._limited = self._limited_seen = False
         self._t0_ns = 0
 
@@ -168,8 +180,8 @@ class LiveObserver(Observer):
         from robchair.observers.diagnostics import DiagnosticsObserver
 
         self.scheme.start(runtime)
-        self._t0_ns = self._next_map_ns = self._next_ns = runtime.t0_ns
-        self._out = _Fanout(self.sinks)
+        self._t0_ns = self._next_map_ns = self._next_boxes_ns = self._next_ns = runtime.t0_ns
+        self._out.sinks = self.sinks
         topics = {**self.scheme.topics(), **LIVE_TOPICS}
         for s in self.sinks:
             s.open(topics, self.scheme.parents(), runtime.t0_ns, self._out.store)
@@ -202,13 +214,16 @@ class LiveObserver(Observer):
         if cycle.stamp_ns >= self._next_map_ns and (self._wants(MAP_TOPIC) or self._wants(MARKERS_TOPIC)):
             self._next_map_ns = cycle.stamp_ns + self.map_period_ns
             p, stamp = runtime.perception, cycle.stamp_ns
-            p.call_with_maps(lambda: self._grab_map(p, stamp))
+            boxes = stamp >= self._next_boxes_ns and self._wants(MARKERS_TOPIC)
+            if boxes:
+                self._next_boxes_ns = stamp + self.boxes_period_ns
+            p.call_with_maps(lambda: self._grab_map(p, stamp, boxes))
 
     def episode_end(self, runtime: Runtime, result: RunResult) -> None:
         if self._thread is None:
             return
         if any(s.active() for s in self.sinks):  # the final maps (the perception is closed)
-            self._grab_map(runtime.perception, runtime.backend.clock.now_ns())
+            self._grab_map(runtime.perception, runtime.backend.clock.now_ns(), True)
         self._put(None)
         self._thread.join(DRAIN_TIMEOUT_S)
         if self._thread.is_alive():
@@ -217,10 +232,11 @@ class LiveObserver(Observer):
 
     def stats(self) -> dict[str, Any]:
         """Counts of the live view so far (``result.extra["live"]``)."""
-        sent = dict(sorted(self._out.sent.items())) if self._out is not None else {}
+        sent = dict(sorted(self._out.sent.items()))
         return {"cycles_queued": self.queued, "cycles_skipped_no_client": self.skipped,
                 "cycles_thinned": self.thinned, "dropped_queue_full": self.dropped, "messages_sent": sent,
-                "publisher_errors": self.errors}  # fmt: skip
+                "publisher_errors": self.errors,
+                "publisher_cpu_s": round(self.publisher_cpu_s, 3)}  # fmt: skip
 
     def close(self) -> None:
         """Close the sinks (stops a server)."""
@@ -247,15 +263,17 @@ class LiveObserver(Observer):
             self._queue.append(item)
             self._ready.notify()
 
-    def _grab_map(self, p: Any, stamp_ns: int) -> None:
-        """Copy the main map's 2D codes and structures (where the maps may be read) and queue them."""
+    def _grab_map(self, p: Any, stamp_ns: int, boxes: bool) -> None:
+        """Copy the main map's 2D codes and (``boxes``) structures where the maps may be read; queue them."""
         from mapping.derived import occupancy_codes
 
         try:
             m = p.map
             codes = np.array(occupancy_codes(m, p.band))
-            s = m.structures()
-            cols = (np.array(s.i), np.array(s.j), np.array(s.bottom), np.array(s.top))
+            cols = None
+            if boxes:
+                s = m.structures()
+                cols = (np.array(s.i), np.array(s.j), np.array(s.bottom), np.array(s.top))
         except Exception as exc:
             self.errors += 1
             log.warning("live view: reading the map failed: %s", exc)
@@ -265,6 +283,13 @@ class LiveObserver(Observer):
 
     # --- publisher thread -----------------------------------------------------------------------
     def _publish(self) -> None:
+        t0 = time.thread_time()
+        try:
+            self._drain()
+        finally:
+            self.publisher_cpu_s = time.thread_time() - t0
+
+    def _drain(self) -> None:
         while True:
             with self._ready:
                 while not self._queue:
@@ -280,7 +305,6 @@ class LiveObserver(Observer):
 
     def _send(self, item: tuple[Any, ...]) -> None:
         out = self._out
-        assert out is not None
         if item[0] == "static" or any(s.resend_static() for s in self.sinks):
             self.scheme.write_static(out, item[1] if item[0] == "static" else self._t0_ns)
         if item[0] == "cycle":
@@ -308,22 +332,30 @@ class LiveObserver(Observer):
         from robchair.observers.recorder import sonar_frame
         from robchair.viz.rerun_recording import ECHO_COLOR, NO_ECHO_COLOR, cone_strip
 
-        lines: list[tuple[str, str, int, np.ndarray, tuple[float, ...]]] = []
-        for name, reading in snap.sonars:
+        statics = {child: t for _, child, t in self.scheme.statics}
+        lines: list[tuple[str, str, int, np.ndarray, np.ndarray]] = []
+        for mid, (name, reading) in enumerate(snap.sonars):  # one LINE_LIST per array, in its frame
             lo, hi, fov = self.scheme.sonar_limits.get(name, (0.0, 6.0, 1.0))
+            pts, rgba = [], []
             for k, r in enumerate(reading.ranges_m, 1):
                 echo = bool(np.isfinite(r)) and lo <= r <= hi
-                rgb = ECHO_COLOR if echo else NO_ECHO_COLOR
-                color = (rgb[0] / 255, rgb[1] / 255, rgb[2] / 255, 1.0)
-                lines.append((sonar_frame(name, k), name, k, cone_strip(r if echo else hi, fov), color))
+                strip = cone_strip(r if echo else hi, fov)
+                seg = np.repeat(strip, 2, axis=0)[1:-1]  # the polyline as segments
+                t = statics.get(sonar_frame(name, k), np.eye(4))
+                pts.append(seg @ t[:3, :3].T + t[:3, 3])
+                rgb = np.asarray(ECHO_COLOR if echo else NO_ECHO_COLOR, dtype=np.float64) / 255
+                rgba.append(np.tile(np.append(rgb, 1.0), (len(seg), 1)))
+            lines.append((name, "sonar_cones", mid, np.vstack(pts), np.vstack(rgba)))
         out.line_markers(CONES_TOPIC, snap.stamp_ns, lines)
 
     def _send_map(self, out: RosMessages, stamp_ns: int, pose: str, grid: Any, codes: np.ndarray,
-                  cols: tuple[np.ndarray, ...]) -> None:  # fmt: skip
+                  cols: tuple[np.ndarray, ...] | None) -> None:  # fmt: skip
         frame = ODOM if pose == "odometry" else MAP
         (ou, ov), cs = grid.origin, float(grid.cell_size)
         x0, _, y0, _ = grid.extent
         out.occupancy_grid(MAP_TOPIC, stamp_ns, frame, codes, cs, (x0, y0))
+        if cols is None:
+            return
         i, j, bottom, top = cols
         if i.size > self.max_boxes:
             keep = np.unique(np.linspace(0, i.size - 1, self.max_boxes).round().astype(np.int64))

@@ -26,6 +26,7 @@ Depth clouds are kept every ``cloud_every``-th delivered frame, decimated ``clou
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,23 @@ def sonar_frame(array: str, k: int) -> str:
     return f"{array}_{k}"
 
 
+def _quat(m: np.ndarray) -> tuple[float, float, float, float]:
+    """Quaternion (x, y, z, w) of a transform's rotation; a rotation about z alone (odometry, ``map`` ->
+    ``odom``) directly from its yaw (scipy's general conversion costs ~0.1 ms)."""
+    r = m[:3, :3]
+    if r[2, 2] == 1.0 and r[0, 2] == r[1, 2] == r[2, 0] == r[2, 1] == 0.0:
+        return quat_from_yaw(math.atan2(float(r[1, 0]), float(r[0, 0])))
+    return quat_from_matrix(r)
+
+
+@functools.lru_cache(maxsize=1)
+def typestore() -> Any:
+    """The ROS 2 Humble type store of ``rosbags``, one per process (its serialisers are cached in it)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
 class RosMessages:
     """Builds the run's ROS 2 messages (Humble types of ``rosbags``) and hands each one to :meth:`write`.
 
@@ -65,10 +83,14 @@ class RosMessages:
     """
 
     def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
-
-        self.store = get_typestore(Stores.ROS2_HUMBLE)
+        self.store = typestore()
         self.t = self.store.types
+
+    def precompile(self, msgtypes: list[str]) -> None:
+        """Generate the (de)serialisers of these message types now (``rosbags`` makes each on first use,
+        tens of milliseconds a type: not while a run is being sent)."""
+        for msgtype in msgtypes:
+            self.store.get_msgdef(msgtype)
 
     def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
         """Take one built message (``msgtype`` e.g. ``"nav_msgs/msg/Odometry"``, ``stamp_ns`` its time)."""
@@ -88,7 +110,7 @@ class RosMessages:
         t = self.t
         msgs = []
         for parent, child, m in transforms:
-            q = quat_from_matrix(m[:3, :3])
+            q = _quat(m)
             msgs.append(
                 t["geometry_msgs/msg/TransformStamped"](
                     header=self.header(stamp_ns, parent),
@@ -244,10 +266,10 @@ class RosMessages:
                    self.t["visualization_msgs/msg/MarkerArray"](markers=markers))  # fmt: skip
 
     def line_markers(self, topic: str, stamp_ns: int,
-                     lines: list[tuple[str, str, int, np.ndarray, tuple[float, ...]]]) -> None:  # fmt: skip
-        """visualization_msgs/MarkerArray of LINE_STRIPs: (frame id, namespace, id, (K, 3) points m,
-        RGBA in [0, 1]) each, 1 cm wide."""
-        markers = [self.marker(self.header(stamp_ns, frame), ns, mid, 4, 0, (0.01, 0.0, 0.0), pts, color=rgba)
+                     lines: list[tuple[str, str, int, np.ndarray, np.ndarray]]) -> None:  # fmt: skip
+        """visualization_msgs/MarkerArray of LINE_LISTs (segments between points 0-1, 2-3 ...): (frame
+        id, namespace, id, (2K, 3) points m, (2K, 4) RGBA in [0, 1]) each, 1 cm wide."""
+        markers = [self.marker(self.header(stamp_ns, frame), ns, mid, 5, 0, (0.01, 0.0, 0.0), pts, rgba)
                    for frame, ns, mid, pts, rgba in lines]  # fmt: skip
         self.write(topic, "visualization_msgs/msg/MarkerArray", stamp_ns,
                    self.t["visualization_msgs/msg/MarkerArray"](markers=markers))  # fmt: skip
@@ -343,6 +365,7 @@ class RunTopics:
         self.sonar_mounts: dict[str, Any] = {}
         self.has_scan = self.has_cloud = False
         self._spec: Any = None
+        self._servo_tf: dict[tuple[str, float], np.ndarray] = {}
         self._frames = 0
         self._last_frame: Any = None
         self._last_scan: Any = None
@@ -350,6 +373,7 @@ class RunTopics:
     def start(self, runtime: Runtime) -> None:
         """Read the run's frames and sensors (at the episode's start)."""
         self._spec = runtime.spec
+        self._servo_tf = {}
         self._frames, self._last_frame, self._last_scan = 0, None, None
         outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
         statics: list[tuple[str, str, np.ndarray]] = []
@@ -436,8 +460,12 @@ class RunTopics:
                 out.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
             mount = self.sonar_mounts.get(name)
             if mount is not None:
-                joint = self._spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
-                out.tf(reading.stamp_ns, [(BASE_LINK, name, mount.transform(joint))])
+                key = (name, float(reading.servo_angle_deg))  # a servo takes few distinct angles
+                t_base_array = self._servo_tf.get(key)
+                if t_base_array is None:
+                    joint = self._spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
+                    t_base_array = self._servo_tf[key] = mount.transform(joint)
+                out.tf(reading.stamp_ns, [(BASE_LINK, name, t_base_array)])
         if snap.scan is not None:
             from hw.laser_scan import to_ros_laser_scan
 
