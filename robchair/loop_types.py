@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -36,6 +37,7 @@ class LoopView(Protocol):
         last_sonars: this cycle's sonar readings, ``(name, reading)``.
         last_depth_frame: this cycle's depth frame, or None.
         last_scan: this cycle's laser scan, or None.
+        observers: the loop's observers, in call order.
     """
 
     backend: Backend
@@ -47,6 +49,9 @@ class LoopView(Protocol):
     last_sonars: list[tuple[str, SonarArrayReading]]
     last_depth_frame: Any
     last_scan: Any
+
+    @property
+    def observers(self) -> Sequence[Observer]: ...
 
 
 class Observer:

@@ -469,6 +469,19 @@ class Perception:
         self._pending.append(fut)
         return fut
 
+    def call_with_maps(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` where it may read the maps: on the mapping thread after the insertions submitted so
+        far (at once, on the caller's thread, without one or after :meth:`close`). Not waited for; ``fn``
+        handles its own exceptions (on the mapping thread they would be lost)."""
+        pool = self._pool
+        if pool is not None:
+            try:
+                pool.submit(fn)
+                return
+            except RuntimeError:  # shut down meanwhile: the maps are final
+                pass
+        fn()
+
     def depth_distance_m(self, pose: Pose2D) -> float | None:
         """Nearest depth point in the band inside the corridor ahead, from the front edge, m.
 

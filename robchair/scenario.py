@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -154,6 +155,7 @@ def run_scenario(
     matching: bool = True,
     zoom: bool = True,
     map_kind: str = "probabilistic",
+    observers: Sequence[Observer] = (),
 ) -> RunResult:
     """Run a scenario through the runtime and (with ``write``) write its run folder.
 
@@ -183,6 +185,7 @@ def run_scenario(
         zoom: map a 2 m x 2 m region around the chair at 1 cm (:mod:`mapping.zoom`).
         map_kind: the maps (odometry and ground-truth pose): ``"probabilistic"`` (free space and
             unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
+        observers: more observers of the loop, called after the run's own (e.g. the live view).
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).
@@ -218,11 +221,13 @@ def run_scenario(
         if target is None:
             return _drive(scenario, spec, chair, backend, config, duration, None, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds),
+                observers)  # fmt: skip
         with staged_output_dir(target) as stage:
             res = _drive(scenario, spec, chair, backend, config, duration, stage, _options(
                 progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds))  # fmt: skip
+                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds),
+                observers)  # fmt: skip
         res.out_dir = target.resolve()
         if res.error is not None and res.exception is not None:
             raise res.exception
@@ -243,7 +248,8 @@ def _options(progress: bool, write_bag: bool, mapping_thread: bool, ground_truth
 
 
 def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: RuntimeConfig,
-           duration: float, stage: Path | None, o: dict[str, Any]) -> RunResult:  # fmt: skip
+           duration: float, stage: Path | None, o: dict[str, Any],
+           extra_observers: Sequence[Observer] = ()) -> RunResult:  # fmt: skip
     from robchair.observers.evaluation import GroundTruthEvaluation
     from robchair.observers.recorder import BAG_CLOUDS, RunRecorder
     from robchair.perception import Perception
@@ -283,6 +289,7 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     observers.append(DiagnosticsObserver(recorder=recorder))
     if o["progress"]:
         observers.append(ProgressBar(scenario.name, duration))
+    observers.extend(extra_observers)
     follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))
     safety = SafetyLayer(o["safety_limits"] or SafetyLimits.from_spec(spec), spec.wheel_separation)
     backend.open()

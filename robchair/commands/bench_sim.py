@@ -49,6 +49,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="map kind of the new loop (default probabilistic; thesis: accumulate only)",
     )
     p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="instead: the loop's CPU time per simulated second with the live view off, on without a client "
+        "and on with one (robchair.commands.bench_live; JSON default out/bench_sim_live.json)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -219,6 +225,11 @@ def print_stage_table(rows: list[dict[str, Any]]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     import statistics
+
+    if getattr(args, "live", False):
+        from robchair.commands.bench_live import run_live_bench
+
+        return run_live_bench(args)
 
     from robchair.commands.bench_output import median_of, verdict
     from robchair.commands.sim import retain_freed_memory

@@ -20,6 +20,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from robchair.commands.live import add_arguments as add_live_arguments
 from robchair.platform.config import ConfigSource, ConfigTable
 
 if TYPE_CHECKING:
@@ -62,6 +63,7 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="release an emergency stop the motor controller still holds from an earlier run (!MG)",
     )
+    add_live_arguments(p)
     p.set_defaults(func=_run)
 
 
@@ -101,16 +103,10 @@ def _scenario_route(name: str, spec: RobChairSpec) -> tuple[Route, Pose2D]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.backends import BACKENDS, get_backend
-    from robchair.outdir import check_output_dir, overwrite_allowed
-    from robchair.platform.errors import ConfigError
-    from robchair.platform.kinematics import DiffDrive
-    from robchair.platform.safety import SafetyLayer, SafetyLimits
-    from robchair.platform.spec import load_spec
-    from robchair.route import PurePursuit, Route
-    from robchair.run_output import run_to_dir
-    from robchair.runtime import RuntimeConfig, check_duration_s
-    from robchair.sources import JoystickSource
+    from robchair.backends import BACKENDS
+    from robchair.commands.live import live_observers
+    from robchair.outdir import check_output_dir
+    from robchair.runtime import check_duration_s
 
     if args.backend not in BACKENDS:
         raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
@@ -119,6 +115,22 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigSource().invalid("--rate", args.rate, "a finite loop rate in Hz > 0")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
+    with live_observers(args) as live:  # a port in use is refused before the chair is opened too
+        return _drive(args, live)
+
+
+def _drive(args: argparse.Namespace, live: list[Any]) -> int:
+    from robchair.backends import get_backend
+    from robchair.outdir import overwrite_allowed
+    from robchair.platform.errors import ConfigError
+    from robchair.platform.kinematics import DiffDrive
+    from robchair.platform.safety import SafetyLayer, SafetyLimits
+    from robchair.platform.spec import load_spec
+    from robchair.route import PurePursuit, Route
+    from robchair.run_output import run_to_dir
+    from robchair.runtime import RuntimeConfig
+    from robchair.sources import JoystickSource
+
     cfg = load_run_config(args.config)
     backend_table = cfg.table(args.backend, {})
     backend_cfg = dict(backend_table.data)
@@ -175,7 +187,7 @@ def _run(args: argparse.Namespace) -> int:
             safety=safety,
             start_pose=start_pose,
             safety_enabled=not args.no_safety,
-            observers=observers,
+            observers=observers + live,
         )
     print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from robchair.commands.live import add_arguments as add_live_arguments
+
 SENSORS = ("kinect2", "kinect2-hd", "kinect2-qhd", "kinect1", "none")
 
 
@@ -87,6 +89,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--no-pictures", action="store_true", help="do not draw the PNG pictures")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    add_live_arguments(p)
     p.set_defaults(func=_run)
 
 
@@ -103,6 +106,7 @@ def _run(args: argparse.Namespace) -> int:
                 f"scene {sc.scene.name:16s} {sc.description}"
             )
         return 0
+    from robchair.commands.live import live_observers
     from robchair.outdir import check_output_dir, overwrite_allowed
     from robchair.runtime import check_duration_s
     from robchair.scenario import run_scenario
@@ -113,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before simulating
     if args.keep_freed_memory:
         retain_freed_memory()
-    with overwrite_allowed(args.overwrite):
+    with overwrite_allowed(args.overwrite), live_observers(args) as live:
         res = run_scenario(
             args.scenario,
             out_dir=args.out,
@@ -131,6 +135,7 @@ def _run(args: argparse.Namespace) -> int:
             matching=not args.no_matching,
             zoom=not args.no_zoom,
             map_kind=args.map,
+            observers=live,
         )
     m = res.metrics()
     summary = {

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
 
 if TYPE_CHECKING:
-    from robchair.observers.recorder import RunRecorder
+    from robchair.observers.recorder import RosMessages, RunRecorder
 
 TOPIC = "/diagnostics"
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
@@ -41,6 +41,8 @@ class DiagnosticsObserver(Observer):
         self.last: Any = None
         self._next_ns: int | None = None
         self._read: Any = None
+        #: (stamp ns, sample or None, watchdog trips) of the last record (what the bag got)
+        self.last_record: tuple[int, Any, int] | None = None
 
     def episode_start(self, runtime: LoopView) -> None:
         self._read = getattr(runtime.backend.motors, "read_diagnostics", None)
@@ -52,20 +54,36 @@ class DiagnosticsObserver(Observer):
         if cycle.fault is not None:  # the driver already failed and stopped: the fault is the report
             return
         self._next_ns = cycle.stamp_ns + self.period_ns
-        if self._read is None:
-            if self.recorder is not None:
-                self._write_placeholder(runtime, cycle.stamp_ns)
-            return
-        sample = self._read()
-        self.last = sample
-        self.samples += 1
+        sample = None
+        if self._read is not None:
+            sample = self._read()
+            self.last = sample
+            self.samples += 1
+        trips = 0 if sample is not None else int(getattr(runtime.backend.motors, "watchdog_trips", 0) or 0)
+        self.last_record = (cycle.stamp_ns, sample, trips)
         if self.recorder is not None:
-            self._write(sample, cycle.stamp_ns)
+            write_diagnostics(self.recorder.bag, cycle.stamp_ns, sample, trips)
 
-    def _write(self, sample: Any, stamp_ns: int) -> None:
-        assert self.recorder is not None
-        bag = self.recorder.bag
-        t = bag.t
+    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
+        diag = None
+        if self.last is not None:
+            diag = {**asdict(self.last), "samples": self.samples}
+        result.extra["controller"] = {**result.extra.get("controller", {}), "diagnostics": diag}
+
+
+def write_diagnostics(out: RosMessages, stamp_ns: int, sample: Any, watchdog_trips: int = 0) -> None:
+    """``/diagnostics``: one ``motor_controller`` status of a diagnostics sample, or (``sample`` None) the
+    OK status of a controller without diagnostics, with the watchdog trips it counts."""
+    t = out.t
+    if sample is None:
+        status = t["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=OK,
+            name="motor_controller",
+            message="no hardware diagnostics (simulated controller)",
+            hardware_id="simulated",
+            values=[t["diagnostic_msgs/msg/KeyValue"](key="watchdog_trips", value=str(watchdog_trips))],
+        )
+    else:
         level = ERROR if (sample.faults or sample.state == "error") else WARN if sample.status else OK
         message = ", ".join(sample.faults) or ", ".join(sample.status) or "ok"
         pairs = sample.as_key_values().items()
@@ -76,26 +94,5 @@ class DiagnosticsObserver(Observer):
             hardware_id=f"roboteq {sample.firmware}".strip(),
             values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in pairs],
         )
-        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
-        bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
-
-    def _write_placeholder(self, runtime: LoopView, stamp_ns: int) -> None:
-        assert self.recorder is not None
-        bag = self.recorder.bag
-        t = bag.t
-        trips = getattr(runtime.backend.motors, "watchdog_trips", 0)
-        status = t["diagnostic_msgs/msg/DiagnosticStatus"](
-            level=OK,
-            name="motor_controller",
-            message="no hardware diagnostics (simulated controller)",
-            hardware_id="simulated",
-            values=[t["diagnostic_msgs/msg/KeyValue"](key="watchdog_trips", value=str(trips))],
-        )
-        msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=bag.header(stamp_ns, ""), status=[status])
-        bag.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)
-
-    def episode_end(self, runtime: LoopView, result: RunResult) -> None:
-        diag = None
-        if self.last is not None:
-            diag = {**asdict(self.last), "samples": self.samples}
-        result.extra["controller"] = {**result.extra.get("controller", {}), "diagnostics": diag}
+    msg = t["diagnostic_msgs/msg/DiagnosticArray"](header=out.header(stamp_ns, ""), status=[status])
+    out.write(TOPIC, "diagnostic_msgs/msg/DiagnosticArray", stamp_ns, msg)

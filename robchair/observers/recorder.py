@@ -28,7 +28,9 @@ second from the Kinect 2 model, 4 GB a minute).
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -65,42 +67,43 @@ def sonar_frame(array: str, k: int) -> str:
     return f"{array}_{k}"
 
 
-class BagWriter:
-    """Typed, counted writes to a rosbag2 folder (one connection per topic, created on first use).
+def _quat(m: np.ndarray) -> tuple[float, float, float, float]:
+    """Quaternion (x, y, z, w) of a transform's rotation; a rotation about z alone (odometry, ``map`` ->
+    ``odom``) directly from its yaw (scipy's general conversion costs ~0.1 ms)."""
+    r = m[:3, :3]
+    if r[2, 2] == 1.0 and r[0, 2] == r[1, 2] == r[2, 0] == r[2, 1] == 0.0:
+        return quat_from_yaw(math.atan2(float(r[1, 0]), float(r[0, 0])))
+    return quat_from_matrix(r)
 
-    Args:
-        path: the bag folder to create (must not exist).
-        storage: ``"mcap"`` (default) or ``"sqlite3"``.
 
-    Raises:
-        ConfigError: unknown storage, or the folder exists.
+@functools.lru_cache(maxsize=1)
+def typestore() -> Any:
+    """The ROS 2 Humble type store of ``rosbags``, one per process (its serialisers are cached in it)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+class RosMessages:
+    """Builds the run's ROS 2 messages (Humble types of ``rosbags``) and hands each one to :meth:`write`.
+
+    The one message builder of the project: the bag (:class:`BagWriter`) and the live view
+    (:mod:`robchair.observers.live`) subclass it and differ only in what :meth:`write` does.
     """
 
-    def __init__(self, path: Path | str, storage: str = "mcap") -> None:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-        from rosbags.typesys import Stores, get_typestore
-
-        if storage not in STORAGES:
-            raise ConfigError(f"bag storage {storage!r}: expected one of {', '.join(STORAGES)}")
-        self.path = Path(path)
-        if self.path.exists():
-            raise ConfigError(f"bag {self.path} already exists")
-        self.store = get_typestore(Stores.ROS2_HUMBLE)
+    def __init__(self) -> None:
+        self.store = typestore()
         self.t = self.store.types
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        self._writer: Any = Writer(self.path, version=9, storage_plugin=plugin)
-        self._writer.open()
-        self._conns: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
+
+    def precompile(self, msgtypes: list[str]) -> None:
+        """Generate the (de)serialisers of these message types now (``rosbags`` makes each on first use,
+        tens of milliseconds a type: not while a run is being sent)."""
+        for msgtype in msgtypes:
+            self.store.get_msgdef(msgtype)
 
     def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
-        if self._writer is None:
-            raise ConfigError(f"bag {self.path} is closed")
-        if topic not in self._conns:
-            self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store)
-        # rosbag2 tools dislike a zero receive time: messages at t = 0 are stamped 1 ns
-        self._writer.write(self._conns[topic], max(int(stamp_ns), 1), self.store.serialize_cdr(msg, msgtype))
-        self.counts[topic] = self.counts.get(topic, 0) + 1
+        """Take one built message (``msgtype`` e.g. ``"nav_msgs/msg/Odometry"``, ``stamp_ns`` its time)."""
+        raise NotImplementedError
 
     def header(self, stamp_ns: int, frame_id: str) -> Any:
         t = self.t
@@ -116,7 +119,7 @@ class BagWriter:
         t = self.t
         msgs = []
         for parent, child, m in transforms:
-            q = quat_from_matrix(m[:3, :3])
+            q = _quat(m)
             msgs.append(
                 t["geometry_msgs/msg/TransformStamped"](
                     header=self.header(stamp_ns, parent),
@@ -197,10 +200,288 @@ class BagWriter:
         )
         self.write(topic, "sensor_msgs/msg/PointCloud2", stamp_ns, msg)
 
+    def occupancy_grid(self, topic: str, stamp_ns: int, frame_id: str, codes: np.ndarray, cell_size: float,
+                       origin_xy: tuple[float, float]) -> None:  # fmt: skip
+        """nav_msgs/OccupancyGrid of three-valued codes (``(nx, ny)`` int8 indexed ``[i, j]``, i along x;
+        100 occupied, 0 free, -1 unknown), ``cell_size`` m, cell (0, 0)'s corner at ``origin_xy``."""
+        t = self.t
+        codes = np.asarray(codes, dtype=np.int8)
+        nx, ny = codes.shape
+        header = self.header(stamp_ns, frame_id)
+        msg = t["nav_msgs/msg/OccupancyGrid"](
+            header=header,
+            info=t["nav_msgs/msg/MapMetaData"](
+                map_load_time=header.stamp,
+                resolution=float(cell_size),
+                width=int(nx),
+                height=int(ny),
+                origin=t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](
+                        x=float(origin_xy[0]), y=float(origin_xy[1]), z=0.0
+                    ),
+                    orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                ),
+            ),
+            data=np.ascontiguousarray(codes.T).reshape(-1),  # row-major, row = y index
+        )
+        self.write(topic, "nav_msgs/msg/OccupancyGrid", stamp_ns, msg)
+
+    def marker(self, header: Any, ns: str, mid: int, kind: int, action: int, scale: Any,
+               points: np.ndarray, rgba: np.ndarray | None = None,
+               color: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)) -> Any:  # fmt: skip
+        """One visualization_msgs/Marker (``kind``: 4 LINE_STRIP, 6 CUBE_LIST ...; ``action``: 0 ADD,
+        3 DELETEALL) at the frame's origin: (K, 3) ``points`` m, optional (K, 4) per-point ``rgba``
+        in [0, 1]."""
+        t = self.t
+        pt, rgba_t = t["geometry_msgs/msg/Point"], t["std_msgs/msg/ColorRGBA"]
+        no_bytes = np.zeros(0, dtype=np.uint8)
+        q = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+        origin = t["geometry_msgs/msg/Pose"](position=pt(x=0.0, y=0.0, z=0.0), orientation=q)
+        xyz = np.asarray(points, dtype=np.float64)
+        return t["visualization_msgs/msg/Marker"](
+            header=header, ns=ns, id=int(mid), type=int(kind), action=int(action),
+            pose=origin,
+            scale=t["geometry_msgs/msg/Vector3"](x=float(scale[0]), y=float(scale[1]), z=float(scale[2])),
+            color=rgba_t(r=color[0], g=color[1], b=color[2], a=color[3]),
+            lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+            points=[pt(x=float(x), y=float(y), z=float(z)) for x, y, z in xyz],
+            colors=[] if rgba is None else [rgba_t(r=float(r), g=float(g), b=float(b), a=float(a))
+                                            for r, g, b, a in rgba],
+            texture_resource="",
+            texture=t["sensor_msgs/msg/CompressedImage"](header=header, format="", data=no_bytes),
+            uv_coordinates=[], text="", mesh_resource="",
+            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=no_bytes),
+            mesh_use_embedded_materials=False,
+        )  # fmt: skip
+
+    def box_markers(self, topic: str, stamp_ns: int, frame_id: str, ns: str, mins: np.ndarray,
+                    maxs: np.ndarray, rgb: np.ndarray, height_step_m: float = 0.01) -> None:  # fmt: skip
+        """visualization_msgs/MarkerArray of axis-aligned boxes ((K, 3) ``mins`` / ``maxs`` m, (K, 3) uint8
+        colours): a DELETEALL, then one CUBE_LIST per box size, heights rounded to ``height_step_m`` (a
+        CUBE_LIST has one scale)."""
+        header = self.header(stamp_ns, frame_id)
+        mins, maxs = np.asarray(mins, dtype=np.float64), np.asarray(maxs, dtype=np.float64)
+        size = maxs - mins
+        size[:, 2] = np.maximum(np.round(size[:, 2] / height_step_m), 1) * height_step_m
+        centre = (mins + maxs) / 2
+        rgba = np.column_stack([np.asarray(rgb, dtype=np.float64) / 255.0, np.ones(len(mins))])
+        markers = [self.marker(header, ns, 0, 6, 3, np.zeros(3), np.zeros((0, 3)))]
+        if len(mins):
+            sizes, inverse = np.unique(np.round(size, 6), axis=0, return_inverse=True)
+            for mid, scale in enumerate(sizes):
+                rows = np.flatnonzero(inverse.reshape(-1) == mid)
+                markers.append(self.marker(header, ns, mid, 6, 0, scale, centre[rows], rgba[rows]))
+        self.write(topic, "visualization_msgs/msg/MarkerArray", stamp_ns,
+                   self.t["visualization_msgs/msg/MarkerArray"](markers=markers))  # fmt: skip
+
+    def line_markers(self, topic: str, stamp_ns: int,
+                     lines: list[tuple[str, str, int, np.ndarray, np.ndarray]]) -> None:  # fmt: skip
+        """visualization_msgs/MarkerArray of LINE_LISTs (segments between points 0-1, 2-3 ...): (frame
+        id, namespace, id, (2K, 3) points m, (2K, 4) RGBA in [0, 1]) each, 1 cm wide."""
+        markers = [self.marker(self.header(stamp_ns, frame), ns, mid, 5, 0, (0.01, 0.0, 0.0), pts, rgba)
+                   for frame, ns, mid, pts, rgba in lines]  # fmt: skip
+        self.write(topic, "visualization_msgs/msg/MarkerArray", stamp_ns,
+                   self.t["visualization_msgs/msg/MarkerArray"](markers=markers))  # fmt: skip
+
+    def log(self, topic: str, stamp_ns: int, level: int, name: str, text: str) -> None:
+        """rcl_interfaces/msg/Log (``level``: 10 DEBUG, 20 INFO, 30 WARN, 40 ERROR, 50 FATAL)."""
+        t = self.t
+        stamp = self.header(stamp_ns, "").stamp
+        msg = t["rcl_interfaces/msg/Log"](stamp=stamp, level=int(level), name=name, msg=text, file="",
+                                          function="", line=0)  # fmt: skip
+        self.write(topic, "rcl_interfaces/msg/Log", stamp_ns, msg)
+
+
+class BagWriter(RosMessages):
+    """Typed, counted writes to a rosbag2 folder (one connection per topic, created on first use).
+
+    Args:
+        path: the bag folder to create (must not exist).
+        storage: ``"mcap"`` (default) or ``"sqlite3"``.
+
+    Raises:
+        ConfigError: unknown storage, or the folder exists.
+    """
+
+    def __init__(self, path: Path | str, storage: str = "mcap") -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        super().__init__()
+        if storage not in STORAGES:
+            raise ConfigError(f"bag storage {storage!r}: expected one of {', '.join(STORAGES)}")
+        self.path = Path(path)
+        if self.path.exists():
+            raise ConfigError(f"bag {self.path} already exists")
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer: Any = Writer(self.path, version=9, storage_plugin=plugin)
+        self._writer.open()
+        self._conns: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+
+    def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
+        if self._writer is None:
+            raise ConfigError(f"bag {self.path} is closed")
+        if topic not in self._conns:
+            self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store)
+        # rosbag2 tools dislike a zero receive time: messages at t = 0 are stamped 1 ns
+        self._writer.write(self._conns[topic], max(int(stamp_ns), 1), self.store.serialize_cdr(msg, msgtype))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
     def close(self) -> None:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+
+
+@dataclass(frozen=True)
+class CycleSnapshot:
+    """What one cycle gives the recorded topics, taken on the loop's thread (references, no copies but
+    the thinned cloud's).
+
+    Attributes:
+        stamp_ns: the cycle's time.
+        pose: odometry (x m, y m, yaw rad) at the start of the cycle.
+        v, w: the written twist, m/s and rad/s.
+        t_map_odom: (4, 4) ``map`` -> ``odom``.
+        sonars: (array name, reading) of the arrays read this cycle.
+        scan: the laser scan first seen this cycle, else None.
+        cloud: (stamp ns, frame id, thinned (H, W, 3) float32 points) of a kept depth frame, else None.
+    """
+
+    stamp_ns: int
+    pose: tuple[float, float, float]
+    v: float
+    w: float
+    t_map_odom: np.ndarray
+    sonars: tuple[tuple[str, Any], ...]
+    scan: Any = None
+    cloud: tuple[int, str, np.ndarray] | None = None
+
+
+class RunTopics:
+    """The topic and frame scheme of the module docstring: static transforms at the start, then the
+    messages of each cycle, written to any :class:`RosMessages`.
+
+    Args:
+        cloud_every: keep every this many delivered depth frames (0: none).
+        cloud_stride: pixel decimation of the kept clouds.
+    """
+
+    def __init__(self, cloud_every: int = 3, cloud_stride: int = 4) -> None:
+        self.cloud_every, self.cloud_stride = int(cloud_every), int(cloud_stride)
+        self.statics: list[tuple[str, str, np.ndarray]] = []
+        self.sonar_limits: dict[str, tuple[float, float, float]] = {}  # name -> (min m, max m, fov rad)
+        self.sonar_mounts: dict[str, Any] = {}
+        self.has_scan = self.has_cloud = False
+        self._spec: Any = None
+        self._servo_tf: dict[tuple[str, float], np.ndarray] = {}
+        self._frames = 0
+        self._last_frame: Any = None
+        self._last_scan: Any = None
+
+    def start(self, runtime: LoopView) -> None:
+        """Read the run's frames and sensors (at the episode's start)."""
+        self._spec = runtime.spec
+        self._servo_tf = {}
+        self._frames, self._last_frame, self._last_scan = 0, None, None
+        outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
+        statics: list[tuple[str, str, np.ndarray]] = []
+        self.has_scan = getattr(runtime.backend, "laser_scanner", None) is not None
+        if self.has_scan:
+            statics.append((BASE_LINK, "laser_link", runtime.perception.t_base_sensor("laser_link")))
+        cam = runtime.backend.depth_camera
+        self.has_cloud = cam is not None and self.cloud_every > 0
+        if cam is not None:
+            for frame_id in ("kinect_link", getattr(cam, "frame_id", "kinect_link")):
+                if frame_id in {c for _, c, _ in statics}:
+                    continue
+                statics.append((BASE_LINK, frame_id, runtime.perception.t_base_sensor(frame_id)))
+        for name in runtime.sonar_names:
+            for k, yaw_deg in enumerate((outer_deg, 0.0, -outer_deg), 1):
+                statics.append(
+                    (name, sonar_frame(name, k), se3_rpy((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(yaw_deg))))
+                )
+        self.statics = statics
+        self.sonar_limits = {}
+        for name, arr in zip(runtime.sonar_names, runtime.backend.sonar_arrays):
+            self.sonar_limits[name] = (float(getattr(arr, "min_range_m", SONAR_MIN_RANGE_M)),
+                                       float(getattr(arr, "max_range_m", 6.0)),
+                                       float(getattr(arr, "field_of_view_rad", SONAR_FOV_RAD)))  # fmt: skip
+        self.sonar_mounts = {
+            n: runtime.spec.mounts[n] for n in runtime.sonar_names if n in runtime.spec.mounts
+        }
+
+    def topics(self) -> dict[str, str]:
+        """Topic -> message type of every topic the run has."""
+        out = {"/odom": "nav_msgs/msg/Odometry", "/tf": "tf2_msgs/msg/TFMessage",
+               "/tf_static": "tf2_msgs/msg/TFMessage"}  # fmt: skip
+        for name in self.sonar_limits:
+            for k in (1, 2, 3):
+                out[sonar_topic(name, k)] = "sensor_msgs/msg/Range"
+        if self.has_cloud:
+            out[CLOUD_TOPIC] = "sensor_msgs/msg/PointCloud2"
+        if self.has_scan:
+            out[SCAN_TOPIC] = "sensor_msgs/msg/LaserScan"
+        return out
+
+    def parents(self) -> dict[str, str]:
+        """Child frame -> parent frame of the run's TF tree."""
+        tree = {ODOM: MAP, BASE_LINK: ODOM, **{name: BASE_LINK for name in self.sonar_mounts}}
+        tree.update({child: parent for parent, child, _ in self.statics})
+        return tree
+
+    def write_static(self, out: RosMessages, stamp_ns: int) -> None:
+        """``/tf_static`` (nothing when the run has no static frame)."""
+        if self.statics:
+            out.tf(max(int(stamp_ns), 1), self.statics, static=True)
+
+    def snapshot(self, runtime: LoopView, cycle: CycleResult, cloud: bool = True) -> CycleSnapshot:
+        """The cycle's data (on the loop's thread); ``cloud=False`` skips the depth frame (it still counts
+        towards ``cloud_every``)."""
+        p = cycle.pose
+        scan = runtime.last_scan
+        if scan is not None and scan is not self._last_scan:
+            self._last_scan = scan
+        else:
+            scan = None
+        points = None
+        frame = runtime.last_depth_frame
+        if frame is not None and frame is not self._last_frame:
+            self._last_frame = frame
+            if cloud and self.cloud_every and self._frames % self.cloud_every == 0:
+                s = self.cloud_stride
+                points = (frame.stamp_ns, frame.frame_id, np.array(np.asarray(frame.points)[::s, ::s]))
+            self._frames += 1
+        t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
+        return CycleSnapshot(cycle.stamp_ns, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w,
+                             t_map_odom, tuple(runtime.last_sonars), scan, points)  # fmt: skip
+
+    def write_cycle(self, out: RosMessages, snap: CycleSnapshot) -> None:
+        """The cycle's ``/odom``, ``/tf``, sonar ranges, scan and cloud."""
+        stamp = snap.stamp_ns
+        out.odometry("/odom", stamp, ODOM, BASE_LINK, snap.pose, snap.v, snap.w)
+        # REP-105: map -> odom is the localisation's part (identity without scan-to-map matching), so every
+        # backend's bag has the same tree
+        out.tf(stamp, [(MAP, ODOM, snap.t_map_odom), (ODOM, BASE_LINK, se3_planar(*snap.pose))])
+        for name, reading in snap.sonars:
+            lo, hi, fov = self.sonar_limits.get(name, (SONAR_MIN_RANGE_M, 6.0, SONAR_FOV_RAD))
+            for k, r in enumerate(reading.ranges_m, 1):
+                out.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
+            mount = self.sonar_mounts.get(name)
+            if mount is not None:
+                key = (name, float(reading.servo_angle_deg))  # a servo takes few distinct angles
+                t_base_array = self._servo_tf.get(key)
+                if t_base_array is None:
+                    joint = self._spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
+                    t_base_array = self._servo_tf[key] = mount.transform(joint)
+                out.tf(reading.stamp_ns, [(BASE_LINK, name, t_base_array)])
+        if snap.scan is not None:
+            from hw.laser_scan import to_ros_laser_scan
+
+            out.write(SCAN_TOPIC, "sensor_msgs/msg/LaserScan", snap.scan.stamp_ns,
+                      to_ros_laser_scan(snap.scan, typestore=out.store))  # fmt: skip
+        if snap.cloud is not None:
+            out.cloud(CLOUD_TOPIC, snap.cloud[0], snap.cloud[1], snap.cloud[2])
 
 
 class RunRecorder(Observer):
@@ -216,70 +497,18 @@ class RunRecorder(Observer):
     def __init__(self, path: Path | str, storage: str = "mcap", cloud_every: int = 3,
                  cloud_stride: int = 4) -> None:  # fmt: skip
         self.bag = BagWriter(path, storage)
-        self.cloud_every, self.cloud_stride = int(cloud_every), int(cloud_stride)
-        self._frames = 0
-        self._last_frame: Any = None
-        self._last_scan: Any = None
+        self.scheme = RunTopics(cloud_every, cloud_stride)
 
     @property
     def counts(self) -> dict[str, int]:
         return self.bag.counts
 
     def episode_start(self, runtime: LoopView) -> None:
-        outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
-        stamp = max(runtime.t0_ns, 1)
-        statics: list[tuple[str, str, np.ndarray]] = []
-        if getattr(runtime.backend, "laser_scanner", None) is not None:
-            statics.append((BASE_LINK, "laser_link", runtime.perception.t_base_sensor("laser_link")))
-        cam = runtime.backend.depth_camera
-        if cam is not None:
-            for frame_id in ("kinect_link", getattr(cam, "frame_id", "kinect_link")):
-                if frame_id in {c for _, c, _ in statics}:
-                    continue
-                statics.append((BASE_LINK, frame_id, runtime.perception.t_base_sensor(frame_id)))
-        for name in runtime.sonar_names:
-            for k, yaw_deg in enumerate((outer_deg, 0.0, -outer_deg), 1):
-                statics.append(
-                    (name, sonar_frame(name, k), se3_rpy((0.0, 0.0, 0.0), (0.0, 0.0, math.radians(yaw_deg))))
-                )
-        if statics:
-            self.bag.tf(stamp, statics, static=True)
+        self.scheme.start(runtime)
+        self.scheme.write_static(self.bag, runtime.t0_ns)
 
     def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
-        bag = self.bag
-        stamp = cycle.stamp_ns
-        p = cycle.pose
-        bag.odometry("/odom", stamp, ODOM, BASE_LINK, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w)
-        # REP-105: map -> odom is the localisation's part (identity without scan-to-map matching), so every
-        # backend's bag has the same tree
-        t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
-        bag.tf(stamp, [(MAP, ODOM, t_map_odom), (ODOM, BASE_LINK, se3_planar(p.x, p.y, p.theta))])
-        arrays = dict(zip(runtime.sonar_names, runtime.backend.sonar_arrays))
-        for name, reading in runtime.last_sonars:
-            arr = arrays.get(name)
-            lo = float(getattr(arr, "min_range_m", SONAR_MIN_RANGE_M))
-            hi = float(getattr(arr, "max_range_m", 6.0))
-            fov = float(getattr(arr, "field_of_view_rad", SONAR_FOV_RAD))
-            for k, r in enumerate(reading.ranges_m, 1):
-                bag.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
-            mount = runtime.spec.mounts.get(name)
-            if mount is not None:
-                joint = runtime.spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
-                bag.tf(reading.stamp_ns, [(BASE_LINK, name, mount.transform(joint))])
-        scan = runtime.last_scan
-        if scan is not None and scan is not self._last_scan:
-            from hw.laser_scan import to_ros_laser_scan
-
-            self._last_scan = scan
-            bag.write(SCAN_TOPIC, "sensor_msgs/msg/LaserScan", scan.stamp_ns,
-                      to_ros_laser_scan(scan, typestore=bag.store))  # fmt: skip
-        frame = runtime.last_depth_frame
-        if frame is not None and frame is not self._last_frame:
-            self._last_frame = frame
-            if self.cloud_every and self._frames % self.cloud_every == 0:
-                s = self.cloud_stride
-                bag.cloud(CLOUD_TOPIC, frame.stamp_ns, frame.frame_id, np.asarray(frame.points)[::s, ::s])
-            self._frames += 1
+        self.scheme.write_cycle(self.bag, self.scheme.snapshot(runtime, cycle))
 
     def episode_end(self, runtime: LoopView, result: RunResult) -> None:
         self.bag.close()

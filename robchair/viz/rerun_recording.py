@@ -30,6 +30,11 @@ entity                               archetype         from
 ===================================  ================  ==============================================
 
 The timeline ``run_time`` counts seconds from the run's start (simulated time in ``robchair sim``).
+
+:class:`MessageLogger` logs the bag's messages; a live run (:mod:`robchair.viz.rerun_live`) goes through
+it too, and there ``map_2d``, ``world/map/occupancy`` and ``world/map/vhv/<pose>`` come from the live
+view's ``/map`` (nav_msgs/OccupancyGrid) and ``/vhv/markers`` (CUBE_LIST markers), and ``run/safety``
+from ``/rosout``.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from robchair.run_folder import BagMessage, RunFolder, RunFolderError
+from robchair.run_folder import RunFolder, RunFolderError
 
 RECORDING_NAME = "recording.rrd"
 APPLICATION_ID = "robchair"
@@ -268,46 +273,116 @@ def _tf_tree(run: RunFolder, topics: dict[str, str]) -> tuple[dict[str, str], se
 def _log_bag(rr: Any, rec: Any, run: RunFolder, max_cloud_points: int) -> None:
     topics = run.bag_topics()
     parents, tf_dynamic = _tf_tree(run, topics)
-    entities = frame_entities(parents)
-
-    def entity(frame: str) -> str:
-        if frame not in entities:  # a frame outside the TF tree: at the world origin
-            entities[frame] = f"world/{rr.escape_entity_path_part(frame or 'unknown_frame')}"
-        return entities[frame]
-
-    paths: dict[str, _Path] = {}
+    out = MessageLogger(rr, rec, parents, tf_dynamic, max_cloud_points)
     wanted = [t for t, kind in topics.items() if kind in _HANDLED]
     for m in run.messages(wanted):
-        kind = topics[m.topic]
+        out.log(m.topic, topics[m.topic], m.t_s, m.msg)
+    out.flush()
+
+
+class MessageLogger:
+    """Logs deserialised ROS messages (a bag's, or a live run's) to a recording stream at their run time.
+
+    Args:
+        rr: the ``rerun`` module.
+        rec: the recording stream.
+        parents: child -> parent frame of the TF tree (frames outside it are placed at the world origin).
+        tf_dynamic: frames that ``/tf`` moves (an odometry message does not place those).
+        max_cloud_points: points kept per depth cloud at most.
+    """
+
+    def __init__(self, rr: Any, rec: Any, parents: dict[str, str], tf_dynamic: set[str],
+                 max_cloud_points: int = MAX_CLOUD_POINTS) -> None:  # fmt: skip
+        self.rr, self.rec = rr, rec
+        self.entities = frame_entities(parents)
+        self.tf_dynamic = set(tf_dynamic)
+        self.max_cloud_points = int(max_cloud_points)
+        self.paths: dict[str, _Path] = {}
+
+    def entity(self, frame: str) -> str:
+        """Entity path of a TF frame."""
+        if frame not in self.entities:  # a frame outside the TF tree: at the world origin
+            self.entities[frame] = f"world/{self.rr.escape_entity_path_part(frame or 'unknown_frame')}"
+        return self.entities[frame]
+
+    def log(self, topic: str, kind: str, t_s: float, msg: Any) -> None:
+        """One message of type ``kind`` (e.g. ``"nav_msgs/msg/Odometry"``) at ``t_s`` s of run time; other
+        types than the module docstring's are ignored."""
+        rr, rec, entity = self.rr, self.rec, self.entity
         if kind == "tf2_msgs/msg/TFMessage":
-            static = m.topic == "/tf_static"
+            static = topic == "/tf_static"
             if not static:
-                rec.set_time(TIMELINE, duration=m.t_s)
-            for tr in m.msg.transforms:
+                rec.set_time(TIMELINE, duration=t_s)
+            for tr in msg.transforms:
                 _log_transform(rr, rec, entity(str(tr.child_frame_id)), tr.transform, static)
-            continue
-        rec.set_time(TIMELINE, duration=m.t_s)
-        frame = str(m.msg.header.frame_id)
+            return
+        rec.set_time(TIMELINE, duration=t_s)
+        if kind == "rcl_interfaces/msg/Log":
+            level = rr.TextLogLevel.WARN if int(msg.level) >= 30 else rr.TextLogLevel.INFO
+            rec.log("run/safety", rr.TextLog(str(msg.msg), level=level))
+            return
+        if kind == "visualization_msgs/msg/MarkerArray":  # no header of its own
+            self._log_boxes(msg)
+            return
+        frame = str(msg.header.frame_id)
         if kind == "nav_msgs/msg/Odometry":
-            pose = m.msg.pose.pose
-            child = str(m.msg.child_frame_id)
-            if child not in tf_dynamic:
+            pose = msg.pose.pose
+            child = str(msg.child_frame_id)
+            if child not in self.tf_dynamic:
                 _log_pose(rr, rec, entity(child), pose)
-            suffix = "" if m.topic == "/odom" else "_" + _topic_name(m.topic)
-            track = paths.setdefault(m.topic, _Path(f"{entity(frame)}/driven_path{suffix}"))
-            track.add(rr, rec, m.t_s, pose.position)
-            rec.log(f"plots/v{suffix}", rr.Scalars(float(m.msg.twist.twist.linear.x)))
-            rec.log(f"plots/w{suffix}", rr.Scalars(float(m.msg.twist.twist.angular.z)))
+            suffix = "" if topic == "/odom" else "_" + _topic_name(topic)
+            track = self.paths.setdefault(topic, _Path(f"{entity(frame)}/driven_path{suffix}"))
+            track.add(rr, rec, t_s, pose.position)
+            rec.log(f"plots/v{suffix}", rr.Scalars(float(msg.twist.twist.linear.x)))
+            rec.log(f"plots/w{suffix}", rr.Scalars(float(msg.twist.twist.angular.z)))
         elif kind == "sensor_msgs/msg/PointCloud2":
-            points = _cloud_points(m, max_cloud_points)
+            points = _cloud_points(topic, t_s, msg, self.max_cloud_points)
             rec.log(f"{entity(frame)}/points", rr.Points3D(points, radii=0.01, colors=[CLOUD_COLOR]))
         elif kind == "sensor_msgs/msg/Range":
-            rec.log(f"{entity(frame)}/cone", _cone(rr, m.msg))
+            rec.log(f"{entity(frame)}/cone", _cone(rr, msg))
         elif kind == "sensor_msgs/msg/LaserScan":
-            points = scan_points(m.msg)
+            points = scan_points(msg)
             rec.log(f"{entity(frame)}/scan", rr.Points3D(points, radii=0.015, colors=[SCAN_COLOR]))
-    for track in paths.values():
-        track.flush(rr, rec)
+        elif kind == "nav_msgs/msg/OccupancyGrid":
+            self._log_grid(msg)
+
+    def _log_grid(self, msg: Any) -> None:
+        """``map_2d`` and ``world/map/occupancy`` of an OccupancyGrid, as from the map_server picture."""
+        info = msg.info
+        codes = np.asarray(msg.data, dtype=np.int8).reshape(int(info.height), int(info.width))
+        img = np.full(codes.shape, 205, dtype=np.uint8)  # map_server: unknown 205, free 254, occupied 0
+        img[codes == 0] = 254
+        img[codes >= 65] = 0
+        img = img[::-1]  # the picture's top row is the highest y
+        p = info.origin.position
+        self.rec.log("map_2d", self.rr.Image(img, color_model="L"))
+        verts, faces, colors = _cell_mesh(img, float(info.resolution), (float(p.x), float(p.y)))
+        if len(faces):
+            self.rec.log("world/map/occupancy", self.rr.Mesh3D(vertex_positions=verts, triangle_indices=faces,
+                                                               vertex_colors=colors))  # fmt: skip
+
+    def _log_boxes(self, msg: Any) -> None:
+        """``world/map/vhv/<ns>`` Boxes3D of the CUBE_LIST markers of a MarkerArray, per namespace."""
+        boxes: dict[str, list[np.ndarray]] = {}
+        for mk in msg.markers:
+            if int(mk.type) != 6 or int(mk.action) != 0 or not mk.points:
+                continue
+            c = np.array([(q.x, q.y, q.z) for q in mk.points], dtype=np.float64)
+            rgb = np.array([(q.r, q.g, q.b) for q in mk.colors], dtype=np.float64).reshape(-1, 3)
+            half = np.array([mk.scale.x, mk.scale.y, mk.scale.z], dtype=np.float64) / 2
+            rows = np.column_stack([c - half, c + half, np.round(rgb * 255) if len(rgb) == len(c) else
+                                    np.tile([200.0, 200.0, 200.0], (len(c), 1))])  # fmt: skip
+            boxes.setdefault(str(mk.ns), []).append(rows)
+        for ns, parts in boxes.items():
+            a = np.vstack(parts)
+            self.rec.log(f"world/map/vhv/{self.rr.escape_entity_path_part(ns)}",
+                         self.rr.Boxes3D(mins=a[:, :3], sizes=a[:, 3:6] - a[:, :3],
+                                         colors=a[:, 6:9].astype(np.uint8), fill_mode="solid"))  # fmt: skip
+
+    def flush(self) -> None:
+        """Log the driven paths' last points."""
+        for track in self.paths.values():
+            track.flush(self.rr, self.rec)
 
 
 def _topic_name(topic: str) -> str:
@@ -374,14 +449,14 @@ def thin(points: np.ndarray, max_points: int) -> np.ndarray:
     return p
 
 
-def _cloud_points(m: BagMessage, max_points: int) -> np.ndarray:
+def _cloud_points(topic: str, t_s: float, msg: Any, max_points: int) -> np.ndarray:
     from mapping.errors import MappingError
     from mapping.pointcloud2 import decode
 
     try:
-        return thin(decode(m.msg), max_points)
+        return thin(decode(msg), max_points)
     except MappingError as exc:
-        raise RunFolderError(f"{m.topic} at t = {m.t_s:.3f} s: {exc}") from None
+        raise RunFolderError(f"{topic} at t = {t_s:.3f} s: {exc}") from None
 
 
 def scan_points(msg: Any) -> np.ndarray:
