@@ -19,16 +19,14 @@ import statistics
 import time
 from typing import Any
 
-from robchair.commands.bench_output import write_results
-
-DEFAULT_OUT = "out/bench_laser.json"
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser("laser", help="simulated Hokuyo scan: Embree mirror vs PyBullet rayTestBatch")
     p.add_argument("--scans", type=int, default=200, help="scans per caster (median; default 200)")
     p.add_argument("--scene", default="office", help="scene in assets/scenes (default office)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    add_out_arguments(p, "laser")
     p.set_defaults(func=_run)
 
 
@@ -96,6 +94,7 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.scans < 1:
         raise RobChairError(f"--scans must be >= 1, got {args.scans}")
+    out = results_dir(args, "laser")  # refused before anything is measured
     load0 = os.getloadavg()
     m = measure(args.scene, args.scans)
     load1 = os.getloadavg()
@@ -109,5 +108,5 @@ def _run(args: argparse.Namespace) -> int:
         f"{faster} is {ratio:.1f}x faster; {100 * m['beams_with_return']:.0f} % of beams return, and the two "
         f"casters agree within 1 cm on {100 * m['agreement_1cm']:.1f} % of the beams not on the chair"
     )
-    write_results(args.out, {"scene": args.scene, **m, "faster": faster, "ratio": ratio}, load0, load1)
+    write_results(out, "laser", {"scene": args.scene, **m, "faster": faster, "ratio": ratio}, load0, load1)
     return 0
