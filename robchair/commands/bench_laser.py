@@ -1,4 +1,4 @@
-"""`robchair bench laser`: one simulated URG-04LX scan (683 rays) with Embree vs PyBullet's rayTestBatch.
+"""`robchair bench laser`: one simulated URG-04LX scan (682 rays) with Embree vs PyBullet's rayTestBatch.
 
 Workload: the chair stands in a scene (default ``office``) with its laser at the spec's
 ``laser_link`` mount; the chair turns by a small yaw between scans so every scan casts from a new
@@ -62,7 +62,7 @@ def measure(scene: str, scans: int) -> dict[str, Any]:
             re = embree.true_ranges(t)
             t1 = time.perf_counter()
             hits = p.rayTestBatch(
-                np.broadcast_to(t[:3, 3], (683, 3)).tolist(),
+                np.broadcast_to(t[:3, 3], (len(embree._dirs), 3)).tolist(),
                 (t[:3, 3] + (embree._dirs @ t[:3, :3].T) * 4.0).tolist(),
                 numThreads=1,
                 physicsClientId=c,
@@ -98,7 +98,12 @@ def _run(args: argparse.Namespace) -> int:
     load0 = os.getloadavg()
     m = measure(args.scene, args.scans)
     load1 = os.getloadavg()
-    print(f"robchair bench laser: {args.scene}, 683 rays per scan, median of {m['scans']} scans, 1 thread")
+    from sim.laser import URG_04LX
+
+    print(
+        f"robchair bench laser: {args.scene}, {URG_04LX.n_beams} rays per scan, "
+        f"median of {m['scans']} scans, 1 thread"
+    )
     print(f"{'caster':34s} {'ms/scan':>8s}")
     print(f"{'Embree mirror (Open3D), with sync':34s} {m['embree_ms']:8.3f}")
     print(f"{'PyBullet rayTestBatch':34s} {m['pybullet_ms']:8.3f}")
