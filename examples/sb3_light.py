@@ -23,17 +23,33 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from typing import Any
 
 MODEL_ENV = "ROBCHAIR_SB3_MODEL"
 
 
+INSTALL = "pip install 'stable-baselines3>=2.3'"
+
+
+def _ppo() -> Any:
+    """Stable-Baselines3's PPO, imported only when needed (``--help`` works without it).
+
+    Raises:
+        SystemExit: Stable-Baselines3 is not installed (one line naming the install command, exit 2).
+    """
+    try:
+        from stable_baselines3 import PPO
+    except ModuleNotFoundError:
+        print(f"sb3_light: stable-baselines3 is not installed; {INSTALL}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return PPO
+
+
 def policy(env: Any) -> Any:
     """``nav-eval`` factory: the trained model (path in ``$ROBCHAIR_SB3_MODEL``) as ``policy(obs, info)``."""
-    from stable_baselines3 import PPO
-
     path = os.environ.get(MODEL_ENV, "out/sb3_light.zip")
-    model = PPO.load(path, device="cpu")
+    model = _ppo().load(path, device="cpu")
 
     def act(obs: Any, info: dict[str, Any]) -> Any:
         action, _ = model.predict(obs, deterministic=True)
@@ -42,23 +58,27 @@ def policy(env: Any) -> Any:
     return act
 
 
-def main() -> None:
-    import gymnasium
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import SubprocVecEnv
-
-    import sim.envs  # noqa: F401  (registers the ids)
-
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--env", default="RobChair/Navigation-v1")
     ap.add_argument("--steps", type=int, default=1_000_000, help="agent steps of training")
     ap.add_argument("--envs", type=int, default=4, help="worker processes")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--model", default="out/sb3_light.zip")
-    args = ap.parse_args()
+    return ap.parse_args(argv)
 
-    assert args.env in gymnasium.registry, args.env
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    PPO = _ppo()
+    import gymnasium
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    import sim.envs  # noqa: F401  (registers the ids)
+
+    if args.env not in gymnasium.registry:
+        raise SystemExit(f"sb3_light: --env {args.env!r}: not a registered id")
     venv = make_vec_env(args.env, n_envs=args.envs, seed=args.seed, vec_env_cls=SubprocVecEnv)
     model = PPO(
         "MultiInputPolicy",

@@ -334,3 +334,55 @@ def deferred_stdout() -> Iterator[None]:
         yield
     sys.stdout.write(buffer.getvalue())
     sys.stdout.flush()
+
+
+#: ``--overwrite``'s help, the same on every command that writes a folder.
+OVERWRITE_HELP = (
+    "write into an existing non-empty --out folder (same-named entries and an earlier robchair output "
+    "there are replaced; other files are kept)"
+)
+
+
+def timestamped_dir(name: str, root: Path | str = "runs") -> Path:
+    """A new folder name for a command run without ``--out``: ``<root>/<name>-<UTC time>``.
+
+    The time is ``YYYYMMDDTHHMMSSZ``; when that folder exists already (two runs within one second),
+    ``-2``, ``-3``, ... is appended, so running a command twice never meets its earlier output.
+
+    Args:
+        name: what wrote the folder (a command or scenario name).
+        root: the parent folder, relative to the current directory (default ``runs``).
+    """
+    from datetime import UTC, datetime
+
+    base = Path(root) / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}"
+    path, k = base, 1
+    while os.path.lexists(path):
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
+    return path
+
+
+def check_own_file(folder: Path | str, name: str, *, overwrite: bool = False) -> None:
+    """Refuse to replace ``folder/name`` unless robchair wrote it or ``overwrite`` is set.
+
+    A file is robchair's when the folder's marker lists it (see :func:`add_marker_entry`). Used by the
+    commands that add one file to an existing run folder (``report``, ``view``).
+
+    Raises:
+        OutputDirError: the file exists, the marker does not list it and ``overwrite`` is false.
+    """
+    path = Path(folder) / name
+    if overwrite or not os.path.lexists(path) or name in (_marker_entries(Path(folder)) or []):
+        return
+    raise OutputDirError(
+        f"{path}: exists and was not written by robchair; move it away, or pass --overwrite to replace it"
+    )
+
+
+def add_marker_entry(folder: Path | str, name: str) -> None:
+    """List ``name`` in the folder's marker (creating the marker), so a later run may replace it."""
+    folder = Path(folder)
+    entries = _marker_entries(folder) or []
+    if name not in entries:
+        _write_marker(folder, sorted([*entries, name]))

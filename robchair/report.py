@@ -56,6 +56,23 @@ TIMESERIES_COLUMNS = (
     "mapping_ms",
 )
 _PLOT_CONFIG = {"displaylogo": False, "responsive": True}
+#: metrics shown first (those the run has), before the pictures; the full table comes last
+KEY_METRICS = (
+    "status",
+    "route.goal_reached",
+    "sim_time_s",
+    "route.distance_travelled_m",
+    "collisions",
+    "real_time_factor",
+    "safety.enabled",
+    "wall_time_s.total",
+    "odometry_drift.final_position_error_m",
+    "odometry_drift.matched.final_position_error_m",
+    "map.iou_odometry_vs_ground_truth_pose",
+    "mapping_ms_per_frame_median",
+    "controller.watchdog_trips",
+    "driver_fault",
+)
 
 
 def build_report(run_dir: Path | str, out: Path | str | None = None, *, name: str | None = None) -> Path:
@@ -76,18 +93,22 @@ def build_report(run_dir: Path | str, out: Path | str | None = None, *, name: st
     metrics = run.metrics
     stops = run.safety_stops()
     sections = [
-        _section("Metrics", _metrics_table(metrics) if metrics else _note("no metrics.json")),
+        _section("Key metrics", _key_metrics(metrics) if metrics else _note("no metrics.json")),
         _section("Pictures", _pictures(run)),
         _section("Mapped structures (3D)", _structures_3d(run)),
         _section("Over time", _time_plots(run, stops)),
         _section("Safety stops", _stops_table(stops, metrics)),
     ]
+    if metrics:
+        n = len(flatten_metrics(metrics))
+        table = f"<details><summary>all {n} metrics</summary>\n{_metrics_table(metrics)}\n</details>"
+        sections.append(_section("All metrics", table))
     run_name = name if name is not None else run.path.resolve().name
-    title = f"RobChair run {metrics.get('scenario') or run_name}"
+    title = f"RobChair run {run_name}"
     status = metrics.get("status", "")
     facts = [f"run folder {run_name}"] + [
         f"{k.replace('_', ' ')} {_fmt(metrics[k])}"
-        for k in ("backend", "scene", "sensor", "seed", "sim_time_s")
+        for k in ("scenario", "backend", "scene", "sensor", "seed", "sim_time_s")
         if metrics.get(k) is not None
     ]
     page = _PAGE.format(
@@ -98,7 +119,9 @@ def build_report(run_dir: Path | str, out: Path | str | None = None, *, name: st
         body="\n".join(sections),
     )
     target = Path(out) if out is not None else run.path / REPORT_NAME
-    target.write_text(page, encoding="utf-8")
+    tmp = target.with_name(f".{target.name}.partial")
+    tmp.write_text(page, encoding="utf-8")
+    tmp.replace(target)  # the page appears whole or not at all
     return target
 
 
@@ -136,11 +159,20 @@ def flatten_metrics(metrics: dict[str, Any], prefix: str = "") -> list[tuple[str
     return rows
 
 
-def _metrics_table(metrics: dict[str, Any]) -> str:
-    body = "\n".join(
-        f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in flatten_metrics(metrics)
-    )
+def _metrics_table(metrics: dict[str, Any], keys: tuple[str, ...] | None = None) -> str:
+    rows = flatten_metrics(metrics)
+    if keys is not None:  # the chosen keys, in the order given
+        found = dict(rows)
+        rows = [(k, found[k]) for k in keys if k in found]
+    body = "\n".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in rows)
     return f'<table class="metrics"><tr><th>metric</th><th>value</th></tr>\n{body}\n</table>'
+
+
+def _key_metrics(metrics: dict[str, Any]) -> str:
+    stops = metrics.get("safety", {}).get("stops") if isinstance(metrics.get("safety"), dict) else None
+    extra = {"safety.stops (count)": str(len(stops))} if isinstance(stops, list) else {}
+    table = _metrics_table({**metrics, **extra}, (*KEY_METRICS[:6], *extra, *KEY_METRICS[6:]))
+    return table + _note("every metric: All metrics, at the end of the page")
 
 
 def _pictures(run: RunFolder) -> str:
@@ -290,21 +322,7 @@ def _time_plots(run: RunFolder, stops: list[dict[str, Any]]) -> str:
             if tr:
                 rows.append((f"{side} wheel (rpm)", tr))
         if "mapping_ms" in ts:
-            ok = np.isfinite(ts["mapping_ms"])
-            rows.append(
-                (
-                    "mapping (ms / frame)",
-                    [
-                        go.Scatter(
-                            x=t[ok],
-                            y=ts["mapping_ms"][ok],
-                            name="mapping time",
-                            mode="markers",
-                            marker={"size": 4},
-                        )
-                    ],
-                )
-            )
+            rows.append(("mapping (ms / frame)", _mapping_traces(t, ts["mapping_ms"])))
         extra = [c for c in ts if c not in TIMESERIES_COLUMNS]
         if extra:
             notes.append("timeseries.csv columns not plotted: " + ", ".join(extra))
@@ -327,10 +345,19 @@ def _time_plots(run: RunFolder, stops: list[dict[str, Any]]) -> str:
         vertical_spacing=0.04,
         subplot_titles=[title for title, _ in rows],
     )
+    ranges: dict[int, list[float]] = {}
+    for r, (_, traces) in enumerate(rows, 1):
+        first = [tr for tr in traces if tr.name and tr.name.startswith(FIRST_FRAME_NAME)]
+        rest = [float(v) for tr in traces if tr not in first for v in (tr.y if tr.y is not None else ())]
+        top = 1.15 * max(rest) if rest else 0.0
+        if first and rest and float(first[0].y[0]) > top:  # the compile would flatten every other frame
+            first[0].y = (top,)
+            first[0].text = (f"{first[0].text[0]} (off scale)",)
+            ranges[r] = [0.0, top * 1.08]
     for r, (title, traces) in enumerate(rows, 1):
         for tr in traces:
             fig.add_trace(tr, row=r, col=1)
-        fig.update_yaxes(title_text=title, row=r, col=1)
+        fig.update_yaxes(title_text=title, row=r, col=1, **({"range": ranges[r]} if r in ranges else {}))
     if stops:
         st = np.array([s["t_s"] for s in stops], dtype=np.float64)
         text = [f"{s['reason']}: {s.get('detail', '')}" for s in stops]
@@ -353,6 +380,37 @@ def _time_plots(run: RunFolder, stops: list[dict[str, Any]]) -> str:
         height=230 * len(rows) + 80, template="plotly_white", margin={"t": 40, "b": 40}, hovermode="x unified"
     )
     return _plot(fig, "time-plots") + "".join(_note(n) for n in notes)
+
+
+FIRST_FRAME_NAME = "first frame"
+
+
+def _mapping_traces(t: np.ndarray, ms: np.ndarray) -> list[Any]:
+    """Mapping time per frame: the first frame (it includes the one-off compile of the mapping kernels)
+    as its own marked point, labelled with its time, and every later frame."""
+    import plotly.graph_objects as go
+
+    ok = np.flatnonzero(np.isfinite(ms))
+    traces = []
+    if ok.size:
+        k = int(ok[0])
+        value = float(ms[k])
+        first = go.Scatter(
+            x=[float(t[k])],
+            y=[value],
+            name=f"{FIRST_FRAME_NAME}: {value:.0f} ms (compile)",
+            mode="markers+text",
+            text=[f"first frame {value:.0f} ms"],
+            textposition="middle right",
+            hovertext=[f"{value:.1f} ms"],
+            marker={"size": 9, "symbol": "triangle-up", "color": "crimson"},
+        )
+        traces.append(first)
+    later = ok[1:]
+    traces.append(
+        go.Scatter(x=t[later], y=ms[later], name="mapping time", mode="markers", marker={"size": 4})
+    )
+    return traces
 
 
 def _stops_table(stops: list[dict[str, Any]], metrics: dict[str, Any]) -> str:

@@ -30,7 +30,6 @@ import json
 import math
 import time
 from collections.abc import Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -89,8 +88,10 @@ def scenario_route(scenario: Any) -> Route:
 
 
 def default_out_dir(scenario: Any) -> Path:
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    return Path("runs") / f"{scenario.name}-{stamp}"
+    """``runs/<scenario>-<UTC time>``, a folder no earlier run wrote (see :func:`timestamped_dir`)."""
+    from robchair.outdir import timestamped_dir
+
+    return timestamped_dir(scenario.name)
 
 
 class ProgressBar(Observer):
@@ -323,19 +324,32 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     return res
 
 
-def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) -> None:
+def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) -> bool:
     """``zoom_2d.png``: the run's map with the zoom region outlined, beside the region at its fine cells.
 
-    Occupancy in the height ``band`` (m); the region is where it was at the end of the run.
+    Occupancy in the height ``band`` (m); the region is where it was at the end of the run (around the
+    chair). A region without an occupied cell in the band would draw an empty picture: then nothing is
+    written, and ``metrics.json`` ``zoom.picture`` says why.
+
+    Returns:
+        True if the picture was written.
     """
+    from mapping.derived import occupancy_2d
+
+    fine = res.maps["zoom"]
+    fine_occ = occupancy_2d(fine, *band)
+    if not np.any(fine_occ):
+        x0, x1, y0, y1 = fine.spec.extent
+        res.extra.setdefault("zoom", {})["picture"] = (
+            f"not drawn: the zoom region x {x0:.2f}..{x1:.2f} m, y {y0:.2f}..{y1:.2f} m (around the chair at "
+            f"the end of the run) holds no occupied cell in the band {band[0]:g}-{band[1]:g} m"
+        )
+        return False
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
-    from mapping.derived import occupancy_2d
-
     main = res.maps.get(res.extra.get("matching", {}).get("pose", "odometry").replace("-", "_"))
     main = main if main is not None else res.maps["odometry"]
-    fine = res.maps["zoom"]
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [2, 1]})
     for ax, m, title in ((ax0, main, "map"), (ax1, fine, "zoom")):
         x0, x1, y0, y1 = m.spec.extent
@@ -349,6 +363,8 @@ def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) ->
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    res.extra.setdefault("zoom", {})["picture"] = path.name
+    return True
 
 
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
@@ -379,10 +395,15 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip
         if "zoom" in res.maps:
             write_zoom_picture(res, tuple(band), out / "map" / "zoom_2d.png")
+        from robchair.viz.map_picture import MAP_2D_NAME, write_map_2d
+
+        main = res.extra.get("matching", {}).get("pose", "odometry").replace("-", "_")
+        write_map_2d(res, scenario, tuple(band), out / MAP_2D_NAME,
+                     map_name=main if main in res.maps else "odometry")  # fmt: skip
         import matplotlib.pyplot as plt
 
         plt.imsave(out / "scene.png", render_scene(scenario, spec, path=res.paths.get("ground_truth")))
-        files += ["map", "scene.png"]
+        files += ["map", "scene.png", MAP_2D_NAME]
         timing["pictures"] = time.perf_counter() - t0
     if "bag" in res.extra:
         files.append("bag")

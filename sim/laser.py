@@ -1,10 +1,11 @@
-"""Simulated Hokuyo URG-04LX laser range finder: 683 rays in one plane, datasheet accuracy as noise.
+"""Simulated Hokuyo URG-04LX laser range finder: 682 rays in one plane, datasheet accuracy as noise.
 
-The model (SPEC section 3, Hokuyo URG-04LX datasheet): 240 deg field of view in 683 steps of
-360/1024 = 0.3515625 deg, symmetric about the sensor's x axis (beam 341 looks straight ahead), ranges
-0.02 - 4 m, one scan per 100 ms (600 rpm), accuracy +-10 mm up to 1 m and +-1 % of the range beyond.
-(The real sensor's ``PP`` reports the measurable steps 44..725, 682 values at the same spacing;
-:mod:`hw.hokuyo` uses what the device reports.)
+The model (SPEC section 3, Hokuyo URG-04LX datasheet and its SCIP 2.0 ``PP`` answer): steps of
+360/1024 = 0.3515625 deg (``ARES`` 1024), the measurable steps 44..725 (``AMIN``, ``AMAX``), step 384
+straight ahead (``AFRT``). Steps 44..725 are 725 - 44 + 1 = 682 beams, -340 to +341 steps about the
+sensor's x axis (-119.53 to +119.88 deg: the datasheet's "240 deg"), so beam 340 looks straight ahead,
+exactly what :mod:`hw.hokuyo` reads from the real sensor and the emulator. Ranges 0.02 - 4 m, one scan
+per 100 ms (600 rpm), accuracy +-10 mm up to 1 m and +-1 % of the range beyond.
 
 Rays are cast in the sensor's scan plane into the shared :class:`sim.raycast.MeshMirror` (Open3D's
 Embree ``RaycastingScene``), or, for comparison, with PyBullet's ``rayTestBatch`` against the collision
@@ -49,6 +50,7 @@ class LaserModel:
         name: Model name.
         n_beams: Beams per scan.
         angle_increment: Angle between beams, rad.
+        front_beam: Index of the beam that looks along the sensor's x axis (None: the middle one).
         range_min, range_max: Valid range, m.
         scan_time: Time of one scan, s.
         accuracy_near_m: Accuracy bound up to ``accuracy_knee_m``, m.
@@ -67,10 +69,13 @@ class LaserModel:
     accuracy_knee_m: float
     accuracy_relative: float
     resolution_m: float = 0.001
+    front_beam: int | None = None
 
     def __post_init__(self) -> None:
         if self.n_beams < 1 or not self.angle_increment > 0:
             raise LaserSimError(f"laser model {self.name!r}: needs >= 1 beam and a positive increment")
+        if self.front_beam is not None and not 0 <= self.front_beam < self.n_beams:
+            raise LaserSimError(f"laser model {self.name!r}: front beam {self.front_beam} outside the scan")
         if not 0 < self.range_min < self.range_max:
             raise LaserSimError(
                 f"laser model {self.name!r}: range {self.range_min}-{self.range_max} m invalid"
@@ -78,11 +83,12 @@ class LaserModel:
 
     @property
     def angle_min(self) -> float:
-        return -0.5 * (self.n_beams - 1) * self.angle_increment
+        front = 0.5 * (self.n_beams - 1) if self.front_beam is None else self.front_beam
+        return -front * self.angle_increment
 
     @property
     def angle_max(self) -> float:
-        return 0.5 * (self.n_beams - 1) * self.angle_increment
+        return self.angle_min + (self.n_beams - 1) * self.angle_increment
 
     @property
     def time_increment(self) -> float:
@@ -101,7 +107,8 @@ class LaserModel:
 
 URG_04LX = LaserModel(
     name="urg-04lx",
-    n_beams=683,
+    n_beams=725 - 44 + 1,  # SCIP PP: AMIN 44 .. AMAX 725
+    front_beam=384 - 44,  # AFRT 384
     angle_increment=2.0 * math.pi / 1024.0,
     range_min=0.02,
     range_max=4.0,

@@ -1,7 +1,9 @@
-"""Every example in README.md runs as written.
+"""Every example in README.md runs as written, and runs again: twice in a row in the same folder.
 
 The README's ``sh`` blocks are split into commands (one a line, comments dropped) and its ``python`` blocks
 are run whole, each in a fresh temporary folder with this environment's ``robchair`` on ``PATH``. Every
+command that runs here runs twice in that folder and must succeed both times (README "Output folders":
+a second run never fails on the first one's output). Every
 command must appear in exactly one of :data:`AS_WRITTEN`, :data:`VARIANT` or :data:`EXEMPT`, so a new
 README line without a check fails the first test. Heavy commands run as written under ``-m slow`` and in
 their smallest honest variant (the same command with a shorter ``--duration``, or ``--help`` for a
@@ -19,7 +21,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,14 +32,15 @@ MAIN_JOB = (
     ".venv/bin/robchair sim --out runs/default --overwrite"
 )
 TEST_SUITE = "python3.11 -m venv .venv && .venv/bin/pip install -q -e '.[dev]' && .venv/bin/python -m pytest"
-SWEEP = "robchair sweep examples/sweeps/margin_and_seed.toml"
+SWEEP = "robchair sweep examples/sweeps/speed_and_seed.toml"
 NAV_EVAL = "robchair nav-eval --env RobChair/NavigationRooms-v1"
 BENCH = "robchair bench mapping | sim | table52 | env | laser | sweep | zoom"
 
 # run exactly as written in the default test run (fast enough)
 AS_WRITTEN = {
     "robchair sim --list",
-    "robchair map cloud.pcd scan.bag --cell 0.05 --tolerance 0.05 --band 0.1 1.6 --out out/map",
+    "robchair map examples/cloud.pcd examples/scan.bag --cell 0.05 --tolerance 0.05 --band 0.1 1.6 "
+    "--out runs/files --overwrite",
     "robchair map",
     "robchair pid",
     "robchair pid --tr 0.1365 --tp 0.3975 --mp 0.10",
@@ -48,8 +50,8 @@ AS_WRITTEN = {
 # command -> its smallest honest variant in the default run (None: slow only); as written under -m slow
 VARIANT: dict[str, str | None] = {
     MAIN_JOB: "robchair sim --out runs/default --overwrite --duration 0.3 --no-pictures",
-    "robchair sim office_tour --sensor kinect2-hd --duration 20 --seed 3 --out runs/tour": (
-        "robchair sim office_tour --sensor kinect2-hd --duration 0.2 --seed 3 --out runs/tour"
+    "robchair sim office_tour --sensor kinect2-hd --duration 20 --seed 3 --out runs/tour --overwrite": (
+        "robchair sim office_tour --sensor kinect2-hd --duration 0.2 --seed 3 --out runs/tour --overwrite"
     ),
     "robchair sim --no-safety": "robchair sim --no-safety --duration 0.3 --no-pictures",
     "robchair run --backend sim": "robchair run --backend sim --duration 0.5",
@@ -60,25 +62,31 @@ VARIANT: dict[str, str | None] = {
     f"{NAV_EVAL} --episodes 100 --policy baseline --policy random": (
         f"{NAV_EVAL} --episodes 1 --policy baseline --policy random"
     ),
-    f"{NAV_EVAL} --episodes 100 --policy baseline --ray --out runs/eval-rooms": (
-        f"{NAV_EVAL} --episodes 1 --policy baseline --ray --num-cpus 1 --out runs/eval-rooms"
+    f"{NAV_EVAL} --episodes 100 --policy baseline --ray --out runs/eval-rooms --overwrite": (
+        f"{NAV_EVAL} --episodes 1 --policy baseline --ray --num-cpus 1 --out runs/eval-rooms --overwrite"
     ),
-    f"{SWEEP} --out runs/sweep-margin": None,
-    f"{SWEEP} --out runs/sweep-margin --resume": None,
+    f"{SWEEP} --out runs/sweep-speed --overwrite": None,
+    f"{SWEEP} --out runs/sweep-speed --resume": None,
     f"{SWEEP} --num-cpus 1": None,
 }
+
+# commands that read a run folder: made once (a short run without pictures) before the command runs twice
+ON_A_RUN = {"robchair report runs/default", "robchair view runs/default"}
+MAKE_RUN = "robchair sim --out runs/default --overwrite --duration 0.3 --no-pictures --no-progress"
 
 # long-running emulators: started, their device path read from stdout, then stopped
 EMULATORS = {"robchair hw emulate roboteq", "robchair hw emulate hokuyo"}
 
 EXEMPT = {
     TEST_SUITE: "it is this test suite; the set-up part runs under -m slow with `pytest --collect-only`",
-    "robchair run --backend real --config chair.toml": "needs the real chair (Roboteq and sonars)",
+    "robchair run --backend real --config examples/chair.toml --route examples/routes/short_turn.toml": (
+        "needs the real chair (Roboteq and sonars); test_example_chair_config_is_accepted checks its keys"
+    ),
     "robchair hw check --port /dev/ttyACM0 --i2c 1": "needs a real Roboteq on /dev/ttyACM0 and an I2C bus",
     "robchair hw check --laser /dev/ttyACM1": "needs a real Hokuyo on /dev/ttyACM1",
     "robchair nav-eval --env RobChair/Navigation-v1 --policy MODULE:CALLABLE": "a placeholder policy",
-    f"{SWEEP} --address auto --out /shared/runs/sweep-margin": "needs a running Ray cluster",
-    f"{SWEEP} --address ray://HEAD:10001 --out /shared/runs/sweep-margin": "needs a Ray cluster's client",
+    f"{SWEEP} --address auto --out /shared/runs/sweep-speed": "needs a running Ray cluster",
+    f"{SWEEP} --address ray://HEAD:10001 --out /shared/runs/sweep-speed": "needs a Ray cluster's client",
 }
 
 
@@ -99,45 +107,23 @@ def shell_commands() -> list[str]:
 
 
 def _env() -> dict[str, str]:
-    env = dict(os.environ)
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"
     env.update(OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
     return env
 
 
 def _prepare(folder: Path) -> None:
-    """What the examples expect to find: the example files and a PCD and a ROS 1 bag of clouds."""
+    """What the examples expect to find: the shipped example files (routes, sweeps, inputs, configs)."""
     shutil.copytree(ROOT / "examples", folder / "examples")
-    rng = np.random.default_rng(0)
-    pts = rng.uniform([-2.0, -2.0, 0.0], [2.0, 2.0, 1.5], (500, 3)).astype(np.float32)
-    header = (
-        "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-        f"WIDTH {len(pts)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(pts)}\nDATA ascii\n"
-    )
-    (folder / "cloud.pcd").write_text(header + "\n".join(" ".join(f"{c:.4f}" for c in p) for p in pts) + "\n")
-    _write_ros1_bag(folder / "scan.bag", pts)
 
 
-def _write_ros1_bag(path: Path, pts: np.ndarray) -> None:
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS1_NOETIC)
-    t = ts.types
-    pc2 = "sensor_msgs/msg/PointCloud2"
-    fields = [
-        t["sensor_msgs/msg/PointField"](name=n, offset=4 * k, datatype=7, count=1)
-        for k, n in enumerate("xyz")
-    ]
-    with Writer(path) as w:
-        conn = w.add_connection("/points", pc2, typestore=ts)
-        for k in range(2):
-            header = t["std_msgs/msg/Header"](seq=k, stamp=t["builtin_interfaces/msg/Time"](sec=k, nanosec=0),
-                                              frame_id="base_link")  # fmt: skip
-            msg = t[pc2](header=header, height=1, width=len(pts), fields=fields, is_bigendian=False,
-                         point_step=12, row_step=12 * len(pts), data=np.frombuffer(pts.tobytes(), np.uint8),
-                         is_dense=True)  # fmt: skip
-            w.write(conn, (k + 1) * 10**9, ts.serialize_ros1(msg, pc2))
+def _twice(cmd: str, cwd: Path, timeout: float = 900) -> None:
+    """Run ``cmd`` twice in a row in ``cwd``; both runs must succeed."""
+    for k in range(2):
+        res = subprocess.run(["bash", "-c", cmd], cwd=cwd, env=_env(), capture_output=True, text=True,
+                             timeout=timeout)  # fmt: skip
+        assert res.returncode == 0, f"run {k + 1} of `{cmd}` exited {res.returncode}:\n{res.stderr[-2000:]}"
 
 
 def _run(cmd: str, cwd: Path, timeout: float = 900) -> subprocess.CompletedProcess[str]:
@@ -151,27 +137,38 @@ def _run(cmd: str, cwd: Path, timeout: float = 900) -> subprocess.CompletedProce
 def test_every_readme_command_is_checked_or_exempt_with_a_reason() -> None:
     cmds = shell_commands()
     assert MAIN_JOB in cmds and TEST_SUITE in cmds  # the two commands of the README's top
-    known = AS_WRITTEN | set(VARIANT) | EMULATORS | set(EXEMPT)
+    known = AS_WRITTEN | set(VARIANT) | ON_A_RUN | EMULATORS | set(EXEMPT)
     assert [c for c in cmds if c not in known] == []
     assert [c for c in known if c not in cmds] == []  # no stale entries
     assert len(readme_blocks("python")) >= 1
 
 
 @pytest.mark.parametrize("cmd", sorted(AS_WRITTEN))
-def test_readme_command_runs_as_written(cmd: str, tmp_path: Path) -> None:
+def test_readme_command_runs_twice_as_written(cmd: str, tmp_path: Path) -> None:
     _prepare(tmp_path)
-    _run(cmd, tmp_path)
+    _twice(cmd, tmp_path)
 
 
 @pytest.mark.parametrize("cmd", sorted(c for c, v in VARIANT.items() if v is not None))
-def test_readme_heavy_command_runs_in_its_smallest_variant(cmd: str, tmp_path: Path) -> None:
+def test_readme_heavy_command_runs_twice_in_its_smallest_variant(cmd: str, tmp_path: Path) -> None:
     _prepare(tmp_path)
     variant = VARIANT[cmd]
     assert variant is not None
-    _run(variant, tmp_path)
-    if "--out runs/default --overwrite" in variant:  # a second run into the same folder works too
-        _run(variant, tmp_path)
+    _twice(variant, tmp_path)
+    if "--out runs/default --overwrite" in variant:
         assert json.loads((tmp_path / "runs/default/metrics.json").read_text())["status"] == "ok"
+
+
+@pytest.mark.parametrize("cmd", sorted(ON_A_RUN))
+def test_readme_command_on_a_run_folder_runs_twice(cmd: str, tmp_path: Path) -> None:
+    _run(MAKE_RUN, tmp_path)
+    _twice(cmd, tmp_path)
+
+
+def test_readme_pid_lines_run_one_after_the_other(tmp_path: Path) -> None:
+    """`robchair pid`, then the README's next line `pid --tr ...`, in one folder."""
+    _twice("robchair pid --no-plots", tmp_path)
+    _run("robchair pid --tr 0.1365 --tp 0.3975 --mp 0.10", tmp_path)
 
 
 @pytest.mark.parametrize("cmd", sorted(EMULATORS))
@@ -188,11 +185,62 @@ def test_readme_emulator_prints_its_device_path(cmd: str, tmp_path: Path) -> Non
         proc.wait(timeout=30)
 
 
-def test_readme_python_examples_run(tmp_path: Path) -> None:
+def test_readme_python_examples_run_without_an_out_of_date_warning(tmp_path: Path) -> None:
+    """gymnasium warns "is out of date" when a newer version of the made id is registered: the
+    README's example uses the current one (shown with ``-W default``, which prints that warning)."""
     for block in readme_blocks("python"):
-        res = subprocess.run([sys.executable, "-c", block], cwd=tmp_path, env=_env(), capture_output=True,
-                             text=True, timeout=600)  # fmt: skip
+        res = subprocess.run([sys.executable, "-W", "default", "-c", block], cwd=tmp_path, env=_env(),
+                             capture_output=True, text=True, timeout=600)  # fmt: skip
         assert res.returncode == 0, res.stderr[-2000:]
+        assert "out of date" not in res.stderr, res.stderr[-2000:]
+
+
+def test_sb3_example_help_works_without_stable_baselines3() -> None:
+    res = subprocess.run([sys.executable, str(ROOT / "examples/sb3_light.py"), "--help"], env=_env(),
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0 and "--steps" in res.stdout, res.stderr
+    import importlib.util
+
+    if importlib.util.find_spec("stable_baselines3") is None:  # a real run says what is missing
+        res = subprocess.run([sys.executable, str(ROOT / "examples/sb3_light.py"), "--steps", "1"],
+                             env=_env(), capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert res.returncode == 2
+        assert (
+            res.stderr
+            == "sb3_light: stable-baselines3 is not installed; pip install 'stable-baselines3>=2.3'\n"
+        )
+
+
+def test_shipped_example_inputs_are_small_and_what_their_generator_writes(tmp_path: Path) -> None:
+    """examples/cloud.pcd and examples/scan.bag: under 1 MB each, byte for byte what
+    examples/make_example_inputs.py writes (so they can be made again), and read as clouds."""
+    from mapping.io import open_clouds
+
+    script = str(ROOT / "examples/make_example_inputs.py")
+    res = subprocess.run([sys.executable, script, "--out", str(tmp_path)], env=_env(), capture_output=True,
+                         text=True, timeout=300)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    for name in ("cloud.pcd", "scan.bag"):
+        shipped = ROOT / "examples" / name
+        assert shipped.stat().st_size < 1_000_000
+        assert shipped.read_bytes() == (tmp_path / name).read_bytes()
+    assert open_clouds(ROOT / "examples/scan.bag").n_frames == 3
+
+
+def test_example_chair_config_is_accepted_by_the_real_backend() -> None:
+    """Every key of examples/chair.toml is one the real backend, the runtime and the safety layer take."""
+    from robchair.backends import _REAL_KEYS
+    from robchair.commands.run import load_run_config
+    from robchair.platform.safety import SafetyLimits
+    from robchair.platform.spec import load_spec
+    from robchair.runtime import RuntimeConfig
+
+    cfg = load_run_config(ROOT / "examples/chair.toml")
+    real = cfg.table("real")
+    real.keys(_REAL_KEYS)
+    assert real.string("port") == "/dev/ttyACM0"
+    assert RuntimeConfig.from_dict(cfg.table("runtime", {})).rate_hz == 10.0
+    assert SafetyLimits.from_spec(load_spec(), cfg.table("safety", {})).max_speed == 0.5
 
 
 @pytest.mark.slow
@@ -200,9 +248,26 @@ def test_readme_python_examples_run(tmp_path: Path) -> None:
 @pytest.mark.parametrize("cmd", sorted(c for c in VARIANT if c != MAIN_JOB))
 def test_readme_heavy_command_runs_as_written(cmd: str, tmp_path: Path) -> None:
     _prepare(tmp_path)
-    if cmd.startswith(f"{SWEEP} --out runs/sweep-margin --resume"):
-        _run(f"{SWEEP} --out runs/sweep-margin", tmp_path, timeout=1800)
-    _run(cmd, tmp_path, timeout=1800)
+    if cmd.startswith(f"{SWEEP} --out runs/sweep-speed --resume"):
+        _run(f"{SWEEP} --out runs/sweep-speed --overwrite", tmp_path, timeout=1800)
+    _twice(cmd, tmp_path, timeout=1800)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+def test_readme_sweep_example_reaches_the_goal_and_its_parameter_moves_a_metric(tmp_path: Path) -> None:
+    """The example sweep's runs drive office_corridor to its goal (10.2 m of route) and the speed cap
+    changes the time to the goal: at 0.4 m/s the route cannot take less than 10.2 / 0.4 = 25.5 s, at
+    the route's own 0.55 m/s it can take 18.5 s (hand computation from the scenario's route)."""
+    _prepare(tmp_path)
+    _run(f"{SWEEP} --num-cpus 1 --out runs/s --no-progress", tmp_path, timeout=3000)
+    rows = json.loads((tmp_path / "runs/s/results.json").read_text())
+    rows = rows["rows"] if isinstance(rows, dict) else rows
+    assert rows and all(r["metrics.route.goal_reached"] is True for r in rows)
+    by_speed: dict[float, list[float]] = {}
+    for r in rows:
+        by_speed.setdefault(r["safety.max_speed"], []).append(r["metrics.sim_time_s"])
+    assert min(by_speed[0.4]) >= 25.5 > max(by_speed[0.55])
 
 
 @pytest.mark.slow

@@ -30,7 +30,7 @@ import os
 import time
 from typing import Any
 
-DEFAULT_OUT = "out/bench_env.json"
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 CONFIGS: tuple[dict[str, Any], ...] = (
     {"name": "physics only", "physics_only": True},
@@ -69,7 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--steps", type=int, default=200, help="agent steps per run (default 200)")
     p.add_argument("--repeats", type=int, default=3, help="runs per configuration (median; default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes and actions (default 0)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    add_out_arguments(p, "env")
     p.set_defaults(func=_run)
 
 
@@ -185,6 +185,7 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.steps < 1 or args.repeats < 1:
         raise RobChairError(f"--steps and --repeats must be >= 1, got {args.steps}, {args.repeats}")
+    out = results_dir(args, "env")  # refused before anything is measured
     load0 = os.getloadavg()
     rows = []
     for cfg in CONFIGS:
@@ -232,7 +233,5 @@ def _run(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "rows": rows,
     }
-    from robchair.commands.bench_output import write_results
-
-    write_results(args.out, result, load0, load1)
+    write_results(out, "env", result, load0, load1)
     return 0

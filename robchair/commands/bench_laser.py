@@ -1,4 +1,4 @@
-"""`robchair bench laser`: one simulated URG-04LX scan (683 rays) with Embree vs PyBullet's rayTestBatch.
+"""`robchair bench laser`: one simulated URG-04LX scan (682 rays) with Embree vs PyBullet's rayTestBatch.
 
 Workload: the chair stands in a scene (default ``office``) with its laser at the spec's
 ``laser_link`` mount; the chair turns by a small yaw between scans so every scan casts from a new
@@ -19,16 +19,14 @@ import statistics
 import time
 from typing import Any
 
-from robchair.commands.bench_output import write_results
-
-DEFAULT_OUT = "out/bench_laser.json"
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser("laser", help="simulated Hokuyo scan: Embree mirror vs PyBullet rayTestBatch")
     p.add_argument("--scans", type=int, default=200, help="scans per caster (median; default 200)")
     p.add_argument("--scene", default="office", help="scene in assets/scenes (default office)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    add_out_arguments(p, "laser")
     p.set_defaults(func=_run)
 
 
@@ -64,7 +62,7 @@ def measure(scene: str, scans: int) -> dict[str, Any]:
             re = embree.true_ranges(t)
             t1 = time.perf_counter()
             hits = p.rayTestBatch(
-                np.broadcast_to(t[:3, 3], (683, 3)).tolist(),
+                np.broadcast_to(t[:3, 3], (len(embree._dirs), 3)).tolist(),
                 (t[:3, 3] + (embree._dirs @ t[:3, :3].T) * 4.0).tolist(),
                 numThreads=1,
                 physicsClientId=c,
@@ -96,10 +94,16 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.scans < 1:
         raise RobChairError(f"--scans must be >= 1, got {args.scans}")
+    out = results_dir(args, "laser")  # refused before anything is measured
     load0 = os.getloadavg()
     m = measure(args.scene, args.scans)
     load1 = os.getloadavg()
-    print(f"robchair bench laser: {args.scene}, 683 rays per scan, median of {m['scans']} scans, 1 thread")
+    from sim.laser import URG_04LX
+
+    print(
+        f"robchair bench laser: {args.scene}, {URG_04LX.n_beams} rays per scan, "
+        f"median of {m['scans']} scans, 1 thread"
+    )
     print(f"{'caster':34s} {'ms/scan':>8s}")
     print(f"{'Embree mirror (Open3D), with sync':34s} {m['embree_ms']:8.3f}")
     print(f"{'PyBullet rayTestBatch':34s} {m['pybullet_ms']:8.3f}")
@@ -109,5 +113,5 @@ def _run(args: argparse.Namespace) -> int:
         f"{faster} is {ratio:.1f}x faster; {100 * m['beams_with_return']:.0f} % of beams return, and the two "
         f"casters agree within 1 cm on {100 * m['agreement_1cm']:.1f} % of the beams not on the chair"
     )
-    write_results(args.out, {"scene": args.scene, **m, "faster": faster, "ratio": ratio}, load0, load1)
+    write_results(out, "laser", {"scene": args.scene, **m, "faster": faster, "ratio": ratio}, load0, load1)
     return 0

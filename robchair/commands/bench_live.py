@@ -32,7 +32,6 @@ from robchair.loop_types import Observer
 
 MODES = ("off", "no client", "client")
 TARGETS = {"no client": 0.01, "client": 0.05}  # extra CPU time per simulated second, fraction of "off"
-DEFAULT_OUT = "out/bench_sim_live.json"
 SUBSCRIBE_TIMEOUT_S = 30.0
 #: subscribe once no channel was advertised for this long, s (as a viewer does; a subscription sent the
 #: instant a channel is advertised can reach the server before it knows the channel, and is refused)
@@ -168,12 +167,13 @@ def measure(mode: str, scenario: str, duration: float, seed: int, map_kind: str)
 def run_live_bench(args: argparse.Namespace) -> int:
     """``robchair bench sim --live`` (the options of ``robchair bench sim``: duration, repeats, scenario,
     map, out)."""
-    from robchair.commands.bench_output import write_results
+    from robchair.commands.bench_output import results_dir, write_results
     from robchair.commands.sim import retain_freed_memory
     from robchair.platform.errors import RobChairError
 
     if args.duration <= 0 or args.repeats < 1:
         raise RobChairError(f"--duration must be > 0 and --repeats >= 1, got {args.duration}, {args.repeats}")
+    out = results_dir(args, "sim-live")  # refused before anything is measured
     retain_freed_memory()
     load0 = os.getloadavg()
     measure("off", args.scenario, 0.1, 0, args.map)  # warm-up (imports, kernels): not timed
@@ -196,9 +196,8 @@ def run_live_bench(args: argparse.Namespace) -> int:
         print(f"{mode:12s} {med[mode]:14.3f} {100 * extra:7.1f}% "
               f"{'' if target is None else f'{100 * target:.0f} %':>8s}  {verdict:8s}  "
               f"{'' if frames is None else frames}")  # fmt: skip
-    out = args.out if args.out != "out/bench_sim.json" else DEFAULT_OUT
     result = {"scenario": args.scenario, "map_kind": args.map, "duration_s": args.duration,
               "repeats": args.repeats, "targets_extra_fraction": TARGETS, "median_cpu_s_per_sim_s": med,
               "verdicts": verdicts, "runs": runs}  # fmt: skip
-    write_results(out, result, load0, load1)
+    write_results(out, "sim_live", result, load0, load1)
     return 0

@@ -27,20 +27,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import platform
 import statistics
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 from robchair.commands.bench_output import verdict as bench_verdict
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 
-DEFAULT_OUT = "out/bench_mapping.json"
 # Thesis: about 6 frames/s of 2,073,600-point clouds (C++, 4-core i7), i.e. ~166 ms per frame.
 THESIS_MS_PER_HD_FRAME = 166.0
 # (height, width) of the scaling series: 22k, 217k, 313k, 1M, 2.07M points (16:9 frames of the scene).
@@ -68,7 +66,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--cell", type=float, default=0.05, help="cell / voxel size in metres (default 0.05)")
     p.add_argument("--tolerance", type=float, default=0.05, help="VHV tolerance in metres (default 0.05)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    add_out_arguments(p, "mapping")
     p.add_argument("--quick", action="store_true", help="tiny clouds and 2 repetitions: a smoke run")
     p.add_argument("--no-octomap", action="store_true", help="skip the OctoMap baseline")
     p.add_argument("--no-open3d", action="store_true", help="skip the Open3D baseline")
@@ -170,11 +168,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.pin_cpu is not None and hasattr(os, "sched_getaffinity"):
         if args.pin_cpu not in os.sched_getaffinity(0):
             raise RobChairError(f"--pin-cpu {args.pin_cpu}: not one of this process's CPUs")
+    out = results_dir(args, "mapping")  # refused before anything is measured
+    load0 = os.getloadavg()
     with _one_core(args.pin_cpu) as pinned:
-        return _bench(args, pinned)
+        result = _bench(args, pinned)
+    write_results(out, "mapping", result, load0, os.getloadavg())
+    return 0
 
 
-def _bench(args: argparse.Namespace, pinned: str) -> int:
+def _bench(args: argparse.Namespace, pinned: str) -> dict[str, Any]:
     import numpy as np
 
     from mapping.grid import GridSpec
@@ -375,10 +377,4 @@ def _bench(args: argparse.Namespace, pinned: str) -> int:
         "hd_frame": verdict,
         "evidence": evidence,
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".partial")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
-    return 0
+    return result

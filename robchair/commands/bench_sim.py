@@ -30,7 +30,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-DEFAULT_OUT = "out/bench_sim.json"
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -48,12 +48,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default="probabilistic",
         help="map kind of the new loop (default probabilistic; thesis: accumulate only)",
     )
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"JSON results (default {DEFAULT_OUT})")
+    add_out_arguments(p, "sim")
     p.add_argument(
         "--live",
         action="store_true",
         help="instead: the loop's CPU time per simulated second with the live view off, on without a client "
-        "and on with one (robchair.commands.bench_live; JSON default out/bench_sim_live.json)",
+        "and on with one (robchair.commands.bench_live; JSON in --out as bench_sim_live.json)",
     )
     p.set_defaults(func=_run)
 
@@ -237,6 +237,7 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.duration <= 0 or args.repeats < 1:
         raise RobChairError(f"--duration must be > 0 and --repeats >= 1, got {args.duration}, {args.repeats}")
+    out = results_dir(args, "sim")  # refused before anything is measured
     retain_freed_memory()
     ncpu = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     configs = [c for c in CONFIGS if args.pybullet_camera or c["camera_backend"] != "pybullet"]
@@ -308,7 +309,5 @@ def _run(args: argparse.Namespace) -> int:
         "targets_ratio_to_replaced_runner": TARGET_RATIO_OLD,
         "rows": rows,
     }
-    from robchair.commands.bench_output import write_results
-
-    write_results(args.out, result, load0, load1)
+    write_results(out, "sim", result, load0, load1)
     return 0

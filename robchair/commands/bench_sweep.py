@@ -14,12 +14,14 @@ Targets: 2 workers on 2 cores at least 1.7x faster than 1; overhead below 2 % of
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 
 def register(subparsers: Any) -> None:
@@ -32,7 +34,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--long", type=float, default=10.0, help="simulated seconds of the reference run (default 10)"
     )
-    p.add_argument("--out", type=Path, default=Path("out/bench_sweep"), help="output folder (JSON)")
+    add_out_arguments(p, "sweep")
     p.set_defaults(func=_run)
 
 
@@ -89,6 +91,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.runs < 2 or args.empty < 10 or args.duration <= 0 or args.long <= 0:
         raise RobChairError("--runs >= 2, --empty >= 10 and positive --duration/--long are required")
+    out = results_dir(args, "sweep")  # refused before anything is measured
+    load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="bench-sweep-") as d:
         tmp = Path(d)
         with ray_session(num_cpus=2) as ray:
@@ -113,7 +117,6 @@ def _run(args: argparse.Namespace) -> int:
     width = max(len(r[0]) for r in rows)
     for name, value, note in rows:
         print(f"{name:<{width}}  {value:>12}  {note}")
-    args.out.mkdir(parents=True, exist_ok=True)
     result = {
         "empty_task_round_trip_s": overhead_s,
         "plain_call_s": plain_s,
@@ -127,5 +130,5 @@ def _run(args: argparse.Namespace) -> int:
         "overhead_share_of_long_run": share,
         "failed_runs": f1 + f2,
     }
-    (args.out / "bench_sweep.json").write_text(json.dumps(result, indent=1), encoding="utf-8")
+    write_results(out, "sweep", result, load0, os.getloadavg())
     return 0

@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from robchair.commands.bench_output import add_out_arguments
+
 #: Thesis Table 5.2: (object, mesh, points, VHV structures, standard voxels, ms).
 THESIS_ROWS: tuple[tuple[str, str, int, int, int, float], ...] = (
     ("standing person 1", "person_standing_0.obj", 143154, 140, 659, 31.0507),
@@ -48,13 +50,7 @@ def register(subparsers: Any) -> None:
         "table52",
         help="Table 5.2 in simulation: nine objects, Kinect v2 HD, VHV vs standard voxels at 5 cm",
     )
-    p.add_argument("--out", type=Path, default=Path("out/bench_table52"), help="output folder (JSON)")
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into an existing non-empty --out folder (same-named entries and an earlier "
-        "robchair output there are replaced; other files are kept)",
-    )
+    add_out_arguments(p, "table52", "table52.json")
     p.add_argument("--seed", type=int, default=0, help="seed of the depth noise")
     p.add_argument("--cell-size", type=float, default=0.05, help="grid cell side (m)")
     p.add_argument("--tolerance", type=float, default=0.05, help="VHV gap tolerance (m)")
@@ -233,14 +229,15 @@ def _time_backends(mesh: Path, repeats: int) -> dict[str, float]:
 
 def _run(args: argparse.Namespace) -> int:
 
-    from robchair.outdir import check_output_dir, deferred_stdout
+    from robchair.commands.bench_output import results_dir
+    from robchair.outdir import deferred_stdout
     from robchair.platform.errors import RobChairError
 
     if args.cell_size <= 0 or args.tolerance <= 0:
         raise RobChairError(f"--cell-size {args.cell_size} and --tolerance {args.tolerance} must be > 0")
     if args.placements < 1 or args.repeats < 1:
         raise RobChairError(f"--placements {args.placements} and --repeats {args.repeats} must be >= 1")
-    out_dir = check_output_dir(args.out, overwrite=args.overwrite)
+    out_dir = results_dir(args, "table52")
     with deferred_stdout():
         return _measure_all(args, out_dir)
 

@@ -13,12 +13,12 @@ against the map of the previous frames. One core, median. Target: at most 10 ms.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import time
-from pathlib import Path
 from typing import Any
+
+from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 
 
 def register(subparsers: Any) -> None:
@@ -28,11 +28,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--repeats", type=int, default=31, help="timed inserts per variant (median)")
     p.add_argument("--fine-cell", type=float, default=0.01, help="fine cell side, m (default 0.01)")
     p.add_argument("--region", type=float, default=2.0, help="side of the square region, m (default 2)")
-    p.add_argument("--out", type=Path, default=Path("out/bench_zoom"), help="output folder (JSON)")
+    add_out_arguments(p, "zoom")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    out = results_dir(args, "zoom")  # refused before anything is measured
+    load0 = os.getloadavg()
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     import numpy as np
 
@@ -102,24 +104,23 @@ def _run(args: argparse.Namespace) -> int:
         f"  CPU {statistics.median(cpu) * 1e3:.2f} ms"
         f"  accepted {accepted}/{len(matcher.results)}"
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_zoom.json").write_text(
-        json.dumps(
-            {
-                "coarse_insert_s": coarse_s,
-                "zoom_insert_s": zoom_s,
-                "extra_fraction": extra,
-                "coarse_insert_cpu_s": coarse_cpu,
-                "zoom_insert_cpu_s": zoom_cpu,
-                "extra_fraction_cpu": extra_cpu,
-                "fine_cell_m": args.fine_cell,
-                "region_m": args.region,
-                "fine_structures": fine_n,
-                "matching_s": match_s,
-                "matching_cpu_s": statistics.median(cpu),
-            },
-            indent=1,
-        ),
-        encoding="utf-8",
+    write_results(
+        out,
+        "zoom",
+        {
+            "coarse_insert_s": coarse_s,
+            "zoom_insert_s": zoom_s,
+            "extra_fraction": extra,
+            "coarse_insert_cpu_s": coarse_cpu,
+            "zoom_insert_cpu_s": zoom_cpu,
+            "extra_fraction_cpu": extra_cpu,
+            "fine_cell_m": args.fine_cell,
+            "region_m": args.region,
+            "fine_structures": fine_n,
+            "matching_s": match_s,
+            "matching_cpu_s": statistics.median(cpu),
+        },
+        load0,
+        os.getloadavg(),
     )
     return 0

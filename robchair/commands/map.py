@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 SAMPLE_SEED = 7
 SAMPLE_SENSOR_ORIGIN = (0.0, 0.0, 1.0)  # mapping.synthetic's camera position
-DEFAULT_OUT = "out/map"
+DEFAULT_OUT = "runs/map-<UTC time>"  # a new folder per run
 MAX_GRID_SIDE_M = 100.0  # bound of a data-derived grid side; keeps rasters (elevation, 2D map) small
 
 
@@ -66,9 +66,7 @@ def register(subparsers: Any) -> None:
         default=None,
         help="point-cloud topic of bag inputs, PointCloud2 or PointCloud (default: the only one)",
     )
-    p.add_argument(
-        "--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT}); written on success"
-    )
+    p.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}); written on success")
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -345,7 +343,7 @@ def _row(label: str, points: int, structures: int, voxels: int, ms: float, width
 
 def _run(args: argparse.Namespace) -> int:
     from mapping.io import open_clouds
-    from robchair.outdir import check_output_dir, deferred_stdout
+    from robchair.outdir import check_output_dir, deferred_stdout, timestamped_dir
 
     _check_args(args)
     # Open every input first: a bad path, extension or topic fails before any work is done.
@@ -355,6 +353,8 @@ def _run(args: argparse.Namespace) -> int:
         else [open_clouds(p, topic=args.topic, bin_layout=args.bin_layout) for p in args.inputs]
     )
     placements = [map_tf.open_placement(s, args, _fail) for s in sources]
+    if args.out is None:
+        args.out = timestamped_dir("map")
     out_dir = check_output_dir(args.out, overwrite=args.overwrite)
     with deferred_stdout():
         return _map_all(args, sources, placements, out_dir)

@@ -18,7 +18,9 @@ import logging
 from pathlib import Path
 from typing import Any
 
-DEFAULT_OUT = "out/nav_eval"
+from robchair.outdir import OVERWRITE_HELP
+
+DEFAULT_OUT = "runs/nav-eval-<UTC time>"  # a new folder per run
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -36,7 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "repeat for several (default baseline)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--pictures", type=int, default=3, help="pictures of the first N episodes (default 3)")
     p.add_argument("--split", choices=("eval", "train"), default="eval", help="floors of random-floor ids")
     p.add_argument(
@@ -138,7 +141,7 @@ def _run(args: argparse.Namespace) -> int:
     import sim.envs
     from robchair.navigation.evaluation import EvaluationError, close_envs, policy_factory
     from robchair.navigation.metrics import format_table, summarize
-    from robchair.outdir import staged_output_dir
+    from robchair.outdir import check_output_dir, timestamped_dir
 
     if getattr(args, "verbose", 0) == 0:  # one line per safety stop would bury the progress bar
         logging.getLogger("robchair.platform.safety").setLevel(logging.ERROR)
@@ -146,6 +149,9 @@ def _run(args: argparse.Namespace) -> int:
         raise EvaluationError(f"--episodes {args.episodes}: expected at least 1")
     if args.env not in sim.envs.ENV_IDS:
         raise EvaluationError(f"--env {args.env!r}: expected one of {', '.join(sim.envs.ENV_IDS)}")
+    if args.out is None:
+        args.out = timestamped_dir("nav-eval")
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)  # refuse before any episode
     policies = args.policy or ["baseline"]
     for spec in policies:
         policy_factory(spec)  # a bad spec fails here, before any episode runs
@@ -167,7 +173,7 @@ def _run(args: argparse.Namespace) -> int:
 
             ray = stack.enter_context(ray_session(args.address, args.num_cpus))
         stack.callback(close_envs)
-        with staged_output_dir(args.out) as out:
+        with out_dir.stage() as out:
             for spec in policies:
                 eps = []
                 run = (

@@ -6,10 +6,11 @@ Sources of the plant, one per run:
   * ``--trace FILE.csv``: one recorded open-loop step (columns time, command, speed), fitted by least squares.
 
 Prints the plant, gains (continuous and Roboteq units), designed and achieved poles, margins, closed-loop
-step metrics and the rise-time residual; writes into ``--out`` (default out/pid): ``step_responses.png``
-(like the thesis's Figure 9.3: reference, open loop, closed loop), ``root_locus_<motor>.png`` per motor and
-``pid.json`` with every number. Like the thesis, the design uses the delay-free second-order plant; with
-``--trace`` the fitted dead time is reported together with the phase margin it leaves.
+step metrics and the rise-time residual; writes into ``--out`` (default a new runs/pid-<UTC time>):
+``step_responses.png`` (like the thesis's Figure 9.3: reference, open loop, closed loop),
+``root_locus_<motor>.png`` per motor and ``pid.json`` with every number. Like the thesis, the design
+uses the delay-free second-order plant; with ``--trace`` the fitted dead time is reported together
+with the phase margin it leaves.
 
 A trace is converted to seconds and RPM from its declared units (``--time-unit``, ``--command-unit``,
 ``--speed-unit``) and refused, with one line naming the column, when it cannot be a speed step in those
@@ -33,7 +34,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-DEFAULT_OUT = Path("out/pid")
 MAX_POLE_SHIFT = 0.10
 """Largest relative move of a closed-loop pole by the firmware's gain quantisation that passes."""
 MIN_PHASE_MARGIN_DEG = 45.0
@@ -92,7 +92,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         action="store_true",
         help="fail (exit 2) on a warning: quantisation pole shift > 10 %%, phase margin < 45 deg",
     )
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/pid)")
+    p.add_argument(
+        "--out", type=Path, default=None, help="output folder (default runs/pid-<UTC time>, a new one)"
+    )
     p.add_argument("--no-plots", action="store_true", help="only print and write pid.json")
     p.add_argument(
         "--overwrite",
@@ -104,7 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.outdir import check_output_dir, deferred_stdout
+    from robchair.outdir import check_output_dir, deferred_stdout, timestamped_dir
     from robchair.platform.errors import ConfigError
 
     for r in args.rate:
@@ -117,6 +119,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--tp and --mp must be given together (and --tr optionally)")
     if args.tr is not None and not all(metric_args):
         raise ConfigError("--tr needs --tp and --mp")
+    if args.out is None:
+        args.out = timestamped_dir("pid")
     out_dir = check_output_dir(args.out, overwrite=args.overwrite)
     with deferred_stdout():
         return _design_all(args, out_dir)

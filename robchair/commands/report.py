@@ -2,11 +2,14 @@
 
 ``robchair sim`` writes the report itself; this command builds it for any run folder (e.g. one written
 before the report existed, or after ``timeseries.csv`` was added). Page contents: :mod:`robchair.report`.
+It replaces an earlier ``report.html`` of robchair's (one the folder's ``.robchair-output`` lists); any
+other file of that name only with ``--overwrite``.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -17,11 +20,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("run", help="run folder of robchair sim / robchair run")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace a report.html there that robchair did not write"
+    )
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from robchair.report import build_report
+    from robchair.outdir import add_marker_entry, check_own_file
+    from robchair.report import REPORT_NAME, build_report
 
-    print(build_report(args.run))
+    if Path(args.run).is_dir():  # build_report names a missing folder
+        check_own_file(args.run, REPORT_NAME, overwrite=args.overwrite)
+    path = build_report(args.run)
+    add_marker_entry(args.run, REPORT_NAME)
+    print(path)
     return 0

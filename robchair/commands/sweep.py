@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from robchair.outdir import OVERWRITE_HELP
+
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
@@ -19,7 +21,9 @@ def register(subparsers: Any) -> None:
         ),
     )
     p.add_argument("sweep", type=Path, help="sweep file (TOML: [sweep], [grid], [[runs]], [report])")
-    p.add_argument("--out", type=Path, default=None, help="sweep folder (default runs/sweep-<name>)")
+    p.add_argument(
+        "--out", type=Path, default=None, help="sweep folder (default a new runs/sweep-<name>-<UTC time>)"
+    )
     p.add_argument(
         "--address", default=None, help="Ray cluster address (auto, ray://host:port); default local"
     )
@@ -27,11 +31,13 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--resume", action="store_true", help="continue the sweep in --out, skipping complete runs"
     )
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    from robchair.outdir import timestamped_dir
     from robchair.sweep import SweepError, load_sweep, run_sweep
     from robchair.sweep.harness import allowed_parameters
 
@@ -40,13 +46,18 @@ def _run(args: argparse.Namespace) -> int:
     if args.num_cpus is not None and args.address is not None:
         raise SweepError("--num-cpus sizes a local Ray instance; a cluster (--address) brings its own CPUs")
     spec = load_sweep(args.sweep, allowed_parameters())
-    out = args.out if args.out is not None else Path("runs") / f"sweep-{spec.name}"
+    if args.resume and args.overwrite:
+        raise SweepError("--resume continues the sweep in --out, --overwrite replaces it: choose one")
+    if args.resume and args.out is None:
+        raise SweepError("--resume needs the --out folder of the sweep to continue")
+    out = args.out if args.out is not None else timestamped_dir(f"sweep-{spec.name}")
     res = run_sweep(
         spec,
         out,
         address=args.address,
         num_cpus=args.num_cpus,
         resume=args.resume,
+        overwrite=args.overwrite,
         progress=not args.no_progress,
     )
     ok = len(res.records) - len(res.failed)

@@ -3,7 +3,9 @@ timeline), writing its ``recording.rrd`` first when it is missing.
 
 Without a display (no ``DISPLAY`` / ``WAYLAND_DISPLAY`` on Linux) or with ``--no-viewer`` the command
 prints the recording's path and how to open it elsewhere. Needs the ``viz`` extra
-(``pip install 'robchair[viz]'``: rerun-sdk with its viewer, about 170 MB).
+(``pip install 'robchair[viz]'``: rerun-sdk with its viewer, about 170 MB). It replaces an earlier
+``recording.rrd`` of robchair's (one the folder's ``.robchair-output`` lists); any other file of that
+name only with ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument("run", help="run folder of robchair sim / robchair run, or a .rrd recording")
     p.add_argument("--rebuild", action="store_true", help="write recording.rrd again even when it exists")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace a recording.rrd there that robchair did not write"
+    )
     p.add_argument("--no-viewer", action="store_true", help="only write the recording and print its path")
     p.set_defaults(func=_run)
 
@@ -36,6 +41,7 @@ def has_display() -> bool:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from robchair.outdir import add_marker_entry, check_own_file
     from robchair.run_folder import RunFolderError
     from robchair.viz.rerun_recording import RECORDING_NAME, import_rerun, write_recording
 
@@ -45,8 +51,10 @@ def _run(args: argparse.Namespace) -> int:
     elif target.is_dir():
         rrd = target / RECORDING_NAME
         if args.rebuild or not rrd.is_file():
+            check_own_file(target, RECORDING_NAME, overwrite=args.overwrite)
             import_rerun()  # say how to install before reading anything
             write_recording(target)
+            add_marker_entry(target, RECORDING_NAME)
             print(f"wrote {rrd}")
     else:
         raise RunFolderError(f"{target}: not a run folder or a .rrd recording")

@@ -126,7 +126,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     | goal      | Box([0, -pi], [max_goal_obs, pi])     | goal distance (m), bearing (rad), robot frame    |
     | velocity  | Box(-1.5 x limits, 1.5 x limits)      | measured (v m/s, w rad/s) from the wheel speeds  |
     | sonar     | Box(0, max range, (6,)) (sonars only) | left then right array ranges, no echo = max      |
-    | laser     | Box(0, 4, (683,)) (laser only)        | Hokuyo ranges (m), none = 4, too close = 0       |
+    | laser     | Box(0, 4, (682,)) (laser only)        | Hokuyo ranges (m), none = 4, too close = 0       |
     | depth     | Box(0, max range, (H, W)) (option)    | the Kinect's depth (m) along its axis, 0 = none  |
     | elevation | Box(0, 2.5, patch_shape) (option)     | egocentric highest structure per cell (m)        |
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
+import shutil
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -83,11 +85,16 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
         ray.shutdown()
 
 
-def prepare_out(out: Path, spec: SweepSpec, resume: bool) -> None:
-    """Create or re-open a sweep folder without ever destroying data.
+#: What a sweep writes into its folder; ``overwrite`` replaces these and nothing else.
+SWEEP_ENTRIES = (MARKER, "sweep.json", "runs", "records", "results.csv", "results.json", "figures")
+
+
+def prepare_out(out: Path, spec: SweepSpec, resume: bool, overwrite: bool = False) -> None:
+    """Create or re-open a sweep folder without ever destroying data that is not the sweep's own.
 
     A new or empty folder is taken; a folder holding this project's sweep marker is re-opened only with
-    ``resume``; any other non-empty folder is refused.
+    ``resume``; any other non-empty folder is refused. With ``overwrite`` (and no ``resume``) an earlier
+    sweep's entries (:data:`SWEEP_ENTRIES`) are removed first and other files are kept.
 
     Raises:
         SweepError: The folder cannot be used (the message says why and what to do).
@@ -95,14 +102,23 @@ def prepare_out(out: Path, spec: SweepSpec, resume: bool) -> None:
     marker = out / MARKER
     if out.exists() and not out.is_dir():
         raise SweepError(f"--out {out}: exists and is not a folder")
+    if overwrite and not resume and out.is_dir():
+        for name in SWEEP_ENTRIES:
+            entry = out / name
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            elif os.path.lexists(entry):
+                entry.unlink()
     if marker.exists():
         if not resume:
             raise SweepError(
-                f"--out {out}: holds an earlier sweep; add --resume to continue it or choose a new --out"
+                f"--out {out}: holds an earlier sweep; add --resume to continue it, --overwrite to "
+                "replace it, or choose a new --out"
             )
-    elif out.exists() and any(out.iterdir()):
+    elif out.exists() and any(out.iterdir()) and not overwrite:
         raise SweepError(
-            f"--out {out}: is a non-empty folder this project did not create; choose a new --out"
+            f"--out {out}: is a non-empty folder this project did not create; choose a new --out, or "
+            "pass --overwrite to write into it (other files are kept)"
         )
     elif resume:
         raise SweepError(f"--out {out}: holds no sweep to resume")
@@ -136,6 +152,7 @@ def run_sweep(
     address: str | None = None,
     num_cpus: int | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     runner: Callable[[Mapping[str, Any], Path], dict[str, Any]] | None = None,
     memory_bytes: int = RUN_MEMORY_BYTES,
@@ -149,6 +166,7 @@ def run_sweep(
         address: Ray address (None: start a local instance; ``"auto"`` or ``"ray://host:port"``: a cluster).
         num_cpus: CPUs of the local instance (None: all). Each run takes one.
         resume: Skip the runs already complete in ``out``.
+        overwrite: Replace an earlier sweep in ``out`` (see :func:`prepare_out`).
         progress: Show a progress bar (done / failed / running) on stderr.
         runner: The function performing one run (default: the scenario harness).
         memory_bytes: Memory each run declares to Ray's scheduler.
@@ -157,7 +175,7 @@ def run_sweep(
         SweepError: ``out`` cannot be used, or Ray cannot be started or reached. Failed runs do not raise.
     """
     out = Path(out).resolve()
-    prepare_out(out, spec, resume)
+    prepare_out(out, spec, resume, overwrite)
     records: dict[str, dict[str, Any]] = {}
     skipped = []
     todo = []

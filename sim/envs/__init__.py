@@ -8,7 +8,7 @@ docstring); the ``-v0`` ids keep the nominal chair.
 * ``RobChair/Navigation-v0`` - the office scene, a decimated Kinect v2 (128x106) feeding the
   variable-height-voxel map.
 * ``RobChair/NavigationSonar-v0`` - the same task seen only through the two three-sonar arrays.
-* ``RobChair/Navigation-v1`` - the light observation: the Hokuyo URG-04LX laser scan (683 ranges),
+* ``RobChair/Navigation-v1`` - the light observation: the Hokuyo URG-04LX laser scan (682 ranges),
   the six sonars, the egocentric local map that the chair's own map builds from both, the goal and
   the measured velocity; office scene.
 * ``RobChair/NavigationRooms-v1`` - the light observation on a new random floor

@@ -16,12 +16,12 @@ from robchair.cli import main
 
 
 def run_quick_bench(tmp_path: Path, *extra: str) -> dict:
-    out = tmp_path / "bench.json"
+    out = tmp_path / "bench"
     affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     assert main(["bench", "mapping", "--quick", "--out", str(out), "--seed", "3", *extra]) == 0
     if affinity is not None:  # the benchmark pins itself to one CPU only while it runs
         assert os.sched_getaffinity(0) == affinity
-    result = json.loads(out.read_text())
+    result = json.loads((out / "bench_mapping.json").read_text())
     assert result["quick"] is True and len(result["rows"]) == 2
     return result
 
@@ -59,6 +59,6 @@ def test_quick_bench_with_open3d_and_octomap_baselines(tmp_path: Path) -> None:
 
 
 def test_bench_refuses_a_zero_repeat(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["bench", "mapping", "--repeat", "0", "--out", str(tmp_path / "b.json")]) == 2
+    assert main(["bench", "mapping", "--repeat", "0", "--out", str(tmp_path / "b")]) == 2
     assert "--repeat 0" in capsys.readouterr().err
-    assert not (tmp_path / "b.json").exists()
+    assert not (tmp_path / "b").exists()

@@ -156,8 +156,8 @@ def test_the_light_observation_carries_the_hokuyo_scan_of_the_wall_ahead():
         # facing the corridor's left wall (face at y = 1.2); laser_link is 0.60 m ahead of base_link
         obs, _ = env.reset(seed=0, options={"start": (0.0, 0.0, math.pi / 2), "goal": (4.0, 0.0)})
         laser = obs["laser"]
-        assert laser.shape == (683,)
-        assert laser[341] == pytest.approx(0.6, abs=0.03)  # beam 341 looks straight ahead
+        assert laser.shape == (682,)  # URG-04LX steps 44..725
+        assert laser[340] == pytest.approx(0.6, abs=0.03)  # beam 340 (step 384) looks straight ahead
         assert env.observation_space.contains(obs)
         rows = np.nonzero(obs["occupancy"].any(axis=1))[0]
         assert rows.size and rows.min() <= 29  # the scan's hits are in the chair's own map

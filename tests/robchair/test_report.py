@@ -152,10 +152,60 @@ def test_bag_times_start_at_the_run_start(run):
     assert Path(run.path / "bag" / "metadata.yaml").is_file()
 
 
-def test_report_names_the_run_by_its_final_folder_and_metrics(run, tmp_path):
+def test_report_header_names_the_run_folder_and_the_scenario(run, tmp_path):
+    """Two runs of one scenario must be told apart by their page: the heading names the folder."""
     page = build_report(run.path, tmp_path / "r.html", name="office-run").read_text(encoding="utf-8")
-    assert "run folder office-run · backend sim · sim time s 1" in page
-    assert "<title>RobChair run synthetic_quarter_circle</title>" in page
+    assert "<title>RobChair run office-run</title>" in page
+    assert re.search(r"<h1>RobChair run office-run\b", page)
+    assert "run folder office-run · scenario synthetic_quarter_circle · backend sim · sim time s 1" in page
+
+
+def test_pictures_and_key_metrics_come_before_the_full_metrics_table(run, tmp_path):
+    """The page opens with a few key figures and the pictures; the full table (every flattened metric)
+    is last, folded in a <details> element."""
+    page = build_report(run.path, tmp_path / "r.html").read_text(encoding="utf-8")
+    body = page[page.index("<body>") :]
+    key, pictures = body.index('id="key-metrics"'), body.index('id="pictures"')
+    details = body.index("<details>")
+    assert key < pictures < details
+    assert body.index('id="all-metrics"') > body.index('id="safety-stops"')
+    # the key table is short and holds the route outcome; the full one every flattened metric
+    key_rows = body[key:pictures].count("<tr><td>")
+    assert 3 <= key_rows <= 16
+    assert "<td>route.goal_reached</td><td>false</td>" in body[key:pictures]
+    assert "<td>safety.stops (count)</td><td>2</td>" in body[key:pictures]
+    full = body[details : body.index("</details>")]
+    assert full.count("<tr><td>") == len(flatten_metrics(json.loads((run.path / "metrics.json").read_text())))
+    assert body[:pictures].count("<tr><td>") == key_rows  # no other table row before any picture
+
+
+def test_mapping_time_plot_marks_the_first_frame_and_scales_to_the_rest(run, tmp_path):
+    """A first frame of 3800 ms (the kernels' compile) against later frames of 2.0-2.4 ms: the later
+    frames set the axis (up to 1.15 x 2.4 ms, times the 8 % headroom), the first is its own trace,
+    labelled with its time and drawn at the top edge."""
+    import shutil
+
+    folder = tmp_path / "run"
+    shutil.copytree(run.path, folder)
+    lines = (folder / "timeseries.csv").read_text().splitlines()
+    k = next(i for i, line in enumerate(lines[1:], 1) if not line.endswith(","))
+    lines[k] = lines[k].rsplit(",", 1)[0] + ",3800.0"
+    (folder / "timeseries.csv").write_text("\n".join(lines) + "\n")
+    page = build_report(folder).read_text(encoding="utf-8")
+    traces = _plot_data(page, "time-plots")
+    first = next(t for t in traces if t.get("name", "").startswith("first frame"))
+    assert first["name"] == "first frame: 3800 ms (compile)"
+    assert first["text"] == ["first frame 3800 ms (off scale)"]
+    later = next(t for t in traces if t.get("name") == "mapping time")
+    assert first["yaxis"] == later["yaxis"]
+    layout = json.loads(
+        re.search(
+            r'Plotly\.newPlot\(\s*"time-plots",\s*\[.*?\],\s*(\{.*?\}),\s*\{"displaylogo', page, re.S
+        ).group(1)
+    )
+    axis = layout["yaxis" + first["yaxis"][1:]]
+    assert axis["range"] == pytest.approx([0.0, 1.15 * 2.4 * 1.08])
+    assert first["y"] == [pytest.approx(1.15 * 2.4)]
 
 
 def test_report_command_writes_the_page_and_prints_its_path(run, capsys):

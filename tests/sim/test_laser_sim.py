@@ -44,11 +44,15 @@ def at(z=0.3):
 
 
 def test_beam_layout_is_the_datasheet_one():
+    """SCIP 2.0 ``PP`` of the URG-04LX: ARES 1024, AMIN 44, AMAX 725, AFRT 384 (Hokuyo's URG
+    protocol documentation): steps 44..725 are 725 - 44 + 1 = 682 beams, -340..+341 steps about
+    the front, i.e. -119.53..+119.88 deg (hand computation, 360/1024 deg a step)."""
     m = URG_04LX
-    assert m.n_beams == 683
+    assert m.n_beams == 682
     assert math.degrees(m.angle_increment) == pytest.approx(0.3515625)
-    assert math.degrees(m.n_beams * m.angle_increment) == pytest.approx(240.0, abs=0.2)  # 683 steps
-    assert m.angles()[341] == 0.0  # the middle beam looks straight ahead
+    assert math.degrees(m.angle_min) == pytest.approx(-340 * 0.3515625)
+    assert math.degrees(m.angle_max) == pytest.approx(341 * 0.3515625)
+    assert m.angles()[340] == 0.0  # step 384 (AFRT) looks straight ahead
     assert (m.range_min, m.range_max, m.scan_time) == (0.02, 4.0, 0.1)
     assert m.time_increment == pytest.approx(0.1 / 1024)
 
@@ -59,7 +63,7 @@ def test_a_wall_gives_the_analytic_range_on_every_beam(client, caster):
     laser = LaserSim(client, caster=caster, noise=False)
     scan = laser.scan(at())
     a = scan.angles()
-    assert scan.n_beams == 683 and scan.ranges.dtype == np.float32
+    assert scan.n_beams == 682 and scan.ranges.dtype == np.float32
     expected = np.where(np.cos(a) > 0, WALL_X / np.cos(a), np.inf)
     expected[expected > 4.0] = np.inf  # beyond range_max: no return
     hit = np.isfinite(expected)
@@ -72,7 +76,7 @@ def test_nothing_in_range_is_plus_infinity_and_too_close_is_minus_infinity(clien
     box(client, [0.05, 0.05, 1], [0.06, 0, 1.0])  # a post 1 cm in front of the laser
     laser = LaserSim(client, noise=False)
     scan = laser.scan(at())
-    assert scan.ranges[341] == -np.inf
+    assert scan.ranges[340] == -np.inf
     assert np.isposinf(scan.ranges[:100]).all()  # behind-right: empty world
 
 
@@ -83,10 +87,10 @@ def test_laser_turns_with_its_pose(client):
     yaw = math.radians(30.0)
     t[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
     scan = laser.scan(t)
-    assert scan.ranges[341] == pytest.approx(WALL_X / math.cos(yaw), abs=0.0006)
-    k = 341 - round(yaw / URG_04LX.angle_increment)  # the beam turned back onto the wall's normal
+    assert scan.ranges[340] == pytest.approx(WALL_X / math.cos(yaw), abs=0.0006)
+    k = 340 - round(yaw / URG_04LX.angle_increment)  # the beam turned back onto the wall's normal
     assert scan.ranges[k] == pytest.approx(
-        WALL_X / math.cos(yaw - (341 - k) * URG_04LX.angle_increment), abs=6e-4
+        WALL_X / math.cos(yaw - (340 - k) * URG_04LX.angle_increment), abs=6e-4
     )
 
 
@@ -130,7 +134,7 @@ def test_it_is_a_laser_scanner_reading_at_its_pose_and_clock(client):
     with laser:
         scan = laser.read()
     assert scan.stamp_ns == 123 and scan.frame_id == "laser_link"
-    assert scan.ranges[341] == pytest.approx(WALL_X)
+    assert scan.ranges[340] == pytest.approx(WALL_X)
     with pytest.raises(LaserSimError, match="needs pose"):
         LaserSim(client).__enter__().read()
 
@@ -176,7 +180,7 @@ def test_laser_on_the_chair_reads_a_wall_from_its_mount_and_never_sees_the_chair
         with laser:
             scan = laser.read()
         mount_x = load_spec().laser_mount.xyz[0]
-        assert scan.ranges[341] == pytest.approx(3.0 - mount_x, abs=0.002)
+        assert scan.ranges[340] == pytest.approx(3.0 - mount_x, abs=0.002)
         np.testing.assert_allclose(
             chair.robot.link_transform("laser_link"), mounted_pose(np.eye(4)), atol=0.01
         )
@@ -184,3 +188,13 @@ def test_laser_on_the_chair_reads_a_wall_from_its_mount_and_never_sees_the_chair
         assert np.isposinf(scan.ranges[behind]).all()
     finally:
         chair.close()
+
+
+def test_simulated_scan_has_the_beams_the_driver_reads_from_the_sensor():
+    """The simulated URG-04LX and a scan the driver decodes from the sensor's PP answer (the
+    emulator's, hw.hokuyo.URG_04LX) have the same beam count and first/last angles."""
+    from hw.hokuyo import URG_04LX as PP
+
+    assert URG_04LX.n_beams == PP.amax - PP.amin + 1
+    assert URG_04LX.angle_min == pytest.approx(float(PP.step_angle(PP.amin)), abs=1e-12)
+    assert URG_04LX.angle_max == pytest.approx(float(PP.step_angle(PP.amax)), abs=1e-12)
