@@ -41,7 +41,8 @@ threaded run and a serial one give the same maps and decisions bit for bit.
 This module owns the stage (:class:`Perception`: intake of every sensor, the pose layers, the safety
 queries) and its constants; the sonar arc helpers are in :mod:`robchair.perception_sonar`, the map
 protocol and the pose layers in :mod:`robchair.perception_layers`, the corridor and its distance
-bookkeeping in :mod:`robchair.perception_queries`.
+bookkeeping in :mod:`robchair.perception_queries`, the pixel rays of a depth camera in
+:mod:`robchair.perception_depth`.
 """
 
 from __future__ import annotations
@@ -57,7 +58,14 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, SonarArrayReading
-from robchair.perception_layers import MapLayer, PointMap
+from robchair.perception_depth import pinhole_rays
+from robchair.perception_layers import (
+    MapLayer,
+    PointMap,
+    _Done,
+    load_kernels,
+    run_evidence_params,
+)
 from robchair.perception_queries import Corridor, _min_opt, _travelled
 from robchair.perception_sonar import _zone_tables, explained_arc, sonar_obstacle_points
 from robchair.platform.frames import se3_planar, transform_points
@@ -65,43 +73,14 @@ from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec
 
 POSE_SOURCES = ("odometry", "matched", "ground-truth")
+STAT_KEYS = ("depth_frames", "points_in", "points_dropped_nonfinite", "points_outside_grid", "sonar_readings",
+             "sonar_fusions_with_obstacle", "sonar_points", "laser_scans", "matches_accepted",
+             "matches_rejected")  # fmt: skip
 SNAPSHOT_LAG = 2  # frames: the loop sees the matching and zoom state this many frames back
 DEFAULT_BAND_MIN_M = 0.10  # occupancy band starts above the floor's noise
 MAP_KINDS = ("probabilistic", "thesis")  # mapping.probabilistic.make_map kinds; the first is the default
 NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
 SONAR_FREE_RANGE_M = 1.0  # the thesis trusts SRF08 readings under 1 m: free up to here without an echo
-# Probabilistic maps: a hit where free space was seen (a person walking in) is dynamic and forgotten this
-# long after its last hit, so a walker leaving the camera's view leaves no trail; "seen free" asks for
-# about five passes of free space (p < 0.15), so range noise at a static surface's edge does not count.
-# Only what was hit for at most DYNAMIC_MAX_DWELL_S decays (a person passes a cell within a second or
-# two): a wall first seen free at grazing incidence keeps being hit as long as it is in view.
-DYNAMIC_DECAY_S = 0.5
-DYNAMIC_VOID_PROBABILITY = 0.15
-DYNAMIC_MAX_DWELL_S = 2.0
-
-
-def run_evidence_params() -> Any:
-    """The :class:`mapping.probabilistic.EvidenceParams` of a run's probabilistic maps (the dynamic-hit
-    decay above)."""
-    from mapping.probabilistic import EvidenceParams
-
-    return EvidenceParams(
-        dynamic_decay_s=DYNAMIC_DECAY_S,
-        dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
-        dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
-    )
-
-
-class _Done:
-    """A finished future (a camera without background capture)."""
-
-    def __init__(self, value: Any) -> None:
-        self.value = value
-
-    def result(self) -> Any:
-        return self.value
-
-
 _WARMED: set[str] = set()  # map kinds whose kernels this process has loaded
 
 
@@ -135,9 +114,8 @@ class Perception:
         map_kind: kind of the default maps (and of :meth:`new_map`): ``"probabilistic"`` (default) or
             ``"thesis"`` (accumulate only); see :data:`MAP_KINDS`.
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
-            (default: the mapping core's defaults with the dynamic decay of :data:`DYNAMIC_DECAY_S`,
-            :data:`DYNAMIC_VOID_PROBABILITY` and :data:`DYNAMIC_MAX_DWELL_S`; depth frames carry their
-            capture stamps as its clock).
+            (default: :func:`robchair.perception_layers.run_evidence_params`, dynamic decay on;
+            depth frames carry their capture stamps as its clock).
 
     Raises:
         ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
@@ -240,18 +218,7 @@ class Perception:
         self.map_ms: list[float] = []
         #: CPU-side seconds spent in each map's inserts (``{layer: s}``; "matching" for registration)
         self.layer_s: dict[str, float] = {}
-        self.stats = {
-            "depth_frames": 0,
-            "points_in": 0,
-            "points_dropped_nonfinite": 0,
-            "points_outside_grid": 0,
-            "sonar_readings": 0,
-            "sonar_fusions_with_obstacle": 0,
-            "sonar_points": 0,
-            "laser_scans": 0,
-            "matches_accepted": 0,
-            "matches_rejected": 0,
-        }
+        self.stats = dict.fromkeys(STAT_KEYS, 0)
         self.last_depth_stamp_ns: int | None = None
 
     def new_map(self) -> PointMap:
@@ -267,19 +234,9 @@ class Perception:
         The first insertion imports and loads the compiled mapping kernels (seconds on a cold start):
         the runtime calls this before its clock starts, so that its first cycle keeps its deadline.
         """
-        if self.map_kind in _WARMED:
-            return
-        from mapping.sonar import array_points
-
-        scratch = self.new_map()
-        fusion, _ = array_points((1.0, 1.0, 1.0), tables=_zone_tables(self.spec.sonar_arrays.outer_sonar_deg))
-        t = np.eye(4)
-        t[2, 3] = 0.5
-        insert_sonar = getattr(scratch, "insert_sonar", None)
-        if insert_sonar is not None:
-            insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
-        scratch.insert(np.array([[1.0, 0.0, 0.3], [1.5, 0.2, 0.8]]), sensor_origin=t[:3, 3])
-        _WARMED.add(self.map_kind)
+        if self.map_kind not in _WARMED:
+            load_kernels(self.new_map(), self.spec.sonar_arrays.outer_sonar_deg, SONAR_FREE_RANGE_M)
+            _WARMED.add(self.map_kind)
 
     # --- frames -----------------------------------------------------------------------------------
 
@@ -435,20 +392,9 @@ class Perception:
         key = (frame.frame_id, h, w)
         rays = self._rays.get(key)
         if rays is None:
-            x = pts[..., 0]
-            ok = np.isfinite(pts).all(axis=2) & (x > 1e-3)
-            if ok.sum() < 100:
+            rays = pinhole_rays(pts, self.camera_stride)
+            if rays is None:
                 return None
-            v, u = np.nonzero(ok)
-            a, b = pts[v, u, 1] / x[v, u], pts[v, u, 2] / x[v, u]
-            cu, cv = np.polyfit(u, a, 1), np.polyfit(v, b, 1)
-            if max(np.abs(np.polyval(cu, u) - a).max(), np.abs(np.polyval(cv, v) - b).max()) > 0.01:
-                self._rays[key] = np.zeros((0, 0, 3))  # not a pinhole camera: no free space from no-returns
-                return None
-            s = self.camera_stride
-            uu, vv = np.meshgrid(np.arange(w)[::s], np.arange(h)[::s])
-            d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
-            rays = d / np.linalg.norm(d, axis=-1, keepdims=True)
             self._rays[key] = rays
         if rays.size == 0:
             return None

@@ -21,7 +21,8 @@ from robchair.perception import Perception
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.safety import SafetyLayer
 from robchair.platform.spec import RobChairSpec
-from robchair.runtime import Runtime, RuntimeConfig
+from robchair.runtime import Runtime
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import CommandSource
 
 

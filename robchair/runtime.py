@@ -41,8 +41,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -51,8 +51,7 @@ from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
 from hw.laser_scan import scan_to_points
 from robchair.loop_types import CycleResult, Observer, RunResult
-from robchair.perception import MAP_KINDS, Perception
-from robchair.platform.config import ConfigSource, ConfigTable, bounds, check_dataclass, load_dataclass
+from robchair.perception import Perception
 from robchair.platform.errors import ConfigError, RobChairError, StopSignal
 from robchair.platform.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.platform.safety import (
@@ -64,9 +63,10 @@ from robchair.platform.safety import (
 )
 from robchair.platform.spec import RobChairSpec
 from robchair.route import PurePursuit
+from robchair.runtime_config import RuntimeConfig, check_duration_s
 from robchair.sources import Command, CommandSource, Observation
 
-__all__ = ["MAX_DURATION_S", "LoopAborted", "Runtime", "RuntimeConfig", "check_duration_s"]
+__all__ = ["LoopAborted", "Runtime"]
 
 log = logging.getLogger(__name__)
 
@@ -75,70 +75,8 @@ WATCHDOG_PERIODS_MIN = 1.5
 WATCHDOG_PERIODS_MAX = 10.0
 
 
-#: longest run, s: its stamps stay within int64 nanoseconds (9.2e9 s) with a margin
-MAX_DURATION_S = 1e9
-
-
-def check_duration_s(duration_s: float, what: str = "duration_s") -> float:
-    """``duration_s`` as a float if it is a finite number of seconds in (0, :data:`MAX_DURATION_S`].
-
-    Raises:
-        ConfigError: ``<what> = <value>: expected ...`` (inf, nan, zero, negative, too long).
-    """
-    d = float(duration_s)
-    if not (math.isfinite(d) and 0 < d <= MAX_DURATION_S):
-        raise ConfigError(
-            f"{what} = {duration_s!r}: expected a finite number of seconds > 0 and <= {MAX_DURATION_S:g}"
-        )
-    return d
-
-
 class LoopAborted(RobChairError):
     """An exception inside a cycle ended the run; the motors were stopped before this was raised."""
-
-
-@dataclass(frozen=True)
-class RuntimeConfig:
-    """Loop settings.
-
-    Attributes:
-        rate_hz: loop rate (sonars are read every cycle by default: six SRF08s at a 2 m range
-            setting take 71 ms).
-        deadline_slack: a cycle may end this fraction of a period late before it counts as missed.
-        camera_every: read the depth camera every this many cycles (0 = never).
-        sonar_every: read the sonar arrays every this many cycles (0 = never).
-        stop_on_driver_fault: end the run after a driver fault (the chair is stopped either way).
-        map_kind: map of the default perception stage: ``"probabilistic"`` (occupied, free and unknown
-            per vertical interval) or ``"thesis"`` (accumulate only); see :class:`Perception`.
-    """
-
-    rate_hz: float = field(default=10.0, metadata=bounds(gt=0))
-    deadline_slack: float = field(default=0.25, metadata=bounds(ge=0))
-    camera_every: int = field(default=5, metadata=bounds(ge=0))
-    sonar_every: int = field(default=1, metadata=bounds(ge=0))
-    stop_on_driver_fault: bool = True
-    map_kind: str = "probabilistic"
-
-    def __post_init__(self) -> None:
-        check_dataclass(self, "runtime")
-        if self.map_kind not in MAP_KINDS:
-            raise ConfigError(f"runtime.map_kind = {self.map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
-
-    @classmethod
-    def from_dict(
-        cls,
-        data: Mapping[str, Any] | ConfigTable,
-        source: ConfigSource | None = None,
-        where: str = "runtime",
-        **overrides: Any,
-    ) -> RuntimeConfig:
-        """From a TOML table (``where`` is its path, e.g. ``"runtime"``); ``overrides`` replace keys.
-
-        Raises:
-            ConfigError: an unknown key, a wrong type or a value out of range
-                (``<file>:<line>: runtime.<key> = <value>: expected <what>``).
-        """
-        return load_dataclass(cls, data, source, where, **overrides)
 
 
 class Runtime:

@@ -43,7 +43,8 @@ from robchair.platform.safety import SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec, load_spec
 from robchair.route import PurePursuit, Route
 from robchair.run_output import _json_default
-from robchair.runtime import LoopAborted, Runtime, RuntimeConfig, check_duration_s
+from robchair.runtime import LoopAborted, Runtime
+from robchair.runtime_config import RuntimeConfig, check_duration_s
 
 CONTROL_HZ = 60.0
 KINECT_EVERY = 2  # cycles: 30 Hz at 60 Hz

@@ -233,7 +233,7 @@ def test_example_chair_config_is_accepted_by_the_real_backend() -> None:
     from robchair.commands.run import load_run_config
     from robchair.platform.safety import SafetyLimits
     from robchair.platform.spec import load_spec
-    from robchair.runtime import RuntimeConfig
+    from robchair.runtime_config import RuntimeConfig
 
     cfg = load_run_config(ROOT / "examples/chair.toml")
     real = cfg.table("real")

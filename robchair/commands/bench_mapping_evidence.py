@@ -54,14 +54,9 @@ def _times(fn: Any, repeat: int) -> dict[str, Any]:
 
 def _runtime_params() -> Any:
     """The evidence parameters the runtime's perception stage maps with (dynamic decay on)."""
-    from mapping.probabilistic import EvidenceParams
-    from robchair.perception import DYNAMIC_DECAY_S, DYNAMIC_MAX_DWELL_S, DYNAMIC_VOID_PROBABILITY
+    from robchair.perception_layers import run_evidence_params
 
-    return EvidenceParams(
-        dynamic_decay_s=DYNAMIC_DECAY_S,
-        dynamic_void_probability=DYNAMIC_VOID_PROBABILITY,
-        dynamic_max_dwell_s=DYNAMIC_MAX_DWELL_S,
-    )
+    return run_evidence_params()
 
 
 def bench_insert(

@@ -66,7 +66,7 @@ def make_map(spec: Any, args: argparse.Namespace) -> Any:
     """The map ``--map-kind`` asks for: ``thesis`` (accumulate only, :class:`mapping.vhv.VHVMap`) or
     ``probabilistic`` with the evidence parameters of a run's maps (``robchair.perception``)."""
     from mapping.probabilistic import make_map as make
-    from robchair.perception import run_evidence_params
+    from robchair.perception_layers import run_evidence_params
 
     params = run_evidence_params() if args.map_kind == "probabilistic" else None
     return make(spec, args.tolerance, args.map_kind, params)

@@ -3,9 +3,9 @@
     robchair run --backend sim|emulated|real [--config FILE] [--route FILE] [--duration S] [--out DIR]
 
 The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
-keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime.RuntimeConfig`), ``[safety]``
-(:class:`robchair.platform.safety.SafetyLimits` overrides) and ``[route]`` (a route inline, like a route
-file).
+keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime_config.RuntimeConfig`),
+``[safety]`` (:class:`robchair.platform.safety.SafetyLimits` overrides) and ``[route]`` (a route
+inline, like a route file).
 The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
 backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
 the backend's joystick. ``--backend sim`` without a route drives the ``office_corridor`` scenario.
@@ -106,7 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     from robchair.backends import BACKENDS
     from robchair.commands.live import live_observers
     from robchair.outdir import check_output_dir
-    from robchair.runtime import check_duration_s
+    from robchair.runtime_config import check_duration_s
 
     if args.backend not in BACKENDS:
         raise ConfigSource().invalid("--backend", args.backend, f"one of {', '.join(BACKENDS)}")
@@ -128,7 +128,7 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
     from robchair.platform.spec import load_spec
     from robchair.route import PurePursuit, Route
     from robchair.run_output import run_to_dir
-    from robchair.runtime import RuntimeConfig
+    from robchair.runtime_config import RuntimeConfig
     from robchair.sources import JoystickSource
 
     cfg = load_run_config(args.config)

@@ -108,7 +108,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     from robchair.commands.live import live_observers
     from robchair.outdir import check_output_dir, overwrite_allowed
-    from robchair.runtime import check_duration_s
+    from robchair.runtime_config import check_duration_s
     from robchair.scenario import run_scenario
 
     if args.duration is not None:

@@ -57,7 +57,8 @@ from robchair.perception import Perception
 from robchair.platform.kinematics import DiffDrive, Pose2D
 from robchair.platform.safety import SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec, load_spec
-from robchair.runtime import Runtime, RuntimeConfig
+from robchair.runtime import Runtime
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import Command
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import (

@@ -20,7 +20,7 @@ from robchair.platform.safety import SafetyInputs, SafetyLayer, SafetyLimits
 from robchair.platform.spec import load_spec
 from robchair.route import Route
 from robchair.run_output import run_to_dir
-from robchair.runtime import RuntimeConfig
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import JoystickSource
 
 MAX_RPM = 1000  # Table 9.1: the motor's maximum, the driver's !S range

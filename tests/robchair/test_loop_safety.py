@@ -17,7 +17,7 @@ from robchair.loop_types import Observer
 from robchair.platform.errors import ConfigError, RobChairError
 from robchair.platform.spec import load_spec
 from robchair.run_output import run_to_dir
-from robchair.runtime import RuntimeConfig
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import Observation, PolicySource
 from sim.errors import SimError
 

@@ -19,7 +19,7 @@ from robchair.perception import Perception
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import load_spec
-from robchair.runtime import RuntimeConfig
+from robchair.runtime_config import RuntimeConfig
 
 GRID = GridSpec(cell_size=0.05, size_x=8.0, size_y=8.0)
 

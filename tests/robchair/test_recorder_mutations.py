@@ -18,7 +18,7 @@ from robchair.backends import get_backend
 from robchair.observers.recorder import RunRecorder
 from robchair.platform.spec import load_spec
 from robchair.run_output import run_to_dir
-from robchair.runtime import RuntimeConfig
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import PolicySource
 
 

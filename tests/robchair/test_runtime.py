@@ -21,7 +21,7 @@ from robchair.platform.safety import SafetyLimits, StopReason
 from robchair.platform.spec import load_spec
 from robchair.route import PurePursuit, Route
 from robchair.run_output import run_to_dir
-from robchair.runtime import RuntimeConfig
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import JoystickSource, Observation, PolicySource
 
 ROUTE = Route(((0.0, 0.0), (1.5, 0.0), (2.5, 1.0)), speed=0.3)

@@ -13,7 +13,8 @@ from hw.clock import ManualClock
 from hw.interfaces import Backend
 from hw.messages import MotorState
 from robchair.platform.spec import load_spec
-from robchair.runtime import Runtime, RuntimeConfig
+from robchair.runtime import Runtime
+from robchair.runtime_config import RuntimeConfig
 from robchair.sources import Command, PolicySource
 
 

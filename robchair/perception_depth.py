@@ -1,0 +1,34 @@
+"""Depth-frame geometry for the perception stage: the pixel rays of a camera, fitted to its own frames.
+
+:func:`pinhole_rays` gives :meth:`robchair.perception.Perception` the unit ray of every
+``stride``-th pixel, so that pixels without a return can clear free space along their rays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def pinhole_rays(pts: np.ndarray, stride: int) -> np.ndarray | None:
+    """Unit rays (H', W', 3) in the camera frame of every ``stride``-th pixel of an organized frame.
+
+    A pinhole model is fitted to the frame's own returns ``pts`` (H, W, 3), camera x forward:
+    ``y/x`` linear in the column, ``z/x`` in the row.
+
+    Returns:
+        The rays; an empty (0, 0, 3) array when the frame does not fit a pinhole (residual over 1 %,
+        so no free space comes from its no-return pixels); None when it has under 100 returns to fit.
+    """
+    h, w = pts.shape[:2]
+    x = pts[..., 0]
+    ok = np.isfinite(pts).all(axis=2) & (x > 1e-3)
+    if ok.sum() < 100:
+        return None
+    v, u = np.nonzero(ok)
+    a, b = pts[v, u, 1] / x[v, u], pts[v, u, 2] / x[v, u]
+    cu, cv = np.polyfit(u, a, 1), np.polyfit(v, b, 1)
+    if max(np.abs(np.polyval(cu, u) - a).max(), np.abs(np.polyval(cv, v) - b).max()) > 0.01:
+        return np.zeros((0, 0, 3))
+    uu, vv = np.meshgrid(np.arange(w)[::stride], np.arange(h)[::stride])
+    d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
+    return np.asarray(d / np.linalg.norm(d, axis=-1, keepdims=True))
