@@ -37,6 +37,7 @@ BENCHES = (
     "robchair.commands.bench_sweep",
     "robchair.commands.bench_zoom",
     "robchair.commands.bench_laser",
+    "robchair.commands.bench_assist",
 )
 
 
