@@ -28,6 +28,7 @@ COMMANDS = (
     "robchair.commands.view",
     "robchair.commands.report",
     "robchair.commands.nav_eval",
+    "robchair.commands.assist_eval",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",

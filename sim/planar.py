@@ -9,6 +9,7 @@ at a pose overlaps a wall. :func:`doorway` builds a wall with one door, the scen
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -18,6 +19,15 @@ class PlanarWorld:
 
     def __init__(self, segments: np.ndarray) -> None:
         self.segments = np.asarray(segments, dtype=float).reshape(-1, 4)
+        self._points: np.ndarray | None = None
+
+    def points(self, step: float = 0.01) -> np.ndarray:
+        """The walls sampled every ``step`` m, (P, 2) (cached for the first ``step``)."""
+        if self._points is None:
+            pts = [np.linspace(s[:2], s[2:], max(2, int(math.hypot(s[2] - s[0], s[3] - s[1]) / step) + 1))
+                   for s in self.segments]  # fmt: skip
+            self._points = np.vstack(pts)
+        return self._points
 
     def scan(
         self, x: float, y: float, theta: float, angles: np.ndarray, max_range: float = 5.6
@@ -37,15 +47,49 @@ class PlanarWorld:
         ok = t <= max_range
         return np.stack([x + t[ok] * d[ok, 0], y + t[ok] * d[ok, 1]], axis=1)
 
-    def contact(self, x: float, y: float, theta: float, centre_x: float, half_depth: float, half_width: float,
-                step: float = 0.005) -> bool:  # fmt: skip
-        """True when the rectangle (``base_link`` footprint, m) at the pose overlaps a wall."""
-        pts = [np.linspace(s[:2], s[2:], max(2, int(math.hypot(s[2] - s[0], s[3] - s[1]) / step) + 1))
-               for s in self.segments]  # fmt: skip
-        p = np.vstack(pts) - (x, y)
+    def contact(
+        self, x: float, y: float, theta: float, centre_x: float, half_depth: float, half_width: float
+    ) -> bool:
+        """True when the rectangle (``base_link`` footprint, m) at the pose overlaps a wall (1 cm samples)."""
+        return self.clearance(x, y, theta, centre_x, half_depth, half_width) <= 0.0
+
+    def clearance(
+        self, x: float, y: float, theta: float, centre_x: float, half_depth: float, half_width: float
+    ) -> float:
+        """Distance (m) from the rectangle footprint at the pose to the nearest wall sample (0 in contact)."""
+        p = self.points() - (x, y)
+        near = np.einsum("ij,ij->i", p, p) <= (abs(centre_x) + half_depth + half_width + 1.0) ** 2
+        p = p[near]
+        if len(p) == 0:
+            return math.inf
         c, s = math.cos(theta), math.sin(theta)
         bx, by = c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]
-        return bool(np.any((np.abs(bx - centre_x) <= half_depth) & (np.abs(by) <= half_width)))
+        dx = np.maximum(np.abs(bx - centre_x) - half_depth, 0.0)
+        dy = np.maximum(np.abs(by) - half_width, 0.0)
+        return float(np.sqrt(dx * dx + dy * dy).min())
+
+
+def from_scene(scene: Any, band: tuple[float, float] = (0.1, 1.632)) -> PlanarWorld:
+    """The outlines, in the plane, of a scene's boxes and cylinders that reach into the height band
+    ``(z_min, z_max)`` m (a :class:`sim.scene.Scene`; meshes and moving objects are left out)."""
+    segs: list[tuple[float, float, float, float]] = []
+    for o in scene.objects:
+        if o.motion is not None or o.shape not in ("box", "cylinder"):
+            continue
+        half_h = 0.5 * (o.size[2] if o.shape == "box" else o.length)
+        if o.xyz[2] + half_h < band[0] or o.xyz[2] - half_h > band[1]:
+            continue
+        if o.shape == "box":
+            hx, hy = 0.5 * o.size[0], 0.5 * o.size[1]
+            corners = np.array([(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)])
+        else:
+            a = np.linspace(0.0, 2 * math.pi, 13)[:-1]
+            corners = o.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
+        yaw = o.rpy[2]
+        c, s = math.cos(yaw), math.sin(yaw)
+        w = corners @ np.array([[c, s], [-s, c]]) + o.xyz[:2]
+        segs += [(*w[k], *w[(k + 1) % len(w)]) for k in range(len(w))]
+    return PlanarWorld(np.array(segs))
 
 
 def doorway(width: float, wall_x: float = 0.0, half_length: float = 3.0, room_depth: float = 3.0,
