@@ -63,6 +63,10 @@ VARIANT: dict[str, str | None] = {
     f"{NAV_EVAL} --episodes 100 --policy baseline --ray --out runs/eval-rooms": (
         f"{NAV_EVAL} --episodes 1 --policy baseline --ray --num-cpus 1 --out runs/eval-rooms"
     ),
+    "robchair assist-eval --user tremor --mode off --mode shield --mode assist --mode door --episodes 100 "
+    "--seed 0 --out runs/assist": (
+        "robchair assist-eval --user tremor --mode off --mode door --episodes 1 --seed 0 --out runs/assist"
+    ),
     f"{SWEEP} --out runs/sweep-margin": None,
     f"{SWEEP} --out runs/sweep-margin --resume": None,
     f"{SWEEP} --num-cpus 1": None,
