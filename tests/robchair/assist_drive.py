@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from robchair.assistance import AssistedSource
+from robchair.assistance import AssistConfig, AssistedSource
 from robchair.assistance.evaluation import PlanarChair
 from robchair.assistance.evaluation import drive as planar_drive
 from robchair.platform.safety import SafetyLimits
@@ -41,11 +41,18 @@ class Drive:
     stops: list[str] = field(default_factory=list)
 
 
-def drive(world: PlanarWorld, mode: str, person, start: tuple[float, float, float], cycles: int) -> Drive:  # type: ignore[no-untyped-def]
+def drive(
+    world: PlanarWorld,
+    mode: str,
+    person,
+    start: tuple[float, float, float],
+    cycles: int,  # type: ignore[no-untyped-def]
+    config: AssistConfig | None = None,
+) -> Drive:
     spec = load_spec()
     limits = SafetyLimits.from_spec(spec)
     chair = PlanarChair(world, spec, limits, *start)
-    stage = AssistedSource(person, spec, limits.max_speed, limits.max_yaw_rate, mode, rate_hz=RATE_HZ)
+    stage = AssistedSource(person, spec, limits.max_speed, limits.max_yaw_rate, mode, config, rate_hz=RATE_HZ)
     d = planar_drive(chair, stage, cycles, RATE_HZ)
     poses = [start, *[tuple(p) for p in d["poses"]]]
     applied = [(float(a), float(b)) for a, b in d["applied"]]

@@ -45,15 +45,17 @@ def test_door_passes_a_085_m_door_approached_8_degrees_off_without_contact() -> 
 
 def test_the_persons_opposite_command_wins_within_the_stated_bound() -> None:
     """While ``door`` turns the chair right (its heading is 8 degrees left of the doorway's centre line),
-    the person turns hard left: from the first such cycle, the person's command is applied within
-    ceil(0.3 s x 20 Hz) = 6 cycles (the bound of :class:`AssistConfig`, override_s = 0.3 s), and stays."""
+    the person turns hard left on the spot: from the first such cycle, the person's command is applied
+    within ceil(0.3 s x 20 Hz) = 6 cycles (the bound of :class:`AssistConfig`, override_s = 0.3 s), and
+    stays. The doorway's steer-away release is switched off (door_release_rad = pi) so that only the
+    override rule can hand the person control."""
     k_opp = 10
-    opposite = Command(0.05, 1.5, deadman=True)  # a hard left against the assistance's right turn
+    opposite = Command(0.0, 2.0, deadman=True)  # a hard left against the assistance's right turn
 
     def person(k: int) -> Command:
         return FORWARD if k < k_opp else opposite
 
-    d = drive(doorway(DOOR_M), "door", Scripted(person), START, 40)
+    d = drive(doorway(DOOR_M), "door", Scripted(person), START, 40, AssistConfig(door_release_rad=math.pi))
     assert d.reports[k_opp - 1]["action"] == "door"
     assert d.reports[k_opp - 1]["applied"][1] < 0.0  # the assistance turns right
     won = [k for k in range(k_opp, 40) if d.reports[k]["applied"] == (opposite.v, opposite.w)]
