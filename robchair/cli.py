@@ -37,6 +37,7 @@ COMMANDS = (
     "robchair.commands.view",
     "robchair.commands.report",
     "robchair.commands.nav_eval",
+    "robchair.commands.assist_eval",
 )
 BENCHES = (
     "robchair.commands.bench_mapping",
@@ -46,6 +47,7 @@ BENCHES = (
     "robchair.commands.bench_sweep",
     "robchair.commands.bench_zoom",
     "robchair.commands.bench_laser",
+    "robchair.commands.bench_assist",
 )
 
 

@@ -541,6 +541,10 @@ class Perception:
         self._submit(lambda: self.map.insert(transform_points(t, p), sensor_origin=t[:3, 3]))
         self.stats["laser_scans"] += 1
 
+    def scan_points_odom(self) -> np.ndarray | None:
+        """The last laser scan's returns in the height band: (M, 2) in ``odom``, m (None: no scan yet)."""
+        return self._scan_world
+
     # --- maps -------------------------------------------------------------------------------------
 
     def flush(self) -> None:

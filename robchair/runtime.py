@@ -175,6 +175,10 @@ class Runtime:
         state, self._fault = self._read_motors()
         if state is not None:
             self.odometry.update(*state.encoder_counts)
+        bind = getattr(self.source, "bind", None)
+        if bind is not None:  # a stage that reads the loop's perception (the assistance)
+            self._stage = "command source"
+            bind(self)
         self._wall0 = time.perf_counter()
         self._stage = "observer"
         for ob in self.observers:

@@ -72,6 +72,7 @@ class FloorConfig:
         chair_width: Width of the chair the floor must let through, m.
         chair_height: Height of the chair (its obstacle band is 0.10 m .. this), m.
         pass_margin: Clearance beyond half the chair's width a passage needs, m.
+        door_width: Range of the doorways' clear width, m.
     """
 
     width: tuple[float, float] = (8.0, 13.0)
@@ -86,9 +87,10 @@ class FloorConfig:
     chair_width: float = 0.64
     chair_height: float = 1.632
     pass_margin: float = 0.02
+    door_width: tuple[float, float] = DOOR_WIDTH
 
     def __post_init__(self) -> None:
-        for name in ("width", "depth", "corridor", "walker_speed"):
+        for name in ("width", "depth", "corridor", "walker_speed", "door_width"):
             lo, hi = getattr(self, name)
             if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
                 raise RoomsError(f"{name}={getattr(self, name)!r}: expected 0 < low <= high")
@@ -232,7 +234,7 @@ def _draw(seed: int, attempt: int, cfg: FloorConfig) -> Floor:
     for k in range(n):
         a, b = float(xs[k]) + (t / 2 if k else 0.0), float(xs[k + 1]) - (t / 2 if k < n - 1 else 0.0)
         rooms.append((a, C + t, b, D))
-        w = float(rng.uniform(*DOOR_WIDTH))
+        w = float(rng.uniform(*cfg.door_width))
         cx = float(rng.uniform(a + w / 2 + 0.3, b - w / 2 - 0.3))
         corridor_doors.append((cx, w))
         doors.append((cx, yc, w))
@@ -241,7 +243,7 @@ def _draw(seed: int, attempt: int, cfg: FloorConfig) -> Floor:
         x = float(xs[k])
         gaps = []
         if rng.random() < cfg.connect_rooms:
-            w = float(rng.uniform(*DOOR_WIDTH))
+            w = float(rng.uniform(*cfg.door_width))
             cy = float(rng.uniform(C + t + w / 2 + 0.3, D - w / 2 - 0.3))
             gaps.append((cy, w))
             doors.append((x, cy, w))

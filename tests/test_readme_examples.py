@@ -65,6 +65,11 @@ VARIANT: dict[str, str | None] = {
     f"{NAV_EVAL} --episodes 100 --policy baseline --ray --out runs/eval-rooms --overwrite": (
         f"{NAV_EVAL} --episodes 1 --policy baseline --ray --num-cpus 1 --out runs/eval-rooms --overwrite"
     ),
+    "robchair assist-eval --user tremor --mode off --mode shield --mode assist --mode door --episodes 100 "
+    "--seed 0 --out runs/assist --overwrite": (
+        "robchair assist-eval --user tremor --mode off --mode door --episodes 1 --seed 0 "
+        "--out runs/assist --overwrite"
+    ),
     f"{SWEEP} --out runs/sweep-speed --overwrite": None,
     f"{SWEEP} --out runs/sweep-speed --resume": None,
     f"{SWEEP} --num-cpus 1": None,

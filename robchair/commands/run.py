@@ -1,6 +1,7 @@
 """``robchair run``: drive the chair (simulated, emulated or real) with the runtime loop.
 
     robchair run --backend sim|emulated|real [--config FILE] [--route FILE] [--duration S] [--out DIR]
+                 [--source auto|route|joystick] [--assist off|shield|assist|door]
 
 The config file (TOML) may hold one table per backend (``[sim]``, ``[emulated]``, ``[real]``: the
 keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime_config.RuntimeConfig`),
@@ -8,7 +9,8 @@ keys of :mod:`robchair.backends`), ``[runtime]`` (:class:`robchair.runtime_confi
 inline, like a route file).
 The command source is the route (``--route`` wins over ``[route]``), else the route of the sim
 backend's ``scenario`` (odometry then starts at the scenario's start pose, in the world frame), else
-the backend's joystick. ``--backend sim`` without a route drives the ``office_corridor`` scenario.
+the backend's joystick (``--source`` picks one), behind the assistance stage of ``--assist``
+(:mod:`robchair.assistance`). ``--backend sim`` without a route drives the ``office_corridor`` scenario.
 With ``--out`` the run is written as a ROS 2 bag (``bag/``, MCAP), ``metrics.json`` and ``odometry.csv``.
 """
 
@@ -40,6 +42,16 @@ def register(subparsers: Any) -> None:
         "--duration", type=float, default=60.0, help="maximum run time in seconds of the backend clock"
     )
     p.add_argument("--rate", type=float, help="loop rate in Hz (overrides [runtime] rate_hz)")
+    p.add_argument(
+        "--source",
+        default="auto",
+        help="command source: auto (the route if there is one, else the joystick), route or joystick",
+    )
+    p.add_argument(
+        "--assist",
+        default="off",
+        help="assistance of the joystick (robchair.assistance): off, shield, assist or door (default off)",
+    )
     p.add_argument("--out", type=Path, help="output folder: bag/, metrics.json, odometry.csv")
     p.add_argument(
         "--map",
@@ -65,6 +77,39 @@ def register(subparsers: Any) -> None:
     )
     add_live_arguments(p)
     p.set_defaults(func=_run)
+
+
+SOURCES = ("auto", "route", "joystick")
+
+
+def command_source(
+    backend: Any,
+    route: Route | None,
+    spec: RobChairSpec,
+    limits: Any,
+    assist: str = "off",
+    rate_hz: float = 20.0,
+) -> Any:
+    """The run's command source: the route's pure pursuit, else the backend's joystick behind the
+    assistance stage (:class:`robchair.assistance.AssistedSource` in mode ``assist``).
+
+    Raises:
+        ConfigError: neither a route nor a joystick; an unknown assistance mode.
+    """
+    from robchair.assistance import AssistedSource
+    from robchair.platform.errors import ConfigError
+    from robchair.platform.kinematics import DiffDrive
+    from robchair.route import PurePursuit
+    from robchair.sources import JoystickSource
+
+    if route is not None:
+        return PurePursuit(route, DiffDrive(spec))
+    if backend.joystick is None:
+        raise ConfigError(
+            "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
+        )
+    person = JoystickSource(backend.joystick, limits.max_speed, limits.max_yaw_rate)
+    return AssistedSource(person, spec, limits.max_speed, limits.max_yaw_rate, assist, rate_hz=rate_hz)
 
 
 RUN_CONFIG_TABLES = ("sim", "emulated", "real", "runtime", "safety", "route")
@@ -113,6 +158,12 @@ def _run(args: argparse.Namespace) -> int:
     check_duration_s(args.duration, "--duration")  # the duration and the rate before opening the chair
     if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
         raise ConfigSource().invalid("--rate", args.rate, "a finite loop rate in Hz > 0")
+    if args.source not in SOURCES:
+        raise ConfigSource().invalid("--source", args.source, f"one of {', '.join(SOURCES)}")
+    from robchair.assistance import MODES
+
+    if args.assist not in MODES:
+        raise ConfigSource().invalid("--assist", args.assist, f"one of {', '.join(MODES)}")
     if args.out is not None:
         check_output_dir(args.out, overwrite=args.overwrite)  # refuse before opening the chair
     with live_observers(args) as live:  # a port in use is refused before the chair is opened too
@@ -123,13 +174,11 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
     from robchair.backends import get_backend
     from robchair.outdir import overwrite_allowed
     from robchair.platform.errors import ConfigError
-    from robchair.platform.kinematics import DiffDrive
     from robchair.platform.safety import SafetyLayer, SafetyLimits
     from robchair.platform.spec import load_spec
-    from robchair.route import PurePursuit, Route
+    from robchair.route import Route
     from robchair.run_output import run_to_dir
     from robchair.runtime_config import RuntimeConfig
-    from robchair.sources import JoystickSource
 
     cfg = load_run_config(args.config)
     backend_table = cfg.table(args.backend, {})
@@ -149,7 +198,9 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
     elif "route" in cfg:
         route = Route.from_dict(cfg.table("route"))
     start_pose = None
-    if route is None and args.backend == "sim":
+    if args.source == "joystick":
+        route = None
+    if route is None and args.backend == "sim" and args.source != "joystick":
         if not backend_cfg.get("scene"):
             backend_cfg.setdefault("scenario", "office_corridor")
         if backend_cfg.get("scenario"):
@@ -161,15 +212,14 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
         ConfigTable(backend_cfg, backend_table.source, backend_table.where),
         loop_rate_hz=runtime_config.rate_hz,
     )
-    if route is not None:
-        source: Any = PurePursuit(route, DiffDrive(spec))
-    elif backend.joystick is not None:
-        source = JoystickSource(backend.joystick, safety.limits.max_speed, safety.limits.max_yaw_rate)
-    else:
+    if args.source == "route" and route is None:
         backend.close()
-        raise ConfigError(
-            "no command source: give --route FILE (or a [route] table), or use a backend with a joystick"
-        )
+        raise ConfigError("--source route: no route; give --route FILE or a [route] table")
+    try:
+        source = command_source(backend, route, spec, safety.limits, args.assist, runtime_config.rate_hz)
+    except ConfigError:
+        backend.close()
+        raise
     observers = []
     chair = getattr(backend, "chair", None)
     if chair is not None:  # the simulated chair: evaluate against the physics and the scene

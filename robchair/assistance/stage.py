@@ -1,0 +1,314 @@
+"""The assistance stage: a command source that wraps the person's and helps them drive.
+
+It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the person's command (a
+:class:`robchair.sources.JoystickSource`, real or simulated) and the safety layer
+(:class:`robchair.platform.safety.SafetyLayer`), which still checks everything it outputs. Modes
+(:data:`MODES`, switchable at runtime through :attr:`AssistedSource.mode`):
+
+- ``off``: the person's command, unchanged (the safety layer alone);
+- ``shield``: the person's command, its forward speed capped by a ramp from ``shield_slow_m`` down
+  to ``shield_stop_m`` of free corridor ahead (the slow-down zone of Nav2's Collision Monitor,
+  https://docs.nav2.org/configuration/packages/configuring-collision-monitor.html, made continuous);
+- ``assist``: the admissible twist nearest the person's over a short horizon
+  (:func:`robchair.assistance.window.search`, a dynamic-window search);
+- ``door``: ``assist``, and when a doorway (:func:`robchair.assistance.doorway.find_doorways`) lies
+  where the person's command points, the chair follows the doorway's centre line at the person's
+  speed (at most ``door_speed``) and hands control back once its rear edge is through, or as soon as
+  the person steers away (doorway assistance of partially automated wheelchairs: Argall lab,
+  Northwestern, SPEC section 7).
+
+The person always wins:
+
+- a released dead-man, or a zero command, gives zero (``v = w = 0``) in every mode;
+- a reverse command passes unchanged (the chair's sensors look forward; the safety layer bounds it);
+- a command opposite to the assistance (cosine < 0 between the two twists scaled to the limits)
+  held for ``override_s`` passes unchanged from then on: the person's command is applied at most
+  ``ceil(override_s * rate_hz)`` cycles after it began (6 cycles, 0.3 s, at 20 Hz), and the doorway
+  is let go.
+
+Every cycle :attr:`AssistedSource.last` says what the stage did and why (``action``, ``reason``, the
+person's and the applied twist, the clearance, the doorway) and :attr:`AssistedSource.counts` counts
+the actions, the way the safety layer reports its stops.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
+from robchair.assistance.window import Footprint, WindowParams, search
+from robchair.platform.config import bounds, check_dataclass
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import RobChairSpec
+from robchair.sources import Command, CommandSource, Observation
+
+MODES = ("off", "shield", "assist", "door")
+
+
+def check_mode(mode: str) -> str:
+    """``mode`` if it is one of :data:`MODES`, else ConfigError naming the allowed values."""
+    if mode not in MODES:
+        raise ConfigError(f"assistance mode {mode!r}: expected one of {', '.join(MODES)}")
+    return mode
+
+
+@dataclass(frozen=True)
+class AssistConfig:
+    """Parameters of the stage (SI units).
+
+    Attributes:
+        override_s: how long an opposite command must last before it wins, s.
+        shield_slow_m: free corridor ahead below which ``shield`` starts slowing, m.
+        shield_stop_m: free corridor ahead at which ``shield`` has slowed to zero, m.
+        door_speed: forward speed cap while passing a doorway, m/s.
+        door_engage_rad: the person's intended direction (current heading + w * 1 s) must be within
+            this of the doorway's bearing for ``door`` to take it, rad.
+        door_release_rad: the person's intended direction this far from the doorway lets it go, rad.
+        door_lookahead_m: look-ahead of the pursuit of the doorway's centre line, m.
+        door_through_m: the rear edge this far past the doorway's plane ends the passage, m.
+        crop_m: obstacle points farther than this from ``base_link`` are ignored, m.
+        cell_m: obstacle points are thinned to one per cell of this size, m.
+    """
+
+    override_s: float = field(default=0.3, metadata=bounds(gt=0, le=2.0))
+    shield_slow_m: float = field(default=1.0, metadata=bounds(gt=0))
+    shield_stop_m: float = field(default=0.2, metadata=bounds(ge=0))
+    door_speed: float = field(default=0.35, metadata=bounds(gt=0))
+    door_engage_rad: float = field(default=0.45, metadata=bounds(gt=0, le=math.pi))
+    door_release_rad: float = field(default=0.9, metadata=bounds(gt=0, le=math.pi))
+    door_lookahead_m: float = field(default=0.7, metadata=bounds(gt=0))
+    door_through_m: float = field(default=0.2, metadata=bounds(ge=0))
+    crop_m: float = field(default=2.5, metadata=bounds(gt=0))
+    cell_m: float = field(default=0.04, metadata=bounds(gt=0))
+
+    def __post_init__(self) -> None:
+        check_dataclass(self, "assistance")
+        if self.shield_stop_m >= self.shield_slow_m:
+            raise ConfigError(
+                f"assistance.shield_stop_m = {self.shield_stop_m}: "
+                f"expected < shield_slow_m = {self.shield_slow_m}"
+            )
+
+
+def thin_points(points: np.ndarray, crop_m: float, cell_m: float) -> np.ndarray:
+    """Points (N, 2) within ``crop_m`` of the origin, one per ``cell_m`` grid cell (the first of each)."""
+    p = points[np.einsum("ij,ij->i", points, points) <= crop_m * crop_m]
+    if len(p) == 0:
+        return p
+    _, first = np.unique(np.floor(p / cell_m).astype(np.int64), axis=0, return_index=True)
+    return p[np.sort(first)]
+
+
+def perception_obstacles(perception: Any, corridor_front_x: float) -> Callable[[Observation], np.ndarray]:
+    """Obstacle points (N, 2) in ``base_link`` from a :class:`robchair.perception.Perception`.
+
+    The last laser scan's returns in the chair's height band, and the nearest obstacle ahead the
+    sonars and the depth camera report (``Observation.obstacle_distance_m``) as a point on the
+    centre line.
+    """
+
+    def points(obs: Observation) -> np.ndarray:
+        odom = perception.scan_points_odom()
+        pose = obs.pose
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        if odom is None or len(odom) == 0:
+            base = np.zeros((0, 2))
+        else:
+            d = odom - (pose.x, pose.y)
+            base = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+        if obs.obstacle_distance_m is not None and math.isfinite(obs.obstacle_distance_m):
+            base = np.vstack([base, [[corridor_front_x + obs.obstacle_distance_m, 0.0]]])
+        return base
+
+    return points
+
+
+def _unit(v: float, w: float, max_speed: float, max_yaw_rate: float) -> tuple[float, float]:
+    return v / max_speed, w / max_yaw_rate
+
+
+def cosine(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Cosine between two scaled twists (1 when both are zero, 0 when one is)."""
+    na, nb = math.hypot(*a), math.hypot(*b)
+    if na < 1e-9 and nb < 1e-9:
+        return 1.0
+    if na < 1e-9 or nb < 1e-9:
+        return 0.0
+    return (a[0] * b[0] + a[1] * b[1]) / (na * nb)
+
+
+class AssistedSource:
+    """The assistance stage around the person's command source.
+
+    Args:
+        person: the person's command source (a joystick source).
+        spec: the platform (footprint).
+        max_speed, max_yaw_rate: the limits the twists are scaled by (the safety layer's caps), m/s, rad/s.
+        mode: one of :data:`MODES`.
+        config: the stage's parameters.
+        window: the window search's samples and weights.
+        doorway: what counts as a doorway.
+        obstacles: ``obs -> points (N, 2)`` in ``base_link``; None: from the runtime's perception once
+            :meth:`bind` is called (the runtime calls it when it starts).
+        rate_hz: the loop rate (turns ``override_s`` into cycles).
+
+    Raises:
+        ConfigError: an unknown mode.
+    """
+
+    def __init__(self, person: CommandSource, spec: RobChairSpec, max_speed: float, max_yaw_rate: float,
+                 mode: str = "off", config: AssistConfig | None = None, window: WindowParams | None = None,
+                 doorway: DoorwayParams | None = None,
+                 obstacles: Callable[[Observation], np.ndarray] | None = None,
+                 rate_hz: float = 20.0) -> None:  # fmt: skip
+        self.person = person
+        self.footprint = Footprint.from_body(spec.body)
+        self.max_speed, self.max_yaw_rate = float(max_speed), float(max_yaw_rate)
+        self.config = config or AssistConfig()
+        self.window = window or WindowParams()
+        self.doorway = doorway or DoorwayParams()
+        self.obstacles = obstacles
+        self.override_cycles = max(1, math.ceil(self.config.override_s * rate_hz - 1e-9))
+        self._mode = check_mode(mode)
+        self._conflict = 0
+        self._door: Doorway | None = None  # the doorway being passed, in odom
+        self.last: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    @mode.setter
+    def mode(self, mode: str) -> None:
+        self._mode = check_mode(mode)
+        self._conflict, self._door = 0, None
+
+    def bind(self, runtime: Any) -> None:
+        """Take the obstacle points from the runtime's perception (unless given at construction)."""
+        if self.obstacles is None:
+            self.obstacles = perception_obstacles(runtime.perception, self.footprint.front_x)
+
+    def _report(self, person: Command, out: Command, action: str, reason: str, **extra: Any) -> Command:
+        self.counts[action] = self.counts.get(action, 0) + 1
+        self.last = {"mode": self._mode, "action": action, "reason": reason,
+                     "person": (person.v, person.w), "applied": (out.v, out.w),
+                     "overridden": action not in ("pass", "zero"), **extra}  # fmt: skip
+        return out
+
+    def command(self, obs: Observation) -> Command:
+        """The twist to hand the safety layer this cycle (see the module's rules)."""
+        p = self.person.command(obs)
+        if (
+            p.deadman is False
+            or (p.v == 0.0 and p.w == 0.0)
+            or not (math.isfinite(p.v) and math.isfinite(p.w))
+        ):
+            self._conflict, self._door = 0, None
+            zero = Command(0.0, 0.0, deadman=p.deadman, done=p.done)
+            if not (math.isfinite(p.v) and math.isfinite(p.w)):
+                return self._report(p, p, "pass", "non-finite command: the safety layer stops")
+            return self._report(
+                p, zero, "zero", "dead-man released" if p.deadman is False else "zero command"
+            )
+        if self._mode == "off":
+            return self._report(p, p, "pass", "assistance off")
+        if p.v < 0.0:
+            self._conflict, self._door = 0, None
+            return self._report(p, p, "pass", "reverse: the person's command")
+        assert self.obstacles is not None, "AssistedSource needs obstacles= or bind(runtime)"
+        cfg = self.config
+        far = max(cfg.crop_m, self.doorway.max_range_m + self.doorway.max_width_m)
+        seen = thin_points(np.asarray(self.obstacles(obs), dtype=float).reshape(-1, 2), far, cfg.cell_m)
+        near = seen[np.einsum("ij,ij->i", seen, seen) <= cfg.crop_m * cfg.crop_m]
+        v, w, action, reason, extra = self._assist(p, obs.pose, near, seen)
+        up = _unit(p.v, p.w, self.max_speed, self.max_yaw_rate)
+        ua = _unit(v, w, self.max_speed, self.max_yaw_rate)
+        self._conflict = self._conflict + 1 if cosine(up, ua) < 0.0 else 0
+        if self._conflict >= self.override_cycles:
+            self._door = None
+            return self._report(p, p, "override", "the person's opposite command won", **extra)
+        out = Command(v, w, deadman=p.deadman, done=p.done)
+        if action != "pass" and math.isclose(v, p.v, abs_tol=1e-9) and math.isclose(w, p.w, abs_tol=1e-9):
+            action = "pass"
+        return self._report(p, out, action, reason, **extra)
+
+    def _assist(self, p: Command, pose: Pose2D, pts: np.ndarray, seen: np.ndarray
+                ) -> tuple[float, float, str, str, dict[str, Any]]:  # fmt: skip
+        cfg = self.config
+        if self._mode == "shield":
+            d = _corridor_free(pts, self.footprint)
+            ramp = min(max((d - cfg.shield_stop_m) / (cfg.shield_slow_m - cfg.shield_stop_m), 0.0), 1.0)
+            v = min(p.v, ramp * self.max_speed)
+            return (
+                v,
+                p.w,
+                "shield",
+                f"{d:.2f} m free ahead: speed cap {ramp * self.max_speed:.2f} m/s",
+                {"free_m": d},
+            )
+        if self._mode == "door":
+            door = self._doorway(p, pose, seen)
+            if door is not None:
+                return self._pass_door(p, pose, door)
+        v, w, clear, clear_p = search(
+            self.footprint, self.window, p.v, p.w, self.max_speed, self.max_yaw_rate, pts
+        )
+        extra = {"clearance_m": clear, "person_clearance_m": clear_p}
+        if v == 0.0 and w == 0.0:
+            return v, w, "stop", "no admissible twist within the horizon", extra
+        return v, w, "window", f"person's twist clears {clear_p:.2f} m: nearest admissible twist", extra
+
+    def _doorway(self, p: Command, pose: Pose2D, pts: np.ndarray) -> Doorway | None:
+        cfg = self.config
+        heading = max(-math.pi / 2, min(math.pi / 2, p.w * 1.0))  # where the person points, base_link
+        if self._door is not None:
+            d = self._door.inverse_transformed(pose.x, pose.y, pose.theta)
+            along = -(d.cx * d.nx + d.cy * d.ny)  # base_link's distance past the doorway's plane
+            if along - (self.footprint.half_depth - self.footprint.centre_x) > cfg.door_through_m:
+                self._door = None  # through: hand back
+                return None
+            if along < 0 and abs(_wrap(math.atan2(d.cy, d.cx) - heading)) > cfg.door_release_rad:
+                self._door = None  # the person steers away
+                return None
+            return d
+        for d in find_doorways(pts, self.doorway):
+            if abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
+                self._door = d.transformed(pose.x, pose.y, pose.theta)
+                return d
+        return None
+
+    def _pass_door(
+        self, p: Command, pose: Pose2D, d: Doorway
+    ) -> tuple[float, float, str, str, dict[str, Any]]:
+        cfg = self.config
+        # pure pursuit of the centre line: the point look-ahead past the foot of base_link on it
+        s = -(d.cx * d.nx + d.cy * d.ny)  # signed distance of base_link along the normal from the door
+        foot_x, foot_y = d.cx + s * d.nx, d.cy + s * d.ny
+        tx, ty = foot_x + cfg.door_lookahead_m * d.nx, foot_y + cfg.door_lookahead_m * d.ny
+        alpha = math.atan2(ty, tx)
+        v = min(p.v, cfg.door_speed) * max(0.0, math.cos(alpha))
+        w = 2.0 * max(v, 0.05) * math.sin(alpha) / math.hypot(tx, ty)
+        w = max(-self.max_yaw_rate, min(self.max_yaw_rate, w))
+        extra = {"door_width_m": d.width, "door_distance_m": math.hypot(d.cx, d.cy)}
+        return v, w, "door", f"passing a {d.width:.2f} m doorway", extra
+
+
+def _corridor_free(pts: np.ndarray, fp: Footprint) -> float:
+    """Free length (m) ahead of the footprint's front edge in its own width (+inf when clear)."""
+    if len(pts) == 0:
+        return math.inf
+    inside = (np.abs(pts[:, 1]) <= fp.half_width) & (pts[:, 0] > fp.centre_x)
+    if not inside.any():
+        return math.inf
+    return max(0.0, float(pts[inside, 0].min()) - fp.front_x)
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi

@@ -1,0 +1,174 @@
+"""`robchair assist-eval`: shared control with a simulated user, per assistance mode.
+
+    robchair assist-eval [--env random] --user PRESET --mode MODE [--mode MODE ...] --episodes N
+                         --seed S --out DIR [--door-width LO HI]
+
+Each episode is a random floor of the evaluation seeds (:data:`sim.rooms.EVAL_SEEDS`, from index
+``--seed``) with doorways ``--door-width`` m wide (default 0.80-0.90 m: real office doors, SPEC
+section 7): the chair starts in the corridor 1.5-3 m beside a room's doorway, facing along the
+corridor, and the simulated user (:mod:`sim.user`, preset ``--user``) drives into the room through
+it. Every mode drives the same episodes (:func:`robchair.assistance.evaluation.run_episode`, a
+kinematic planar chair with the real assistance stage and safety layer). Prints one table row per
+mode; writes ``DIR/assist_eval.json`` (one record per mode with its means, and every episode) and
+``DIR/paths.png`` (the first episode's floor plan with each mode's path).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from robchair.outdir import OVERWRITE_HELP
+
+DEFAULT_OUT = "runs/assist-eval-<UTC time>"  # a new folder per run
+ENVS = ("random",)
+MEANS = ("agreement", "overridden_share", "time_s", "min_clearance_m", "joystick_path", "reversals",
+         "peak_lon_accel", "rms_lon_accel", "peak_lat_accel", "rms_lat_accel", "peak_jerk",
+         "safety_stops")  # fmt: skip
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("assist-eval", help="shared control with a simulated user, per assistance mode")
+    p.add_argument("--env", default="random", help="scenario set: random (floors with doorways; default)")
+    p.add_argument("--user", default="tremor", help="simulated user preset: typical, tremor or switch")
+    p.add_argument("--mode", action="append", help="assistance mode (repeat): off, shield, assist, door")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per mode (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="index of the first evaluation floor (default 0)")
+    p.add_argument("--door-width", type=float, nargs=2, default=(0.8, 0.9), metavar=("LO", "HI"),
+                   help="doorway clear width range, m (default 0.80 0.90)")  # fmt: skip
+    p.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    p.set_defaults(func=_run)
+
+
+def scenario(index: int, door_width: tuple[float, float]) -> dict[str, Any]:
+    """Floor, start pose and route of evaluation episode ``index``."""
+    import numpy as np
+
+    from sim.planar import from_scene
+    from sim.rooms import EVAL_SEEDS, FloorConfig, generate_floor
+
+    seed = EVAL_SEEDS[index]
+    floor = generate_floor(seed, FloorConfig(door_width=door_width, max_clutter=0))
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = floor.corridor
+    corridor_doors = [d for d in floor.doors if abs(d[1] - (y1 + 0.05)) < 1e-6]
+    dx, dy, width = corridor_doors[int(rng.integers(len(corridor_doors)))]
+    # side +1: start west of the doorway facing east; -1: east of it facing west (where there is room)
+    west, east = dx - x0 - 0.7, x1 - dx - 0.7
+    side = float(rng.choice([-1.0, 1.0])) if min(west, east) >= 1.5 else (1.0 if west > east else -1.0)
+    sx = dx - side * min(float(rng.uniform(1.5, 3.0)), west if side > 0 else east)
+    start = (sx, 0.5 * (y0 + y1), (0.0 if side > 0 else math.pi) + float(rng.uniform(-0.15, 0.15)))
+    route = [(dx, 0.5 * (y0 + y1)), (dx, dy + 1.3)]
+    return {"seed": seed, "floor": floor, "world": from_scene(floor.scene), "start": start, "route": route,
+            "door_width": width}  # fmt: skip
+
+
+def _check(args: argparse.Namespace) -> list[str]:
+    from robchair.assistance import MODES
+    from robchair.platform.errors import ConfigError
+    from sim.user import PRESETS
+
+    modes = args.mode or ["off", "door"]
+    for m in modes:
+        if m not in MODES:
+            raise ConfigError(f"--mode {m!r}: expected one of {', '.join(MODES)}")
+    if args.user not in PRESETS:
+        raise ConfigError(f"--user {args.user!r}: expected one of {', '.join(PRESETS)}")
+    if args.env not in ENVS:
+        raise ConfigError(f"--env {args.env!r}: expected one of {', '.join(ENVS)}")
+    if args.episodes < 1:
+        raise ConfigError(f"--episodes {args.episodes}: expected an integer >= 1")
+    if not 0 <= args.seed < 10_000 - args.episodes:
+        raise ConfigError(f"--seed {args.seed}: expected 0 <= seed < {10_000 - args.episodes}")
+    lo, hi = args.door_width
+    if not 0.74 <= lo <= hi <= 1.5:
+        raise ConfigError(f"--door-width {lo} {hi}: expected 0.74 <= LO <= HI <= 1.5 m")
+    return modes
+
+
+def _run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from robchair.assistance.evaluation import run_episode
+    from robchair.outdir import check_output_dir, timestamped_dir
+    from robchair.platform.spec import load_spec
+    from sim.user import preset
+
+    modes = _check(args)
+    user = preset(args.user)
+    spec = load_spec()
+    if args.out is None:
+        args.out = timestamped_dir("assist-eval")
+    out_dir = check_output_dir(args.out, overwrite=args.overwrite)  # refuse before any episode
+    episodes: dict[str, list[dict[str, Any]]] = {m: [] for m in modes}
+    first: dict[str, Any] = {}
+    for i in tqdm(range(args.seed, args.seed + args.episodes), desc=f"{args.user} on {args.env}", unit="ep"):
+        sc = scenario(i, tuple(args.door_width))
+        first = first or sc
+        for m in modes:
+            ep = run_episode(sc["world"], spec, sc["start"], sc["route"], m, user, seed=i)
+            ep.update(floor_seed=sc["seed"], door_width_m=sc["door_width"])
+            episodes[m].append(ep)
+    records = [_summary(m, eps, args) for m, eps in episodes.items()]
+    _table(records)
+    doc = {"env": args.env, "user": args.user, "episodes": args.episodes, "seed": args.seed,
+           "door_width_m": list(args.door_width), "modes": records,
+           "episodes_by_mode": {m: [{k: v for k, v in e.items() if k != "path"} for e in eps]
+                                for m, eps in episodes.items()}}  # fmt: skip
+    with out_dir.stage() as out:
+        (out / "assist_eval.json").write_text(json.dumps(doc, indent=2) + "\n")
+        picture(first, {m: eps[0]["path"] for m, eps in episodes.items()}, out / "paths.png", args.user)
+    print(f"wrote {Path(args.out) / 'assist_eval.json'} and {Path(args.out) / 'paths.png'}")
+    return 0
+
+
+def _summary(mode: str, eps: list[dict[str, Any]], args: argparse.Namespace) -> dict[str, Any]:
+    import numpy as np
+
+    rec: dict[str, Any] = {"mode": mode, "user": args.user, "episodes": len(eps),
+                           "success_rate": float(np.mean([e["success"] for e in eps])),
+                           "collisions": int(sum(e["collisions"] for e in eps))}  # fmt: skip
+    for k in MEANS:
+        rec[k] = float(np.mean([e[k] for e in eps]))
+    rec["peak_lon_accel_max"] = float(max(e["peak_lon_accel"] for e in eps))
+    ok = [e["time_s"] for e in eps if e["success"]]
+    rec["time_to_goal_s"] = float(np.mean(ok)) if ok else None
+    return rec
+
+
+def _table(records: list[dict[str, Any]]) -> None:
+    cols = [("mode", "{:8s}"), ("success_rate", "{:8.1%}"), ("collisions", "{:5d}"), ("agreement", "{:6.3f}"),
+            ("overridden_share", "{:6.3f}"), ("time_to_goal_s", "{:7.1f}"), ("safety_stops", "{:6.2f}"),
+            ("min_clearance_m", "{:6.3f}"), ("peak_lon_accel_max", "{:6.2f}"), ("rms_lon_accel", "{:6.3f}"),
+            ("peak_lat_accel", "{:6.2f}"), ("peak_jerk", "{:6.1f}"), ("joystick_path", "{:6.1f}"),
+            ("reversals", "{:6.1f}")]  # fmt: skip
+    heads = ["mode", "success", "coll", "agree", "overr", "t_goal", "stops", "clear", "a_lon^", "a_rms",
+             "a_lat^", "jerk^", "stick", "revs"]  # fmt: skip
+    print(" ".join(f"{h:>8s}" for h in heads))
+    for r in records:
+        cells = ["-" if r[k] is None else f.format(r[k]) for k, f in cols]
+        print(" ".join(f"{c:>8s}" for c in cells))
+
+
+def picture(sc: dict[str, Any], paths: dict[str, list[list[float]]], path: Path, user: str) -> None:
+    """The floor plan of ``sc`` with each mode's path (PNG)."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=80)
+    for x0, y0, x1, y1 in sc["world"].segments:
+        ax.plot([x0, x1], [y0, y1], color="0.3", lw=1.0)
+    for mode, p in paths.items():
+        xy = list(zip(*p, strict=True)) if p else ([], [])
+        ax.plot(xy[0], xy[1], lw=1.6, label=mode)
+    ax.plot(*sc["start"][:2], "ko", ms=4)
+    ax.plot(*sc["route"][-1], "k*", ms=9)
+    ax.set_aspect("equal")
+    ax.set_title(f"{user} user, floor {sc['seed']}, door {sc['door_width']:.2f} m", fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

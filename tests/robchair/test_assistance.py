@@ -1,0 +1,112 @@
+"""The assistance stage: doorway passage, the person's override, zero command, bad modes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from robchair.assistance import MODES, AssistConfig, AssistedSource
+from robchair.platform.errors import ConfigError
+from robchair.platform.kinematics import Pose2D
+from robchair.platform.spec import load_spec
+from robchair.sources import Command, Observation
+from sim.planar import doorway
+from tests.robchair.assist_drive import Scripted, drive
+
+DOOR_M = 0.85
+# base_link 2.5 m before the wall, on the door's centre line, heading 8 degrees off it: driven straight,
+# the chair's side (0.32 m from its centre line, Table 9.1 width 0.64 m) is 2.5 * tan(8 deg) + 0.32 > 0.425 m
+# off the centre line when its front (0.58 m ahead of base_link) reaches the wall: it meets the post
+START = (-2.5, 0.0, math.radians(8.0))
+FORWARD = Command(0.4, 0.0, deadman=True)
+
+
+def test_off_stops_at_the_post_of_a_085_m_door_approached_8_degrees_off() -> None:
+    """Hand computation above: the straight line meets the post, so the safety layer stops before it."""
+    d = drive(doorway(DOOR_M), "off", Scripted(lambda k: FORWARD), START, 300)
+    x = d.poses[-1][0]
+    assert "obstacle_map" in d.stops
+    assert not d.contact
+    assert x < 0.0  # base_link never reached the wall's plane: the chair did not pass
+    assert d.applied[-1] == (0.0, 0.0)
+
+
+def test_door_passes_a_085_m_door_approached_8_degrees_off_without_contact() -> None:
+    """The same approach with ``door``: base_link ends beyond the wall (0.1 m thick) with no contact."""
+    d = drive(doorway(DOOR_M), "door", Scripted(lambda k: FORWARD), START, 300)
+    x = d.poses[-1][0]
+    assert not d.contact
+    assert x > 0.1 + 0.84  # the whole footprint (0.84 m deep) is through
+    assert any(r["action"] == "door" for r in d.reports)
+    assert d.reports[-1]["action"] != "door"  # handed back after the doorway
+
+
+def test_the_persons_opposite_command_wins_within_the_stated_bound() -> None:
+    """While ``door`` turns the chair right (its heading is 8 degrees left of the doorway's centre line),
+    the person turns hard left on the spot: from the first such cycle, the person's command is applied
+    within ceil(0.3 s x 20 Hz) = 6 cycles (the bound of :class:`AssistConfig`, override_s = 0.3 s), and
+    stays. The doorway's steer-away release is switched off (door_release_rad = pi) so that only the
+    override rule can hand the person control."""
+    k_opp = 10
+    opposite = Command(0.0, 2.0, deadman=True)  # a hard left against the assistance's right turn
+
+    def person(k: int) -> Command:
+        return FORWARD if k < k_opp else opposite
+
+    d = drive(doorway(DOOR_M), "door", Scripted(person), START, 40, AssistConfig(door_release_rad=math.pi))
+    assert d.reports[k_opp - 1]["action"] == "door"
+    assert d.reports[k_opp - 1]["applied"][1] < 0.0  # the assistance turns right
+    won = [k for k in range(k_opp, 40) if d.reports[k]["applied"] == (opposite.v, opposite.w)]
+    assert won and won[0] - k_opp + 1 <= 6
+    assert all(d.reports[k]["applied"] == (opposite.v, opposite.w) for k in range(won[0], 40))
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("deadman", [True, False])
+def test_a_zero_command_gives_zero_motion_in_every_mode(mode: str, deadman: bool) -> None:
+    """Zero joystick or a released dead-man: the chair stays where it is (v = w = 0 every cycle)."""
+    held = Command(0.0, 0.0, deadman=deadman)
+    d = drive(doorway(DOOR_M), mode, Scripted(lambda k: held), START, 20)
+    assert all(a == (0.0, 0.0) for a in d.applied)
+    assert d.poses[-1] == START
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_released_deadman_stops_a_pushed_joystick_in_every_mode(mode: str) -> None:
+    """Pushed forward with the dead-man released: zero from the stage (the safety layer's rule)."""
+    d = drive(doorway(DOOR_M), mode, Scripted(lambda k: Command(0.4, 0.3, deadman=False)), START, 10)
+    assert all(r["applied"] == (0.0, 0.0) for r in d.reports)
+
+
+def test_shield_slows_smoothly_before_a_wall_and_stops_short_of_it() -> None:
+    """Straight at a wall: the speed falls over the slow-down zone, without contact, and never jumps."""
+    d = drive(doorway(0.0), "shield", Scripted(lambda k: FORWARD), (-2.5, 1.0, 0.0), 200)
+    v = np.array([a[0] for a in d.applied])
+    assert not d.contact
+    front = d.poses[-1][0] + 0.58  # the footprint's front edge (centre_x 0.16 + depth 0.84 / 2)
+    assert 0.2 <= -front <= 0.3  # settled just beyond shield_stop_m = 0.2 m from the wall at x = 0
+    assert v[-1] < 0.01
+    assert np.max(np.abs(np.diff(v))) <= 0.5 / 20 + 1e-9  # the safety layer's 0.5 m/s^2 at 20 Hz
+    assert "obstacle_map" not in d.stops  # the shield slowed before the safety layer had to stop
+
+
+def test_an_unknown_mode_is_refused_naming_the_allowed_ones() -> None:
+    with pytest.raises(ConfigError, match="off, shield, assist, door"):
+        AssistedSource(Scripted(lambda k: FORWARD), load_spec(), 0.6, 2.0, "autopilot")
+
+
+def test_an_out_of_range_parameter_is_refused() -> None:
+    with pytest.raises(ConfigError, match="override_s"):
+        AssistConfig(override_s=-1.0)
+
+
+def test_assist_leaves_a_command_with_open_space_unchanged() -> None:
+    """Nothing near: the window search returns the person's twist exactly."""
+    spec = load_spec()
+    stage = AssistedSource(Scripted(lambda k: Command(0.3, 0.2, deadman=True)), spec, 0.62, 2.14, "assist",
+                           obstacles=lambda obs: np.zeros((0, 2)))  # fmt: skip
+    c = stage.command(Observation(0, Pose2D(0, 0, 0), None, (), None))
+    assert (c.v, c.w) == (0.3, 0.2)
+    assert stage.last["action"] == "pass"
