@@ -51,8 +51,9 @@ def test_report_renders_in_headless_chromium_without_console_errors(tmp_path, ch
     assert res.errors == []
     assert v["plots"] == 2 and v["rendered_plots"] == 2, v
     assert v["gl_canvases"] >= 1 and not v["webgl_notice"], v
-    # v, w, commands, both wheels (commanded and measured), mapping time and the stop markers
-    assert v["time_traces"] == 10, v
+    # v, w, commands, both wheels (commanded and measured), mapping time (the frames after the first,
+    # and the first frame, with its one-off kernel load, as its own marked point) and the stop markers
+    assert v["time_traces"] == 11, v
     assert v["images"] == 1 and v["images_decoded"] == 1, v
 
 
