@@ -12,7 +12,9 @@ The rules (shared by every command that writes a folder: ``sim``, ``run``, ``map
   ``overwrite=True``; even then only entries with the same names as the new outputs are replaced, and
   nothing else in the folder is touched.
 * Outputs are built in a hidden staging folder and moved in only when the command succeeds. A failed
-  command leaves no new folder behind: the staging folder and every parent created for it are removed.
+  command, or one stopped by a signal (also while it creates the parents), leaves no new folder
+  behind: the staging folder and every parent it created for it are removed (only those, and only
+  while empty).
 * One command at a time per target: the first check takes an exclusive lock (``flock``) on the file
   ``.<name>.lock`` beside it, held until the output is in place (or the process ends); a second
   command refuses at once, with or without ``--overwrite``.
@@ -120,10 +122,14 @@ class OutputDir:
         """
         t = self.target
         created: list[Path] = []
-        for parent in reversed([p for p in t.parents if not p.exists()]):
-            parent.mkdir()
-            created.append(parent)
         try:
+            for parent in reversed([p for p in t.parents if not p.exists()]):
+                with _stop_signals_held():  # a stop signal cannot fall between the mkdir and the record
+                    try:
+                        parent.mkdir()
+                    except FileExistsError:  # created by someone else meanwhile: not ours to remove
+                        continue
+                    created.append(parent)
             self.check()
         except BaseException:
             _unlock(t)
@@ -258,6 +264,20 @@ def _remove_stale_staging(target: Path) -> None:
                 continue
             shutil.rmtree(p, ignore_errors=True)
             log.warning("removed %s: the staging folder of an interrupted robchair command", p)
+
+
+@contextlib.contextmanager
+def _stop_signals_held() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP back for the block (this thread); one that came meanwhile is
+    delivered, and its handler runs, right after."""
+    import signal
+
+    held = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _remove_created(created: list[Path]) -> None:

@@ -113,3 +113,65 @@ def test_a_stop_signal_on_sim_prints_one_line_and_leaves_no_staging_folder(
     assert ours == [f"robchair sim: stopped by {sig.name}; motors stopped"], err
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def _command(name: str, inputs: Path, out: Path) -> list[str]:
+    """A run of ``name`` long enough to be stopped while it drives, writing into ``out``."""
+    if name == "sim":
+        return ["sim", "--out", str(out), "--no-progress", "--no-pictures", "--duration", "30"]
+    cfg = inputs / "cfg.toml"
+    cfg.write_text("[emulated]\nsonars = false\n[runtime]\nrate_hz = 10.0\n", encoding="utf-8")
+    return ["run", "--backend", "emulated", "--config", str(cfg), "--duration", "60", "--out", str(out),
+            "--route", str(ROOT / "examples/routes/short_turn.toml")]  # fmt: skip
+
+
+@pytest.mark.parametrize("command", ["sim", "run"])
+def test_a_command_stopped_by_sigterm_removes_the_parent_folders_it_created(
+    tmp_path: Path, command: str
+) -> None:
+    """``--out new/a/b/out`` where only the working folder existed: the command creates ``new/a/b`` for
+    its staging folder; stopped while it drives, it leaves the working folder as it found it (the rule
+    of :mod:`robchair.outdir`: a command that does not finish leaves no new folder behind, neither the
+    staging folder nor a parent created for it)."""
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    work = tmp_path / "work"
+    work.mkdir()
+    parent = work / "new" / "a" / "b"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "robchair.cli", *_command(command, inputs, parent / "out")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=work,
+    )  # fmt: skip
+
+    def driving() -> bool:  # the loop runs once the time series has rows below its header
+        return any(len(p.read_bytes().splitlines()) > 2 for p in parent.glob(".out.partial-*/timeseries.csv"))
+
+    _wait_for(driving, 240.0, proc)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert list(work.iterdir()) == [], sorted(str(p.relative_to(work)) for p in work.rglob("*"))
+
+
+def test_a_stop_signal_while_the_parents_of_out_are_created_leaves_none_of_them(
+    tmp_path, monkeypatch
+) -> None:
+    """SIGTERM arrives (sent to this process) just after the second missing parent of ``new/a/out`` is
+    made: the command ends by the signal, and neither ``new`` nor ``new/a`` is left (the rule of
+    :mod:`robchair.outdir`: a command stopped by a signal leaves no new folder behind)."""
+    from robchair.cli import stop_signals_raise
+    from robchair.outdir import staged_output_dir
+    from robchair.platform.errors import StopSignal
+
+    mkdir = Path.mkdir
+
+    def mkdir_then_signal(self, *args, **kwargs):
+        mkdir(self, *args, **kwargs)
+        if self == tmp_path / "new" / "a":
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir_then_signal)
+    with pytest.raises(StopSignal), stop_signals_raise():
+        with staged_output_dir(tmp_path / "new" / "a" / "out"):
+            pytest.fail("the signal came before the output was staged")
+    assert list(tmp_path.iterdir()) == []
