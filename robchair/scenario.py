@@ -52,7 +52,7 @@ CELL_SIZE = 0.05
 MAP_TOLERANCE = 0.05
 GRID_MARGIN = 1.0
 GOAL_TOLERANCE_M = 0.15
-POSE_DEFAULT = "odometry"  # the pose the run's map is built with (see robchair.perception.POSE_SOURCES)
+POSE_DEFAULT = "matched"  # the pose the run's map is built with (see robchair.perception.POSE_SOURCES)
 ZOOM_HALF_WIDTH_M = 1.0  # a 2 m x 2 m fine region around the chair ...
 ZOOM_FACTOR = 5  # ... at 1 cm (5 cm / 5)
 
@@ -180,8 +180,9 @@ def run_scenario(
         safety_limits: limits of the safety layer (default: from the spec).
         bag_storage: ``"mcap"`` or ``"sqlite3"``.
         bag_clouds: depth clouds in the bag, a key of :data:`robchair.observers.recorder.BAG_CLOUDS`.
-        pose: the pose the run's map is built with: ``"odometry"``, ``"matched"`` (scan-to-map
-            matching, :mod:`mapping.matching`) or ``"ground-truth"``.
+        pose: the pose the run's map (and its safety stops) is built with: ``"matched"`` (the default,
+            :data:`POSE_DEFAULT`: scan-to-map matching, :mod:`mapping.matching`), ``"odometry"`` or
+            ``"ground-truth"``.
         matching: run the scan-to-map matching (its map and drift beside the others); forced by
             ``pose="matched"``.
         zoom: map a 2 m x 2 m region around the chair at 1 cm (:mod:`mapping.zoom`).

@@ -24,6 +24,7 @@ from hw.interfaces import DepthFrame
 from robchair.platform.frames import quat_from_yaw
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec, load_spec
+from sim.crowd import Footprint
 from sim.errors import SimError
 from sim.robot import SimRobot
 from sim.scene import Scene, SceneBodies, build_scene, load_scene
@@ -89,6 +90,8 @@ class SimChair:
             self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
             self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
             self._body_names = {v: k for k, v in self.bodies.ids.items()}  # scene bodies never change
+            b = self.spec.body  # what the scripted people keep clear of (sim.crowd)
+            self._footprint = Footprint(b.centre_x - 0.5 * b.depth, b.centre_x + 0.5 * b.depth, 0.5 * b.width)
             self._ghost_people()
             self.mirror: Any = None
             self.kinect: Any = None
@@ -138,7 +141,8 @@ class SimChair:
 
     def _ghost_people(self) -> None:
         """Scripted people are teleported along their walks (kinematic, mass 0): a collision with the
-        chair would fling it away. They pass through the chair instead; every sensor still sees them."""
+        chair would fling it away. They keep clear of the chair by the social force model
+        (:mod:`sim.crowd`), and pass through it where they still touch it; every sensor sees them."""
         import pybullet as p
 
         c = self.world.client
@@ -161,7 +165,9 @@ class SimChair:
         t0 = time.perf_counter()
         for _ in range(n):
             if self.bodies.moving:
-                self.bodies.update(self.world.client, self.world.time)
+                pose = self.robot.pose2d()
+                self.bodies.update(self.world.client, self.world.time,
+                                   (self._footprint, (pose.x, pose.y, pose.theta)))  # fmt: skip
             self.world.step(1)
         self.timing["physics"] += time.perf_counter() - t0
 
@@ -239,6 +245,7 @@ class SimChair:
         self._ghost_people()
         self.world.steps = 0
         if self.bodies.moving:
+            self.bodies.reset()
             self.bodies.update(self.world.client, 0.0)
 
     def footprint_overlaps(self) -> list[str]:

@@ -23,6 +23,7 @@ A **scene** file has a ``[scene]`` table and a list of ``[[object]]`` tables::
     waypoints = [[3.0, 1.0], [8.0, 1.0]]
     speed = 1.2
     loop = true                         # back and forth; false = stop at the last waypoint
+    avoid_chair = true                  # steps round the chair (sim.crowd); false: walks into it
 
 ``cylinder`` and ``capsule`` take ``radius`` and ``length`` (along the object's z), ``sphere`` takes
 ``radius``, ``mesh`` takes ``mesh`` and an optional ``scale``.
@@ -86,7 +87,7 @@ _OBJECT_KEYS = {
     "color",
     "motion",
 }
-_MOTION_KEYS = {"waypoints", "speed", "loop"}
+_MOTION_KEYS = {"waypoints", "speed", "loop", "avoid_chair"}
 _SCENARIO_KEYS = {"name", "description", "scene", "duration", "sensor", "sonars", "seed", "start"}
 _ROUTE_KEYS = {"waypoints", "speed", "lookahead"}
 _FLOOR_TOLERANCE = 1e-3  # m: a shape may touch the floor, not go through it
@@ -94,11 +95,13 @@ _FLOOR_TOLERANCE = 1e-3  # m: a shape may touch the floor, not go through it
 
 @dataclass(frozen=True)
 class Motion:
-    """Scripted walk: along ``waypoints`` (x, y) at ``speed`` m/s, back and forth if ``loop``."""
+    """Scripted walk: along ``waypoints`` (x, y) at ``speed`` m/s, back and forth if ``loop``; a person
+    who ``avoid_chair`` steps round the chair (:mod:`sim.crowd`), one who does not walks into it."""
 
     waypoints: tuple[tuple[float, float], ...]
     speed: float
     loop: bool = True
+    avoid_chair: bool = True
 
     def pose_at(self, t: float) -> tuple[float, float, float]:
         """Position (x, y) and heading (yaw, along the walking direction) at time ``t`` seconds."""
@@ -279,7 +282,8 @@ def _parse_object(t: ConfigTable) -> SceneObject:
     if "motion" in t:
         mt = t.table("motion")
         mt.keys(_MOTION_KEYS)
-        motion = Motion(mt.points("waypoints"), mt.number("speed", gt=0), mt.boolean("loop", True))
+        motion = Motion(mt.points("waypoints"), mt.number("speed", gt=0), mt.boolean("loop", True),
+                            mt.boolean("avoid_chair", True))  # fmt: skip
     obj = SceneObject(
         name=name,
         shape=shape,
@@ -459,18 +463,58 @@ def ground_truth_points(
 
 @dataclass
 class SceneBodies:
-    """PyBullet body ids of a built scene, and the moving ones with their scripts."""
+    """PyBullet body ids of a built scene, the moving ones with their scripts, and where they are.
+
+    Attributes:
+        ids: body id of each object by name.
+        moving: (body id, object) of every scripted person.
+        poses: where each scripted person stands now, (x, y, yaw) in ``map`` by name.
+    """
 
     ids: dict[str, int] = field(default_factory=dict)
     moving: list[tuple[int, SceneObject]] = field(default_factory=list)
+    poses: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    _forces: dict[str, Any] = field(default_factory=dict)
+    _t: float | None = None
 
-    def update(self, client: int, t: float) -> None:
-        """Place every scripted person at its position for time ``t`` (kinematic: mass 0, teleported)."""
+    def reset(self) -> None:
+        """Every scripted person back onto its script (before a restart at time 0)."""
+        for f in self._forces.values():
+            f.reset()
+        self._t = None
+
+    def update(self, client: int, t: float, chair: Any = None) -> None:
+        """Place every scripted person at its position for time ``t`` (kinematic: mass 0, teleported).
+
+        Args:
+            client: the PyBullet client.
+            t: scene time, s (the walks' timetable); called once per physics step.
+            chair: ``(footprint, (x, y, yaw))``, a :class:`sim.crowd.Footprint` and the chair's pose
+                in ``map``: the people keep clear of it (:class:`sim.crowd.SocialForce`); None: they
+                walk their scripts exactly.
+        """
         import pybullet as p
 
+        from sim.crowd import SocialForce
+
+        dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t
         for body, obj in self.moving:
             assert obj.motion is not None
             x, y, yaw = obj.motion.pose_at(t)
+            force = self._forces.get(obj.name)
+            if force is None:
+                force = self._forces[obj.name] = SocialForce(obj.motion.speed)
+            near = chair if obj.motion.avoid_chair else None
+            if dt > 0.0 and (near is not None or force.offset.any() or force.rate.any()):
+                xn, yn, _ = obj.motion.pose_at(t + dt)
+                u = np.array([xn - x, yn - y]) / dt  # the script's velocity over the coming step
+                px, py = force.step(np.array([x, y]), u, dt, near)
+                vx, vy = u + force.rate
+                if force.offset.any() and math.hypot(vx, vy) > 1e-3:
+                    yaw = math.atan2(vy, vx)  # facing where it walks while off its script
+                x, y = float(px), float(py)
+            self.poses[obj.name] = (x, y, yaw)
             q = quat_from_rpy(obj.rpy[0], obj.rpy[1], yaw + obj.rpy[2])
             p.resetBasePositionAndOrientation(body, (x, y, obj.xyz[2]), q, physicsClientId=client)
 
@@ -517,4 +561,5 @@ def build_scene(scene: Scene, client: int) -> SceneBodies:
         out.ids[obj.name] = body
         if obj.motion is not None:
             out.moving.append((body, obj))
+            out.poses[obj.name] = obj.motion.pose_at(0.0)
     return out

@@ -72,8 +72,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--pose",
         choices=("odometry", "matched", "ground-truth"),
         default=None,
-        help="pose the run's map is built with (default: robchair.scenario.POSE_DEFAULT); the odometry "
-        "and matched maps are built beside it either way",
+        help="pose the run's map is built with (default: matched, robchair.scenario.POSE_DEFAULT); the "
+        "odometry and matched maps are built beside it either way",
     )
     p.add_argument(
         "--no-matching", action="store_true", help="no scan-to-map matching (unless --pose matched)"

@@ -42,9 +42,10 @@ def precision_recall(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
 class WalkerClearing:
     """Clearing time of the cells scripted people leave, measured on a map every ``every_s`` seconds.
 
-    The scene knows each walker's trajectory (:meth:`sim.scene.Motion.pose_at`), so at each sample the
-    walkers' footprints in the height band are rasterised (surface samples of their meshes, widened by
-    one cell: the map's tolerance). A cell a walker covered and no longer covers has been *left* at
+    The scene knows each walker's trajectory (:meth:`sim.scene.Motion.pose_at`, or where the simulation
+    placed it when it stepped aside for the chair: ``poses``), so at each sample the walkers'
+    footprints in the height band are rasterised (surface samples of their meshes, widened by one
+    cell: the map's tolerance). A cell a walker covered and no longer covers has been *left* at
     that sample; if the map reads it occupied then, its clearing time is the simulated time until the
     map first reads it not occupied (unknown is not occupied). A walker coming back cancels the wait.
     Cells of the static scene (widened by one cell) are left out. Resolution: ``every_s``.
@@ -55,17 +56,21 @@ class WalkerClearing:
         band: (z_min, z_max) m of the 2D occupancy.
         static: (grid shape) bool cells of the static scene in the band.
         every_s: sampling period, simulated seconds.
+        poses: where each walker stands now, (x, y, yaw) by name (e.g. :attr:`sim.scene.SceneBodies.poses`);
+            a walker it does not name is placed by its script.
     """
 
     def __init__(self, scene: Any, grid: Any, band: tuple[float, float], static: np.ndarray,
-                 every_s: float = 0.1) -> None:  # fmt: skip
+                 every_s: float = 0.1,
+                 poses: dict[str, tuple[float, float, float]] | None = None) -> None:  # fmt: skip
         import dataclasses
         from types import SimpleNamespace
 
         from sim.scene import ground_truth_points
 
         self.grid, self.band, self.every_s = grid, band, float(every_s)
-        self.walkers: list[tuple[Any, np.ndarray]] = []
+        self.poses = poses if poses is not None else {}
+        self.walkers: list[tuple[str, Any, np.ndarray]] = []
         for obj in scene.objects:
             if obj.motion is None:
                 continue
@@ -73,7 +78,7 @@ class WalkerClearing:
             one = SimpleNamespace(objects=(at_origin,))  # ground_truth_points reads only .objects
             pts = ground_truth_points(one, grid.cell_size / 2, np.random.default_rng(0))  # type: ignore[arg-type]
             pts = pts[(pts[:, 2] >= band[0]) & (pts[:, 2] <= band[1])]
-            self.walkers.append((obj.motion, pts[:, :2]))
+            self.walkers.append((obj.name, obj.motion, pts[:, :2]))
         self.excluded = binary_dilation(static, np.ones((3, 3), dtype=bool))
         shape = grid.shape
         self.under = np.zeros(shape, dtype=bool)  # a walker covers the cell now
@@ -86,8 +91,8 @@ class WalkerClearing:
         """Cells (grid shape, bool) the walkers cover at scene time ``t`` s, widened by one cell."""
         g = self.grid
         out = np.zeros(g.shape, dtype=bool)
-        for motion, xy in self.walkers:
-            x, y, yaw = motion.pose_at(t)
+        for name, motion, xy in self.walkers:
+            x, y, yaw = self.poses[name] if name in self.poses else motion.pose_at(t)
             c, s = np.cos(yaw), np.sin(yaw)
             wx = x + c * xy[:, 0] - s * xy[:, 1]
             wy = y + s * xy[:, 0] + c * xy[:, 1]
@@ -168,7 +173,8 @@ class GroundTruthEvaluation(Observer):
                 from sim.truth import scene_occupancy
 
                 static = scene_occupancy(self.scene, p.grid, p.band)
-                self.clearing = WalkerClearing(self.scene, p.grid, p.band, static)
+                poses = getattr(getattr(self.chair, "bodies", None), "poses", None)
+                self.clearing = WalkerClearing(self.scene, p.grid, p.band, static, poses=poses)
 
     def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         gt = self.chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
