@@ -68,6 +68,8 @@ def _floor(x: float) -> int:
 # the result, only the speed.
 _SAMPLE_STEP = 32
 _MARGIN_CELLS = 2
+# Table slots addressable by the binning kernel's int32 indices.
+_INT32_SLOTS = 2**31 - 1
 
 
 def _run_bounds(
@@ -180,14 +182,17 @@ def _build_compiled(
         # points above it overflow to the exact sort path.
         nb = max(1, budget // (ni * nj * entry))
         dense = ni * nj * nb
-    mm = np.empty((dense, 2), dtype=pts.dtype)
-    mm[:, 0] = np.inf
-    mm[:, 1] = -np.inf
-    mm = mm.reshape(-1)
+    if 2 * dense + 2 >= _INT32_SLOTS:  # inputs of several GB: the kernel's slots are int32
+        return *_sort_path(pts, spec, tol), "sort"
+    # One (min, max) pair more: the scratch slot of the points that are not binned.
+    table = np.empty((dense + 1, 2), dtype=pts.dtype)
+    table[:, 0] = np.inf
+    table[:, 1] = -np.inf
     overflow = np.empty(max(4096, n // 64), np.int64)
     n_nonfinite, n_outside, n_over = K.bin_minmax(
-        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mm, overflow
+        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, table.reshape(-1), overflow
     )
+    mm = table[:dense].reshape(-1)
     n_nonfinite, n_outside = int(n_nonfinite), int(n_outside)
     # Output capacity: the worst case (every binned point its own structure) when that is small next
     # to the input (np.empty maps pages lazily, so only written pages cost memory), else counted exactly
@@ -197,7 +202,7 @@ def _build_compiled(
         cap = max(int(K.count_bin_structures(mm, nb, tol)), 1)
     out_key, out_b, out_t = np.empty(cap, np.int64), np.empty(cap, np.float64), np.empty(cap, np.float64)
     n_out = int(K.extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t))
-    del mm
+    del mm, table
     key, bot, top = out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
     del out_key, out_b, out_t
     if n_over:

@@ -8,7 +8,6 @@ Structures leave the kernels as three parallel arrays: cell key ``i * ny + j`` (
 
 from __future__ import annotations
 
-import math
 import sys
 from typing import Any
 
@@ -59,58 +58,183 @@ def scan(pts, cu, cv, ch, step):  # type: ignore[no-untyped-def]
     return n_nonfinite, u_min, u_max, v_min, v_max, h_min, h_max
 
 
+# Points per chunk of the binning pass: its index buffer (int32) stays in the L1 cache.
+_CHUNK = 4096
+
+
+@numba.jit(**_JIT)
+def _index_chunk(
+    pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, nj, nb, trash, buf
+):  # type: ignore[no-untyped-def]
+    """Table slot (``2 * entry``, or ``trash``) of each of the ``m`` points of the flat chunk ``pc``.
+
+    Branch-free, so that the compiler vectorises it (the columns ``xu, xv, xh`` are constants after
+    inlining). Same float64 operations as ``GridSpec.world_to_index``, so the cells are exact.
+
+    Returns:
+        (points off the grid with a non-finite coordinate, finite points off the grid, in-grid
+        points outside the box).
+    """
+    n_nonfinite = 0
+    n_outside = 0
+    n_over = 0
+    for q in range(m):
+        u = np.float64(pc[3 * q + xu])
+        v = np.float64(pc[3 * q + xv])
+        h = np.float64(pc[3 * q + xh])
+        fu = np.floor(u * ics)
+        fv = np.floor(v * ics)
+        di = fu - fi0
+        dj = fv - fj0
+        db = np.floor(h * iw) - fb0
+        fi = fu - fou
+        fj = fv - fov
+        finite = (u - u == 0.0) & (v - v == 0.0) & (h - h == 0.0)
+        # NaN fails every comparison: non-finite points are never in the grid nor in the box
+        ingrid = (fi >= 0.0) & (fj >= 0.0) & (fi < fnx) & (fj < fny)
+        ok = (di >= 0.0) & (dj >= 0.0) & (db >= 0.0) & (di < fni) & (dj < fnj) & (db < fnb)
+        n_nonfinite += int(~ingrid & ~finite)
+        n_outside += int(~ingrid & finite)
+        n_over += int(ingrid & ~ok)
+        idx = (np.int32(di) * nj + np.int32(dj)) * nb + np.int32(db)
+        buf[q] = (idx + idx) if ok else trash
+    return n_nonfinite, n_outside, n_over
+
+
 @numba.jit(**_JIT)
 def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, mm, overflow):  # type: ignore[no-untyped-def]
     """Min and max height per (cell, height bin of width ``1 / iw``) inside a box of cells and bins.
 
-    ``mm`` is a flat dense table of ``2 * ni * nj * nb`` entries, (min, max) side by side so that one
-    cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 + nj)
-    x [b0, b0 + nb)`` (grid indices, bin indices). In-grid points whose cell or bin falls outside the
+    ``mm`` is a flat dense table of ``2 * ni * nj * nb + 2`` entries, (min, max) side by side so that
+    one cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 +
+    nj) x [b0, b0 + nb)`` (grid indices, bin indices); the last two entries are scratch (points that
+    are not binned write there, so that the scatter has no branch). ``2 * ni * nj * nb + 2`` must fit
+    an int32. ``pts`` is C-contiguous ``(N, 3)``. In-grid points whose cell or bin falls outside the
     box — including those with a non-finite height — are not binned: their indices go to ``overflow``
-    (as many as fit) for the exact slow path, which also counts their non-finite heights.
+    (as many as fit, in increasing order) for the exact slow path, which also counts their non-finite
+    heights.
+
+    Per chunk of points: a vectorised pass computes every point's slot, then a scalar pass updates
+    the table (the update's order does not matter: min and max are exact).
 
     Returns:
         (n_nonfinite_uv, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
     """
     n = pts.shape[0]
-    n_nonfinite = 0
-    n_outside = 0
-    n_over = 0
+    p = pts.reshape(-1)
     cap = overflow.shape[0]
+    trash = np.int32(mm.shape[0] - 2)
+    fou = np.float64(ou)
+    fov = np.float64(ov)
     # Box offsets as floats: floor() values minus these are exact whenever the result is inside the box
-    # (integers below 2**53, or Sterbenz subtraction), so the fast test below can stay in float64.
+    # (integers below 2**53, or Sterbenz subtraction), so the box test can stay in float64.
     fi0 = np.float64(ou + i0)
     fj0 = np.float64(ov + j0)
     fb0 = np.float64(b0)
+    fnx = np.float64(nx)
+    fny = np.float64(ny)
     fni = np.float64(ni)
     fnj = np.float64(nj)
     fnb = np.float64(nb)
-    for k in range(n):
-        u = np.float64(pts[k, cu])
-        v = np.float64(pts[k, cv])
-        hv = pts[k, ch]
-        di = np.floor(u * ics) - fi0
-        dj = np.floor(v * ics) - fj0
-        db = np.floor(np.float64(hv) * iw) - fb0
-        # NaN fails every comparison, so this one test screens non-finite, out-of-grid and out-of-box
-        # points, which are then told apart on the rare path.
-        if di >= 0.0 and dj >= 0.0 and db >= 0.0 and di < fni and dj < fnj and db < fnb:
-            idx = 2 * ((np.int64(di) * nj + np.int64(dj)) * nb + np.int64(db))
+    nj32 = np.int32(nj)
+    nb32 = np.int32(nb)
+    buf = np.empty(_CHUNK, np.int32)
+    n_nonfinite = 0
+    n_outside = 0
+    n_over = 0
+    for s in range(0, n, _CHUNK):
+        m = min(_CHUNK, n - s)
+        pc = p[3 * s : 3 * (s + m)]
+        # literal columns for the common axes: contiguous loads the compiler can vectorise
+        if ch == 2:
+            a, b, c = _index_chunk(
+                pc,
+                m,
+                0,
+                1,
+                2,
+                ics,
+                fou,
+                fov,
+                fnx,
+                fny,
+                fi0,
+                fj0,
+                fni,
+                fnj,
+                iw,
+                fb0,
+                fnb,
+                nj32,
+                nb32,
+                trash,
+                buf,
+            )
+        elif ch == 0:
+            a, b, c = _index_chunk(
+                pc,
+                m,
+                1,
+                2,
+                0,
+                ics,
+                fou,
+                fov,
+                fnx,
+                fny,
+                fi0,
+                fj0,
+                fni,
+                fnj,
+                iw,
+                fb0,
+                fnb,
+                nj32,
+                nb32,
+                trash,
+                buf,
+            )
+        else:
+            a, b, c = _index_chunk(
+                pc,
+                m,
+                cu,
+                cv,
+                ch,
+                ics,
+                fou,
+                fov,
+                fnx,
+                fny,
+                fi0,
+                fj0,
+                fni,
+                fnj,
+                iw,
+                fb0,
+                fnb,
+                nj32,
+                nb32,
+                trash,
+                buf,
+            )
+        n_nonfinite += a
+        n_outside += b
+        if c:  # rare: in-grid points outside the guessed box (or with a non-finite height)
+            for q in range(m):
+                if buf[q] == trash:
+                    fi = np.floor(np.float64(pc[3 * q + cu]) * ics) - fou
+                    fj = np.floor(np.float64(pc[3 * q + cv]) * ics) - fov
+                    if fi >= 0.0 and fj >= 0.0 and fi < fnx and fj < fny:
+                        if n_over < cap:
+                            overflow[n_over] = s + q
+                        n_over += 1
+        for q in range(m):
             # Branch-free min/max: which point is extreme in its bin is unpredictable.
-            mm[idx] = min(mm[idx], hv)
-            mm[idx + 1] = max(mm[idx + 1], hv)
-            continue
-        fi = np.floor(u * ics) - ou
-        fj = np.floor(v * ics) - ov
-        if not (fi >= 0.0 and fj >= 0.0 and fi < nx and fj < ny):
-            if math.isfinite(u) and math.isfinite(v) and math.isfinite(np.float64(hv)):
-                n_outside += 1
-            else:
-                n_nonfinite += 1
-            continue
-        if n_over < cap:
-            overflow[n_over] = k
-        n_over += 1
+            i = buf[q]
+            hv = pc[3 * q + ch]
+            mm[i] = min(mm[i], hv)
+            mm[i + 1] = max(mm[i + 1], hv)
     return n_nonfinite, n_outside, n_over
 
 
