@@ -469,16 +469,18 @@ def test_two_gaps_over_the_watchdog_count_two_trips_and_the_gap_is_printed_to_th
 
 
 class OverSpeedSafety(SafetyLayer):
-    """A safety layer that passes 5 m/s straight ahead (far over the platform): the write must cap it."""
+    """A safety layer that passes (5 m/s, 1 rad/s) (far over the platform): the write must cap it."""
 
     def filter(self, v: float, w: float, inputs: object, dt: float) -> SafetyDecision:  # type: ignore[override]
-        return SafetyDecision(5.0, 0.0)
+        return SafetyDecision(5.0, 1.0)
 
 
 def test_the_write_caps_the_wheels_at_the_motor_limit_and_reports_the_capped_twist(spec) -> None:
-    """Spec: 1000 motor RPM through 29:1 on 0.172 m wheels is 1000 / 29 x 2 pi / 60 x 0.172 = 0.62110 m/s.
-    Whatever the safety layer passes, the write is exactly 1000 RPM per wheel and the cycle's decision
-    is the capped twist (0.62110, 0)."""
+    """Spec: 1000 motor RPM through 29:1 on 0.172 m wheels is a wheel speed of 1000 / 29 x 2 pi / 60 x
+    0.172 = 0.62110 m/s; wheel separation 0.58 m. Whatever the safety layer passes, here (5, 1): the
+    wheels would need 5 -+ 0.29 m/s, so the twist is scaled by 0.62110 / 5.29, keeping the curve: the
+    right motor at exactly 1000 RPM, the left at 1000 x 4.71 / 5.29 = 890.36 RPM, and the cycle's
+    decision is the scaled twist."""
     clock = ManualClock(start_ns=1_000_000_000)
     motors = RecordingMotors(clock)
     safety = OverSpeedSafety(SafetyLimits.from_spec(spec), spec.wheel_separation)
@@ -487,5 +489,6 @@ def test_the_write_caps_the_wheels_at_the_motor_limit_and_reports_the_capped_twi
     rt.start()
     cycle = rt.step()
     rt.stop()
-    assert motors.written[0][1:] == pytest.approx((1000.0, 1000.0), abs=1e-9)
-    assert (cycle.decision.v, cycle.decision.w) == pytest.approx((1000 / 29 * 2 * math.pi / 60 * 0.172, 0.0))
+    k = 1000 / 29 * 2 * math.pi / 60 * 0.172 / 5.29
+    assert motors.written[0][1:] == pytest.approx((1000.0 * 4.71 / 5.29, 1000.0), abs=1e-9)
+    assert (cycle.decision.v, cycle.decision.w) == pytest.approx((5.0 * k, 1.0 * k), abs=1e-12)
