@@ -7,7 +7,8 @@
 # Each name is a set of mutant-name globs (mutmut 3 names a mutant module.x_function__mutmut_N, or
 # module.xǁClassǁmethod__mutmut_N). Results accumulate in mutants/ (a re-run resumes); the summary
 # printed at the end counts killed / survived / timeout / other per module over everything run so far.
-# Not part of the default test run: it takes minutes to hours on a small machine.
+# Not part of the default test run: it takes minutes to hours on a small machine. One test process at a
+# time, niced (MUTMUT_CHILDREN, MUTMUT_NICE to change). Equivalent survivors: tests/mutation/SURVIVORS.md.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 MUTMUT=${MUTMUT:-mutmut}
@@ -34,7 +35,8 @@ for name in "${names[@]}"; do
   fi
   echo "== $name"
   # shellcheck disable=SC2086  # the globs are split into arguments, not expanded by the shell
-  (set -f; "$MUTMUT" run --max-children "${MUTMUT_CHILDREN:-2}" $globs) || echo "== $name: mutmut exited $?"
+  (set -f; nice -n "${MUTMUT_NICE:-10}" "$MUTMUT" run --max-children "${MUTMUT_CHILDREN:-1}" $globs) ||
+    echo "== $name: mutmut exited $?"
 done
 echo "== summary (module: killed survived timeout other)"
 "$MUTMUT" results --all true | awk -F': ' '

@@ -70,3 +70,111 @@ def test_within_the_tolerance_of_the_end_the_route_is_done_and_stays_done() -> N
     assert cmd.done and (cmd.v, cmd.w) == (0.0, 0.0) and pp.done is True
     again, _ = _command(route, 0.0, 0.0, 0.0, pp)
     assert again.done and (again.v, again.w) == (0.0, 0.0)
+
+
+def test_a_chair_beside_the_end_slows_for_its_distance_to_the_last_waypoint() -> None:
+    """Route (0, 0) -> (1, 0), chair at (0.98, 0.12) facing the last waypoint: progress 0.98 m leaves
+    0.02 m of path but the waypoint is hypot(0.02, 0.12) = 0.12166 m away (over the 0.1 m tolerance,
+    not done). The goal point is straight ahead (k = 0), so v = sqrt(2 x 0.4 x 0.12166) = 0.31198 m/s
+    (the larger of the two distances decides, not the 0.02 m of path)."""
+    theta = math.atan2(-0.12, 0.02)
+    cmd, _ = _command(Route(((0.0, 0.0), (1.0, 0.0)), speed=0.4), 0.98, 0.12, theta)
+    assert not cmd.done
+    assert (cmd.v, cmd.w) == pytest.approx((math.sqrt(0.8 * math.hypot(0.02, 0.12)), 0.0), abs=1e-9)
+
+
+def test_the_goal_point_follows_the_path_round_a_corner() -> None:
+    """Route (0, 0) -> (1, 0) -> (1, 2), chair at (0.7, 0) heading +x: progress 0.7 m, the goal point
+    0.6 m further is 0.3 m up the second segment, (1, 0.3): x_r = 0.3, y_r = 0.3, l^2 = 0.18,
+    k = 0.6 / 0.18 = 3.33333, v = 0.4 / (1 + 0.6 k) = 0.13333 m/s, w = v k = 0.44444 rad/s (the stopping
+    bound sqrt(2 x 0.4 x 2.3) = 1.36 m/s does not act)."""
+    cmd, pp = _command(Route(((0.0, 0.0), (1.0, 0.0), (1.0, 2.0)), speed=0.4), 0.7, 0.0, 0.0)
+    assert (cmd.v, cmd.w) == pytest.approx((0.4 / 3.0, 0.4 / 3.0 * 10.0 / 3.0), abs=1e-9)
+    assert pp.length == pytest.approx(3.0, abs=1e-12)
+
+
+def test_the_cross_track_error_is_the_distance_to_the_path() -> None:
+    """Route (0, 0) -> (10, 0), no progress yet (the search window is the first 2 x 0.6 = 1.2 m): a
+    chair at (0.5, 0.3) is 0.3 m from the path, one at (2, 0.3) is hypot(0.8, 0.3) = 0.85440 m from the
+    window's end (1.2, 0). On a corner route (0, 0) -> (1, 0) -> (1, 2) with progress 0.9 m a chair at
+    (1.4, 1.0) is 0.4 m from the second segment."""
+    pp = PurePursuit(Route(((0.0, 0.0), (10.0, 0.0))), DiffDrive(load_spec()))
+    assert pp.cross_track_error(Pose2D(0.5, 0.3, 0.0)) == pytest.approx(0.3, abs=1e-12)
+    assert pp.cross_track_error(Pose2D(2.0, 0.3, 0.0)) == pytest.approx(math.hypot(0.8, 0.3), abs=1e-12)
+    corner = PurePursuit(Route(((0.0, 0.0), (1.0, 0.0), (1.0, 2.0))), DiffDrive(load_spec()))
+    corner._s = 0.9  # progress near the corner: the second segment is within the search window
+    assert corner.cross_track_error(Pose2D(1.4, 1.0, 0.0)) == pytest.approx(0.4, abs=1e-12)
+
+
+def test_a_repeated_waypoint_is_a_zero_length_segment_the_follower_steps_over() -> None:
+    """Route (0, 0) -> (1, 0) -> (1, 0) -> (3, 0) (the second corner repeated): length 3 m; a chair on
+    the path at (1.2, 0) heading +x drives straight at the route speed (0.4, 0): the zero-length
+    segment neither divides by zero nor pulls the goal point back."""
+    cmd, pp = _command(Route(((0.0, 0.0), (1.0, 0.0), (1.0, 0.0), (3.0, 0.0)), speed=0.4), 1.2, 0.0, 0.0)
+    assert pp.length == pytest.approx(3.0, abs=1e-12)
+    assert (cmd.v, cmd.w) == pytest.approx((0.4, 0.0), abs=1e-12)
+    assert pp._s == pytest.approx(1.2, abs=1e-12)
+
+
+def test_a_route_file_loads_with_its_values(tmp_path) -> None:
+    """A route file in the documented format (the one of examples/routes/short_turn.toml): waypoints
+    (0, 0), (1.5, 0), (2.2, 0.5), speed 0.3 m/s, look-ahead 0.5 m, goal tolerance 0.1 m; path length
+    1.5 + hypot(0.7, 0.5) = 2.36023 m."""
+    path = tmp_path / "short_turn.toml"
+    path.write_text(
+        "waypoints = [[0.0, 0.0], [1.5, 0.0], [2.2, 0.5]]\n"
+        "speed = 0.3\nlookahead_m = 0.5\ngoal_tolerance_m = 0.1\n"
+    )
+    route = Route.load(path)
+    assert route == Route(
+        ((0.0, 0.0), (1.5, 0.0), (2.2, 0.5)), speed=0.3, lookahead_m=0.5, goal_tolerance_m=0.1
+    )
+    pp = PurePursuit(route, DiffDrive(load_spec()))
+    assert pp.length == pytest.approx(1.5 + math.hypot(0.7, 0.5), abs=1e-12)
+    assert pp.search_window_m == pytest.approx(1.0, abs=1e-12)  # two look-aheads (class docstring)
+
+
+def test_a_route_table_gets_the_documented_defaults_and_its_own_values() -> None:
+    """The route file format (Route docstring): speed 0.3 m/s, look-ahead 0.6 m and goal tolerance
+    0.1 m when not given; given values are kept."""
+    assert Route.from_dict({"waypoints": [[0, 0], [1, 0]]}, where="route") == Route(
+        ((0.0, 0.0), (1.0, 0.0)), speed=0.3, lookahead_m=0.6, goal_tolerance_m=0.1
+    )
+    r = Route.from_dict(
+        {"waypoints": [[0, 0], [1, 0]], "speed": 0.5, "lookahead_m": 0.7, "goal_tolerance_m": 0.2},
+        where="route",
+    )
+    assert (r.speed, r.lookahead_m, r.goal_tolerance_m) == (0.5, 0.7, 0.2)
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"waypoints": [[0, 0]]}, "route.waypoints = [[0, 0]]: expected a list of at least 2"),
+        ({"waypoints": [[0, 0], [1, 0]], "speedy": 1}, "route.speedy: unknown key"),
+        ({"waypoints": [[0, 0], [1, 0]], "speed": 0.0}, "route.speed = 0.0: expected a finite number > 0"),
+        ({"waypoints": [[0, 0], [1, 0]], "lookahead_m": 0.0}, "route.lookahead_m = 0.0: expected"),
+        ({"waypoints": [[0, 0], [1, 0]], "goal_tolerance_m": 0.0}, "route.goal_tolerance_m = 0.0: expected"),
+    ],
+)
+def test_a_bad_route_table_is_refused_naming_the_key(table: dict, message: str) -> None:
+    """The route file rules (Route docstring): at least two waypoints, positive numbers, known keys;
+    the error names ``route.<key>`` in the config dialect."""
+    from robchair.platform.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        Route.from_dict(table, where="route")
+    assert message in str(err.value)
+
+
+@pytest.mark.parametrize("kwargs", [{"speed": 0.0}, {"lookahead_m": -1.0}, {"goal_tolerance_m": 0.0}])
+def test_a_route_built_in_code_is_checked_like_a_file(kwargs: dict) -> None:
+    """A Route made directly is held to the same rules: one waypoint or a non-positive number is refused;
+    small positive numbers (0.05) are accepted."""
+    from robchair.platform.errors import ConfigError
+
+    with pytest.raises(ConfigError):
+        Route(((0.0, 0.0), (1.0, 0.0)), **kwargs)
+    with pytest.raises(ConfigError):
+        Route(((0.0, 0.0),))
+    Route(((0.0, 0.0), (1.0, 0.0)), speed=0.05, lookahead_m=0.05, goal_tolerance_m=0.05)
