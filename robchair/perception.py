@@ -493,7 +493,7 @@ class Perception:
         ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
         arrays = self.spec.sonar_arrays
         fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
-        arc = sonar_obstacle_points(reading, mount, arrays)
+        arc = sonar_obstacle_points(reading, mount, arrays, fusion=fusion)
         if len(arc) and self._scan_world is not None:  # the laser locates the echo's surface if it sees it
             c, s = math.cos(pose.theta), math.sin(pose.theta)
             q = self._scan_world - (pose.x, pose.y)

@@ -26,18 +26,21 @@ def _zone_tables(outer_sonar_deg: float) -> Any:
 
 
 def sonar_obstacle_points(
-    reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9
+    reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9, fusion: Any = None
 ) -> np.ndarray:
     """Points (N, 2) in ``base_link`` where the fused obstacle of one array reading may lie.
 
     Five-zone fusion (thesis 5.2) gives the distance ``d`` and the bearing interval holding the
     obstacle; the obstacle may be anywhere on that arc, so the arc is sampled (conservative). The
     outer sonars' angle and the servo's centre come from ``arrays`` (``spec.sonar_arrays``).
+    ``fusion``: the reading's :func:`mapping.sonar.fuse_array` result when the caller has it already.
     """
     from mapping.sonar import fuse_array
 
-    r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
-    res = fuse_array(r1, r2, r3, tables=_zone_tables(arrays.outer_sonar_deg))
+    res = fusion
+    if res is None:
+        r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
+        res = fuse_array(r1, r2, r3, tables=_zone_tables(arrays.outer_sonar_deg))
     if not res.has_obstacle:
         return np.zeros((0, 2))
     yaw0 = mount.rpy[2] + arrays.joint_angle(reading.servo_angle_deg)
@@ -62,6 +65,7 @@ def explained_arc(arc: np.ndarray, origin: Any, scan_xy: np.ndarray | None, tol:
     mid = b[len(b) // 2]
     rel = np.angle(np.exp(1j * (b - mid)))
     q = scan_xy - o
-    qb = np.angle(np.exp(1j * (np.arctan2(q[:, 1], q[:, 0]) - mid)))
-    near = (np.abs(np.hypot(q[:, 0], q[:, 1]) - d) <= tol) & (qb >= rel.min()) & (qb <= rel.max())
-    return scan_xy[near] if near.any() else arc
+    at_range = np.flatnonzero(np.abs(np.hypot(q[:, 0], q[:, 1]) - d) <= tol)  # bearings of these only
+    qb = np.angle(np.exp(1j * (np.arctan2(q[at_range, 1], q[at_range, 0]) - mid)))
+    near = at_range[(qb >= rel.min()) & (qb <= rel.max())]
+    return scan_xy[near] if len(near) else arc

@@ -30,6 +30,7 @@ import numpy as np
 from robchair.platform import frames
 from robchair.platform.kinematics import DiffDrive, Pose2D, wrap_int32
 from robchair.platform.spec import RobChairSpec
+from sim import _wheel_kernels
 from sim.errors import SimError, SimulationDivergedError
 from sim.urdf import SERVO_MAX_TORQUE, SERVO_MAX_VELOCITY, WHEEL_JOINTS, apply_contact_dynamics, write_urdf
 from sim.world import World
@@ -140,6 +141,10 @@ class SimRobot:
         self.nominal_plants = (self.left.plant.plant, self.right.plant.plant)
         self._apply_wheel_targets(0.0, 0.0)
         self._step_count = 0
+        #: run both wheels' controller ticks in one compiled call (:mod:`sim._wheel_kernels`, the
+        #: arithmetic of ``WheelMotor.update`` bit for bit); False runs the Python classes
+        self.compiled_motors = True
+        self._compiled = _wheel_kernels.CompiledWheels()
         world.add_pre_step(self._pre_step)
 
     def _load_body(self, start: tuple[float, float, float]) -> None:
@@ -266,7 +271,11 @@ class SimRobot:
         ticks = (n + 1) * rate // hz - n * rate // hz
         if ticks:
             ml, mr = self.wheel_speed_rpm()
-            self._apply_wheel_targets(self.left.update(ml, ticks), self.right.update(mr, ticks))
+            motors = (self.left, self.right)
+            if self.compiled_motors and _wheel_kernels.compiled_ok(motors):
+                self._apply_wheel_targets(*self._compiled.ticks(motors, ml, mr, ticks))
+            else:
+                self._apply_wheel_targets(self.left.update(ml, ticks), self.right.update(mr, ticks))
         self._step_count += 1
 
     def encoder_counts(self) -> tuple[int, int]:

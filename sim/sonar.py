@@ -155,14 +155,15 @@ class _Beam:
         are refused by :meth:`MeshMirror.cast` either way.
         """
         n = len(self.dirs)
-        dirs = np.concatenate([self.dirs @ t[:3, :3].T for t in poses])
+        stack = np.asarray(poses, dtype=float)  # (k, 4, 4)
+        # every sonar's directions in one product: (k, n, 3) = dirs (n, 3) @ R_k^T
+        dirs = np.matmul(self.dirs, stack[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
         mirror.sync()
-        if compiled and all(np.all(np.isfinite(t)) for t in poses):
+        if compiled and math.isfinite(float(stack.sum())):
             from sim._kinect_kernels import sonar_first_echo
 
             rays = np.empty((len(dirs), 6), dtype=np.float32)
-            for k, t in enumerate(poses):
-                rays[k * n : (k + 1) * n, :3] = t[:3, 3]
+            rays[:, :3] = np.repeat(stack[:, :3, 3], n, axis=0)
             rays[:, 3:] = dirs
             t_hit, gid, nrm = mirror.cast_raw(rays)
             return sonar_first_echo(  # type: ignore[no-any-return]
@@ -301,14 +302,16 @@ class SonarArraySim:
         )
         self._beam = _Beam(self.model, ray_spacing_deg, max_incidence_deg)
         self.name = name
+        # each sonar in the turned frame: fixed, so built once
+        self._local = [
+            frames.se3_planar(off[0], off[1], math.radians(yaw), off[2])
+            for off, yaw in zip(self.offsets, self.yaws_deg)
+        ]
 
     def sonar_poses(self, array_pose: Any, servo_angle_deg: float) -> list[FloatArray]:
         """World poses of sonars 1, 2, 3."""
         base = pose_matrix(array_pose) @ frames.se3_planar(0.0, 0.0, math.radians(servo_angle_deg))
-        return [
-            base @ frames.se3_planar(off[0], off[1], math.radians(yaw), off[2])
-            for off, yaw in zip(self.offsets, self.yaws_deg)
-        ]
+        return [base @ local for local in self._local]
 
     def measure(
         self, array_pose: Any, servo_angle_deg: float = 0.0, *, rng: np.random.Generator | None = None

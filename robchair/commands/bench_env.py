@@ -26,8 +26,11 @@ loaded machine's wall clock cannot show.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
+import warnings
+from collections.abc import Iterator
 from typing import Any
 
 from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
@@ -130,6 +133,15 @@ def _vec_run(envs: Any, steps: int, seed: int) -> float:
     return time.perf_counter() - t0
 
 
+@contextlib.contextmanager
+def _v1_ids() -> Iterator[None]:
+    """Make the ids the targets name without Gymnasium's "is out of date, upgrade to v2" warning
+    (forked workers inherit the filter)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".*is out of date", category=DeprecationWarning)
+        yield
+
+
 def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict[str, Any]:
     """Steps per second of one configuration: every run and the median."""
     import statistics
@@ -146,9 +158,10 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
         import sim.envs
 
-        envs = gymnasium.make_vec(
-            config["id"], num_envs=workers, vectorization_mode="async", **config["kwargs"]
-        )
+        with _v1_ids():
+            envs = gymnasium.make_vec(
+                config["id"], num_envs=workers, vectorization_mode="async", **config["kwargs"]
+            )
         try:
             _vec_run(envs, 5, seed)  # warm-up in every worker
             secs = [_vec_run(envs, steps, seed + k) for k in range(repeats)]
@@ -160,7 +173,8 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
         import sim.envs  # noqa: F401  (registers the ids)
 
-        env = gymnasium.make(config["id"], **config["kwargs"])
+        with _v1_ids():
+            env = gymnasium.make(config["id"], **config["kwargs"])
         try:
             _env_run(env, 5, seed)  # warm-up: numba kernels, Embree scene
             env_runs = [_env_run(env, steps, seed + k) for k in range(repeats)]

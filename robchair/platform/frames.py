@@ -76,11 +76,22 @@ def rotation_axis_angle(axis: npt.ArrayLike, angle: float) -> FloatArray:
     Raises:
         ValueError: if ``axis`` has zero length.
     """
-    a = np.asarray(axis, dtype=float)
-    n = float(np.linalg.norm(a))
+    x, y, z = (float(v) for v in np.asarray(axis, dtype=float).ravel())
+    n = math.sqrt(x * x + y * y + z * z)
     if n == 0.0:
-        raise ValueError(f"rotation axis {tuple(a)} has zero length")
-    return Rotation.from_rotvec(a / n * float(angle)).as_matrix()
+        raise ValueError(f"rotation axis {(x, y, z)} has zero length")
+    # closed form of Rotation.from_rotvec(axis / n * angle).as_matrix() (tested against it): the unit
+    # quaternion (sin(angle / 2) axis / n, cos(angle / 2)) to a matrix, ~50x cheaper than scipy
+    h = 0.5 * float(angle)
+    s = math.sin(h) / n
+    qx, qy, qz, qw = x * s, y * s, z * s, math.cos(h)
+    return np.array(
+        [
+            [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+            [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+            [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+        ]
+    )
 
 
 def quat_from_matrix(r: Any) -> tuple[float, float, float, float]:

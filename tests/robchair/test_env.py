@@ -578,3 +578,18 @@ def test_bench_env_writes_one_row_per_configuration_against_the_physics_only_bas
         assert r["real_time_factor"] == pytest.approx(r["median_steps_per_s"] / 10)
     assert "light, 2 Async workers" in capsys.readouterr().out
     assert result["rows"][-1]["speedup_vs_one_env"] > 0
+
+
+def test_bench_env_measures_the_v1_ids_without_gymnasiums_upgrade_warning() -> None:
+    """The ids the bench's targets name are v1; Gymnasium warns "is out of date" for each make of one
+    (a v2 is registered), which flooded the bench's output. The bench silences that one warning."""
+    import warnings
+
+    from robchair.commands import bench_env
+
+    light = next(c for c in bench_env.CONFIGS if c.get("id") == "RobChair/Navigation-v1")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = bench_env.measure(light, steps=1, repeats=1, seed=0)
+    assert res["median_steps_per_s"] > 0
+    assert not [w for w in caught if "out of date" in str(w.message)]

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -135,3 +135,23 @@ def test_a_large_float32_cloud_is_placed_like_the_float64_product_and_keeps_its_
     assert np.array_equal(np.isnan(got), np.isnan(want))
     ok = ~np.isnan(want)
     assert np.array_equal(got[ok], want.astype(np.float32)[ok])  # one rounding of the float64 result
+
+
+def test_a_quarter_turn_about_z_maps_x_onto_y_and_y_onto_minus_x() -> None:
+    """Hand computation: Rz(90 deg) = [[0, -1, 0], [1, 0, 0], [0, 0, 1]], whatever the axis length."""
+    r = frames.rotation_axis_angle((0.0, 0.0, 2.5), math.pi / 2)
+    np.testing.assert_allclose(r, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-15)
+
+
+@given(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1), st.floats(-2 * math.pi, 2 * math.pi))
+def test_axis_angle_rotation_is_scipys_rotation_vector(x: float, y: float, z: float, angle: float) -> None:
+    """The closed form against scipy's ``Rotation.from_rotvec`` (an independent implementation)."""
+    n = math.sqrt(x * x + y * y + z * z)
+    assume(n > 1e-3)
+    want = Rotation.from_rotvec(np.array([x, y, z]) / n * angle).as_matrix()
+    np.testing.assert_allclose(frames.rotation_axis_angle((x, y, z), angle), want, atol=1e-14)
+
+
+def test_a_zero_length_rotation_axis_is_refused() -> None:
+    with pytest.raises(ValueError, match="zero length"):
+        frames.rotation_axis_angle((0.0, 0.0, 0.0), 1.0)
