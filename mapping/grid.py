@@ -252,3 +252,44 @@ class GridSpec:
         out = np.empty_like(a)
         out[..., list(self.columns)] = a
         return out
+
+
+def voxel_filter(points: ArrayLike, size: float, t_lattice: ArrayLike | None = None) -> NDArray[np.float32]:
+    """One measured point per cubic voxel of side ``size``: the first of each voxel, in input order.
+
+    PCL's ``VoxelGrid`` keeps each voxel's centroid instead; a centroid moves up to half a voxel away
+    from the points, across the border of a map cell, while a measured point stays in the map cell it
+    was seen in. Voxels sit on the lattice ``floor(T p / size)`` of the frame ``t_lattice`` maps the
+    points into (e.g. ``T_base_sensor``: voxel heights on the lattice of the map's height bands), while
+    the kept points stay in their own frame. Non-finite points are dropped.
+
+    Args:
+        points: ``(..., 3)`` coordinates, m (an organized ``(H, W, 3)`` frame is flattened row by row).
+        size: Voxel side, m (> 0).
+        t_lattice: ``(4, 4)`` transform into the lattice's frame (default: the points' own frame).
+
+    Returns:
+        ``(M, 3)`` float32 points, M at most the number of finite points.
+
+    Raises:
+        ValueError: ``size`` is not a positive finite number, or the last axis is not 3.
+    """
+    if not (math.isfinite(size) and size > 0):
+        raise ValueError(f"voxel_filter size={size!r}: expected a voxel side in metres > 0")
+    p = np.asarray(points)
+    if p.shape[-1:] != (3,):
+        raise ValueError(f"voxel_filter points: expected shape (..., 3), got {p.shape}")
+    p = p.reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    if not len(p):
+        return np.empty((0, 3), dtype=np.float32)
+    q = p.astype(np.float64)
+    if t_lattice is not None:
+        t = np.asarray(t_lattice, dtype=np.float64)
+        q = q @ t[:3, :3].T + t[:3, 3]
+    keys = np.floor(q * (1.0 / size)).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one integer per voxel
+    _, first = np.unique(flat, return_index=True)
+    return np.asarray(p[np.sort(first)], dtype=np.float32)

@@ -152,7 +152,7 @@ def run_scenario(
     safety: bool = True,
     safety_limits: SafetyLimits | None = None,
     bag_storage: str = "mcap",
-    bag_clouds: str = "decimated",
+    bag_clouds: str = "voxel",
     pose: str = POSE_DEFAULT,
     matching: bool = True,
     zoom: bool = True,
@@ -242,7 +242,7 @@ def run_scenario(
 def _options(progress: bool, write_bag: bool, mapping_thread: bool, ground_truth_map: bool, safety: bool,
             safety_limits: SafetyLimits | None, bag_storage: str, pictures: bool, sensor: str, seed: int,
             camera_backend: str, wall0: float, pose: str = POSE_DEFAULT, matching: bool = True,
-            zoom: bool = True, bag_clouds: str = "decimated") -> dict[str, Any]:  # fmt: skip
+            zoom: bool = True, bag_clouds: str = "voxel") -> dict[str, Any]:  # fmt: skip
     return dict(progress=progress, write_bag=write_bag, mapping_thread=mapping_thread,
                 ground_truth_map=ground_truth_map, safety=safety, safety_limits=safety_limits,
                 bag_storage=bag_storage, pictures=pictures, sensor=sensor, seed=seed,
@@ -254,7 +254,7 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
            duration: float, stage: Path | None, o: dict[str, Any],
            extra_observers: Sequence[Observer] = ()) -> RunResult:  # fmt: skip
     from robchair.observers.evaluation import GroundTruthEvaluation
-    from robchair.observers.recorder import BAG_CLOUDS, RunRecorder
+    from robchair.observers.recorder import DEFAULT_BAG_CLOUDS, RunRecorder
     from robchair.perception import Perception
 
     frames = {}
@@ -278,10 +278,7 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
     observers: list[Observer] = [evaluation]
     recorder = None
     if stage is not None and o["write_bag"]:
-        every, stride = BAG_CLOUDS[o.get("bag_clouds", "decimated")]
-        recorder = RunRecorder(
-            stage / "bag", storage=o["bag_storage"], cloud_every=every, cloud_stride=stride
-        )
+        recorder = RunRecorder(stage / "bag", o["bag_storage"], o.get("bag_clouds", DEFAULT_BAG_CLOUDS))
         observers.append(recorder)
     if stage is not None:
         from robchair.observers.timeseries import TimeseriesWriter
@@ -371,20 +368,10 @@ def write_zoom_picture(res: RunResult, band: tuple[float, float], path: Path) ->
 
 def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Path, pictures: bool) -> None:
     """``maps.npz``, the map exports and pictures (``map/``), ``scene.png`` and ``metrics.json``."""
-    from mapping.derived import occupancy_codes
+    from robchair.run_output import default_band, write_maps
 
-    arrays: dict[str, np.ndarray] = {}
-    band = res.metrics()["map"].get("occupancy_band_m") or [0.10, spec.body.height]
-    for name, m in res.maps.items():
-        s = m.structures()
-        for field in ("i", "j", "bottom", "top"):
-            arrays[f"{name}_{field}"] = np.asarray(getattr(s, field))
-        # nav_msgs/OccupancyGrid codes of the band: 100 occupied, 0 free, -1 unknown
-        arrays[f"{name}_occupancy"] = occupancy_codes(m, (float(band[0]), float(band[1])))
-    for name, p in res.paths.items():
-        arrays[f"path_{name}"] = p
-    np.savez_compressed(out / "maps.npz", **arrays)  # type: ignore[arg-type]
-    files = ["metrics.json", "maps.npz"]
+    band = default_band(res, spec)
+    files = ["metrics.json", *write_maps(out, res, band)]
     timing = res.extra.setdefault("wall_time_s", {})
     if pictures:
         from mapping.export import write_map_outputs
@@ -392,15 +379,15 @@ def write_run_folder(res: RunResult, scenario: Any, spec: RobChairSpec, out: Pat
 
         t0 = time.perf_counter()
         (out / "map").mkdir()
-        write_map_outputs(res.maps["odometry"], out / "map", band=tuple(band),
+        write_map_outputs(res.maps["odometry"], out / "map", band=band,
                           build_ms=res.extra.get("mapping_ms_total"),
                           parameters={"scenario": scenario.name, "pose_source": "odometry"})  # fmt: skip
         if "zoom" in res.maps:
-            write_zoom_picture(res, tuple(band), out / "map" / "zoom_2d.png")
+            write_zoom_picture(res, band, out / "map" / "zoom_2d.png")
         from robchair.viz.map_picture import MAP_2D_NAME, write_map_2d
 
         main = res.extra.get("matching", {}).get("pose", "odometry").replace("-", "_")
-        write_map_2d(res, scenario, tuple(band), out / MAP_2D_NAME,
+        write_map_2d(res, scenario, band, out / MAP_2D_NAME,
                      map_name=main if main in res.maps else "odometry")  # fmt: skip
         import matplotlib.pyplot as plt
 

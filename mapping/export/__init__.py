@@ -73,6 +73,7 @@ def write_map_outputs(
     max_boxes_3d: int = 1500,
     bag_storage: str = "sqlite3",
     extra: dict[str, Any] | None = None,
+    pictures: bool = True,
 ) -> dict[str, Any]:
     """Write pictures, map_server PGM + YAML, PLY meshes, a ROS 2 bag and ``summary.json`` for a map.
 
@@ -90,6 +91,7 @@ def write_map_outputs(
         max_boxes_3d: Cap on boxes drawn in the 3D picture (the PLY and the bag hold all).
         bag_storage: ``sqlite3`` (default of ROS 2 Humble) or ``mcap``.
         extra: Further top-level entries of the summary (after ``parameters``).
+        pictures: Draw the three PNG pictures (matplotlib: most of the time spent here).
 
     Returns:
         The summary written to ``summary.json``.
@@ -115,13 +117,14 @@ def write_map_outputs(
     colors = height_colors(boxes[:, 1, h_col])
     vboxes = voxel_boxes(m)
 
-    occupancy_png(
-        out / OUTPUT_FILES["occupancy_png"], codes, extent, axis=spec.axis, band=band, sensor_uv=sensor_uv
-    )
-    elevation_png(
-        out / OUTPUT_FILES["elevation_png"], top_max, bottom_min, extent, axis=spec.axis, sensor_uv=sensor_uv
-    )
-    _, drawn = boxes_3d_png(out / OUTPUT_FILES["vhv_3d_png"], boxes, max_boxes=max_boxes_3d)
+    drawn = None
+    if pictures:
+        occupancy_png(
+            out / OUTPUT_FILES["occupancy_png"], codes, extent, axis=spec.axis, band=band, sensor_uv=sensor_uv
+        )
+        elevation_png(out / OUTPUT_FILES["elevation_png"], top_max, bottom_min, extent, axis=spec.axis,
+                      sensor_uv=sensor_uv)  # fmt: skip
+        _, drawn = boxes_3d_png(out / OUTPUT_FILES["vhv_3d_png"], boxes, max_boxes=max_boxes_3d)
     write_map_server(out, codes, spec.cell_size, (extent[0], extent[2]), name="map")
     write_box_ply(out / OUTPUT_FILES["vhv_ply"], boxes, colors)
     write_box_ply(out / OUTPUT_FILES["voxels_ply"], vboxes, height_colors(vboxes[:, 1, h_col]))
@@ -170,7 +173,7 @@ def write_map_outputs(
             **(parameters or {}),
         },
         **(extra or {}),
-        "outputs": dict(OUTPUT_FILES),
+        "outputs": {k: v for k, v in OUTPUT_FILES.items() if pictures or not k.endswith("_png")},
     }
     (out / OUTPUT_FILES["summary"]).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return summary

@@ -7,13 +7,15 @@ columns of the thesis's Table 5.2). Outputs go to ``--out`` (per-input sub-folde
 several inputs), written all-or-nothing. Without INPUT (or with ``--sample``) a small synthetic
 indoor cloud is mapped.
 
-Outputs: occupancy.png, elevation.png, vhv_3d.png, map.pgm + map.yaml (map_server), vhv_boxes.ply and
-voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid, /vhv_markers MarkerArray) and
-summary.json. Bag clouds are placed at their header stamps in a fixed frame through the bag's /tf and
-/tf_static (--fixed-frame, default odom; --pose-topic for a bag with nav_msgs/Odometry instead of TF);
-a bag without TF is mapped in its message frame, as recorded. Without --size the grid follows the
-data's extent, so a bag is read twice (once for the extent). A warning (and summary.json's
-band_check) says when 90 % or more of the points lie outside the 2D band.
+Outputs: occupancy.png, elevation.png, vhv_3d.png (not with --no-pictures), map.pgm + map.yaml
+(map_server), vhv_boxes.ply and voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid,
+/vhv_markers MarkerArray) and summary.json (with timing_s: the seconds spent reading and building).
+Bag clouds are placed at their header stamps in a fixed frame through the bag's /tf and /tf_static
+(--fixed-frame, default odom; --pose-topic for a bag with nav_msgs/Odometry instead of TF); a bag
+without TF is mapped in its message frame, as recorded. Without --size the grid follows the data's
+extent, so a bag is read twice (once for the extent) unless its clouds fit in MAX_KEPT_POINTS points,
+which are then kept from the first pass. A warning (and summary.json's band_check) says when 90 % or
+more of the points lie outside the 2D band.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ SAMPLE_SEED = 7
 SAMPLE_SENSOR_ORIGIN = (0.0, 0.0, 1.0)  # mapping.synthetic's camera position
 DEFAULT_OUT = "runs/map-<UTC time>"  # a new folder per run
 MAX_GRID_SIDE_M = 100.0  # bound of a data-derived grid side; keeps rasters (elevation, 2D map) small
+MAX_KEPT_POINTS = 30_000_000  # clouds kept from the extent pass (360 MB of float32); beyond, read again
 
 
 def register(subparsers: Any) -> None:
@@ -116,6 +119,9 @@ def register(subparsers: Any) -> None:
         "else refused)",
     )
     p.add_argument("--sample", action="store_true", help="map the built-in synthetic sample cloud")
+    p.add_argument(
+        "--no-pictures", action="store_true", help="do not draw the PNG pictures (the other outputs stay)"
+    )
     map_tf.add_arguments(p)
     p.set_defaults(func=_run)
 
@@ -275,6 +281,11 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
 
     label = str(source.path) + (f" [{source.topic}]" if source.topic else "")
     bar_kw = {"total": source.n_frames, "desc": label, "unit": "frame", "disable": None if progress else True}
+    import time
+
+    import numpy as np
+
+    t_start = time.perf_counter()
     frames: list[Any] | None = None
     if args.size is not None:
         centre = tuple(args.centre) if args.centre is not None else (0.0, 0.0)
@@ -284,16 +295,19 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         # One pass to find the extent: a one-frame input is kept in memory, a bag is read twice
         # (frame summaries only are kept, so a long bag does not have to fit in memory).
         extent = _Extent(args.axis)
-        kept: list[Any] = []
+        kept: list[Any] | None = []
         user_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
         bar = tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"})
+        n_kept = 0
         for frame, origin in _placed_frames(bar, placement, user_origin):
             extent.add(_drop_close(frame.points, origin, args.min_range)[0], origin)
-            if source.n_frames <= 1:
+            if kept is not None:
                 kept.append((frame, origin))
+                n_kept += int(np.asarray(frame.points).size // 3)
+                kept = kept if n_kept <= MAX_KEPT_POINTS else None  # a long bag is read again
         spec, how = extent.grid(args)
-        frames = kept if source.n_frames <= 1 else None
-        if placement is not None:
+        frames = kept
+        if placement is not None and frames is None:
             placement.reset()
     m = map_tf.make_map(spec, args)
     stamped = args.map_kind == "probabilistic"  # evidence decays in time: each cloud at its stamp
@@ -320,6 +334,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         stamp_ns = max(stamp_ns, int(frame.stamp_ns))
     return {
         "map": m,
+        "read_and_build_s": time.perf_counter() - t_start,
         "label": label,
         "grid_size_source": how,
         "build_ms": build_ms,
@@ -404,7 +419,10 @@ def _map_all(args: argparse.Namespace, sources: list[Any], placements: list[Any]
                 extra={
                     "band_check": r["band_check"].summary(r["label"], args.axis),
                     "tf": placement.summary() if placement is not None else map_tf.no_tf_summary(source),
+                    # reading, placing and inserting every frame (the map built), and the inserts alone
+                    "timing_s": {"read_and_build": r["read_and_build_s"], "build": r["build_ms"] / 1e3},
                 },
+                pictures=not args.no_pictures,
             )
             points = summary["points_in"]
             print(_row(r["label"], points, summary["structures"], summary["voxels"], r["build_ms"], width))
@@ -445,7 +463,7 @@ def _map_all(args: argparse.Namespace, sources: list[Any], placements: list[Any]
             f"{summary['points_outside_grid']:,d} out-of-grid points dropped"
         )
     print(
-        f"wrote {Path(args.out)}/ (pictures, map.pgm + map.yaml, PLY meshes, ROS 2 bag map_bag/, "
-        "summary.json)"
+        f"wrote {Path(args.out)}/ ({'' if args.no_pictures else 'pictures, '}map.pgm + map.yaml, PLY meshes, "
+        "ROS 2 bag map_bag/, summary.json)"
     )
     return 0

@@ -52,11 +52,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--bag-clouds",
-        choices=("decimated", "full"),
-        default="decimated",
-        help="depth clouds in the bag: decimated (every 3rd frame, every 4th pixel each way; default) or "
-        "full (every frame whole, about 70 MB per simulated second: `robchair map --map-kind "
-        "probabilistic` on it rebuilds the run's map)",
+        choices=("voxel", "decimated", "full"),
+        default="voxel",
+        help="depth clouds in the bag: voxel (every frame the map is built from, voxel-filtered at the "
+        "map's cell size: `robchair map --map-kind probabilistic` on it rebuilds the run's map; "
+        "default), decimated (every 3rd frame, every 4th pixel each way) or full (every frame whole, "
+        "about 70 MB per simulated second)",
     )
     p.add_argument(
         "--no-safety",

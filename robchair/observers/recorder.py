@@ -17,13 +17,20 @@ topic                                  type                             frame
 ``/sonar/<array>/<k>`` (k = 1, 2, 3    sensor_msgs/Range (ULTRASOUND,   ``<array>_<k>``
 left to right)                         +inf = no echo, REP-117)
 ``/kinect/points``                     sensor_msgs/PointCloud2          the frame's ``frame_id``
+``/sonar/points`` (a chair without a   sensor_msgs/PointCloud2: the     ``<array>``
+depth camera)                          fused reading's cone points
+                                       (thesis Fig. 5.7) the sonar map
+                                       is built from
 ``/scan``                              sensor_msgs/LaserScan            ``laser_link``
 =====================================  ===============================  ==================================
 
-Depth clouds are kept every ``cloud_every``-th delivered frame, decimated ``cloud_stride`` x
-``cloud_stride`` (:data:`BAG_CLOUDS` ``decimated``, the default); ``full`` keeps every frame whole, what
-the run's maps are built from, so ``robchair map`` on the bag rebuilds them (about 70 MB per simulated
-second from the Kinect 2 model, 4 GB a minute).
+Depth clouds (:data:`BAG_CLOUDS`): ``voxel`` (the default) keeps every delivered frame, the ones the
+run's maps are built from, voxel-filtered at the map's cell size as robots record to keep bags small
+(:func:`mapping.grid.voxel_filter`: one measured point per voxel of ``base_link``'s lattice), so
+``robchair map`` on the bag rebuilds the run's map (about 5 MB per simulated second); ``decimated``
+keeps every ``cloud_every``-th frame, decimated ``cloud_stride`` x ``cloud_stride`` (what the live view
+sends); ``full`` keeps every frame
+whole (about 70 MB per simulated second from the Kinect 2 model, 4 GB a minute).
 """
 
 from __future__ import annotations
@@ -49,9 +56,13 @@ from robchair.platform.frames import (
 )
 
 STORAGES = ("mcap", "sqlite3")
-#: Depth clouds kept in the bag: name -> (every how many delivered frames, pixel stride).
-BAG_CLOUDS = {"decimated": (3, 4), "full": (1, 1)}
+#: Depth clouds kept in the bag: name -> (every how many delivered frames, pixel stride, voxel-filtered at
+#: the map's cell size).
+BAG_CLOUDS = {"voxel": (1, 1, True), "decimated": (3, 4, False), "full": (1, 1, False)}
+DEFAULT_BAG_CLOUDS = "voxel"
+DEFAULT_VOXEL_M = 0.05  # when the run's map has no grid to take the cell size from
 CLOUD_TOPIC = "/kinect/points"
+SONAR_CLOUD_TOPIC = "/sonar/points"
 SCAN_TOPIC = "/scan"
 SONAR_FOV_RAD = math.radians(60.0)
 SONAR_MIN_RANGE_M = 0.03
@@ -365,23 +376,31 @@ class RunTopics:
     Args:
         cloud_every: keep every this many delivered depth frames (0: none).
         cloud_stride: pixel decimation of the kept clouds.
+        cloud_voxel: voxel-filter the kept clouds at the cell size of the run's map (one measured point
+            per voxel, unorganized).
     """
 
-    def __init__(self, cloud_every: int = 3, cloud_stride: int = 4) -> None:
+    def __init__(self, cloud_every: int = 3, cloud_stride: int = 4, cloud_voxel: bool = False) -> None:
         self.cloud_every, self.cloud_stride = int(cloud_every), int(cloud_stride)
+        self.cloud_voxel = bool(cloud_voxel)
+        self.voxel_m = DEFAULT_VOXEL_M
         self.statics: list[tuple[str, str, np.ndarray]] = []
         self.sonar_limits: dict[str, tuple[float, float, float]] = {}  # name -> (min m, max m, fov rad)
         self.sonar_mounts: dict[str, Any] = {}
-        self.has_scan = self.has_cloud = False
+        self.has_scan = self.has_cloud = self.has_sonar_cloud = False
         self._spec: Any = None
         self._servo_tf: dict[tuple[str, float], np.ndarray] = {}
         self._frames = 0
         self._last_frame: Any = None
         self._last_scan: Any = None
+        self._start: list[tuple[str, str, np.ndarray]] | None = None  # the moving tree at the start
+        self._tree_from_ns = 0
 
     def start(self, runtime: LoopView) -> None:
         """Read the run's frames and sensors (at the episode's start)."""
         self._spec = runtime.spec
+        spec = getattr(getattr(runtime.perception, "map", None), "spec", None)
+        self.voxel_m = float(getattr(spec, "cell_size", DEFAULT_VOXEL_M))
         self._servo_tf = {}
         self._frames, self._last_frame, self._last_scan = 0, None, None
         outer_deg = runtime.spec.sonar_arrays.outer_sonar_deg
@@ -391,6 +410,8 @@ class RunTopics:
             statics.append((BASE_LINK, "laser_link", runtime.perception.t_base_sensor("laser_link")))
         cam = runtime.backend.depth_camera
         self.has_cloud = cam is not None and self.cloud_every > 0
+        # without a depth camera the sonars are what the chair maps from: their points go in the bag
+        self.has_sonar_cloud = cam is None and bool(runtime.sonar_names)
         if cam is not None:
             for frame_id in ("kinect_link", getattr(cam, "frame_id", "kinect_link")):
                 if frame_id in {c for _, c, _ in statics}:
@@ -420,6 +441,8 @@ class RunTopics:
                 out[sonar_topic(name, k)] = "sensor_msgs/msg/Range"
         if self.has_cloud:
             out[CLOUD_TOPIC] = "sensor_msgs/msg/PointCloud2"
+        if self.has_sonar_cloud:
+            out[SONAR_CLOUD_TOPIC] = "sensor_msgs/msg/PointCloud2"
         if self.has_scan:
             out[SCAN_TOPIC] = "sensor_msgs/msg/LaserScan"
         return out
@@ -430,10 +453,18 @@ class RunTopics:
         tree.update({child: parent for parent, child, _ in self.statics})
         return tree
 
-    def write_static(self, out: RosMessages, stamp_ns: int) -> None:
-        """``/tf_static`` (nothing when the run has no static frame)."""
+    def write_static(self, out: RosMessages, stamp_ns: int, pose: Any = None) -> None:
+        """``/tf_static`` (nothing when the run has no static frame), and with the odometry's start
+        ``pose`` (x, y, theta) the moving tree at ``stamp_ns`` (the start of the run): readings taken
+        before the first cycle's transforms then lie inside the TF range."""
+        stamp = max(int(stamp_ns), 1)
         if self.statics:
-            out.tf(max(int(stamp_ns), 1), self.statics, static=True)
+            out.tf(stamp, self.statics, static=True)
+        self._start = None
+        if pose is not None:
+            self._start = [(MAP, ODOM, np.eye(4)), (ODOM, BASE_LINK, se3_planar(pose.x, pose.y, pose.theta))]
+            self._tree_from_ns = stamp
+            out.tf(stamp, self._start)
 
     def snapshot(self, runtime: LoopView, cycle: CycleResult, cloud: bool = True) -> CycleSnapshot:
         """The cycle's data (on the loop's thread); ``cloud=False`` skips the depth frame (it still counts
@@ -450,7 +481,15 @@ class RunTopics:
             self._last_frame = frame
             if cloud and self.cloud_every and self._frames % self.cloud_every == 0:
                 s = self.cloud_stride
-                points = (frame.stamp_ns, frame.frame_id, np.array(np.asarray(frame.points)[::s, ::s]))
+                pts = np.asarray(frame.points)[::s, ::s]
+                if self.cloud_voxel:
+                    from mapping.grid import voxel_filter
+
+                    # voxels on base_link's lattice: their heights line up with the map's height band
+                    t_base = runtime.perception.t_base_sensor(frame.frame_id)
+                    points = (frame.stamp_ns, frame.frame_id, voxel_filter(pts, self.voxel_m, t_base))
+                else:
+                    points = (frame.stamp_ns, frame.frame_id, np.array(pts))
             self._frames += 1
         t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
         return CycleSnapshot(cycle.stamp_ns, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w,
@@ -464,6 +503,10 @@ class RunTopics:
         # backend's bag has the same tree
         out.tf(stamp, [(MAP, ODOM, snap.t_map_odom), (ODOM, BASE_LINK, se3_planar(*snap.pose))])
         for name, reading in snap.sonars:
+            if self._start is not None and reading.stamp_ns < self._tree_from_ns:
+                # a reading ranged before the loop started: the chair stood at its start pose then
+                self._tree_from_ns = int(reading.stamp_ns)
+                out.tf(self._tree_from_ns, self._start)
             lo, hi, fov = self.sonar_limits.get(name, (SONAR_MIN_RANGE_M, 6.0, SONAR_FOV_RAD))
             for k, r in enumerate(reading.ranges_m, 1):
                 out.range(sonar_topic(name, k), reading.stamp_ns, sonar_frame(name, k), r, lo, hi, fov)
@@ -475,6 +518,8 @@ class RunTopics:
                     joint = self._spec.sonar_arrays.joint_angle(reading.servo_angle_deg)
                     t_base_array = self._servo_tf[key] = mount.transform(joint)
                 out.tf(reading.stamp_ns, [(BASE_LINK, name, t_base_array)])
+            if self.has_sonar_cloud:
+                self._write_sonar_points(out, name, reading)
         if snap.scan is not None:
             from hw.laser_scan import to_ros_laser_scan
 
@@ -483,6 +528,17 @@ class RunTopics:
         if snap.cloud is not None:
             out.cloud(CLOUD_TOPIC, snap.cloud[0], snap.cloud[1], snap.cloud[2])
 
+    def _write_sonar_points(self, out: RosMessages, name: str, reading: Any) -> None:
+        """The cone points (array frame) of one array reading fused as the perception fuses it
+        (:func:`mapping.sonar.array_points`); nothing when no sonar echoes."""
+        from mapping.sonar import array_points
+        from robchair.perception_sonar import _zone_tables
+
+        ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
+        _, pts = array_points(ranges, tables=_zone_tables(self._spec.sonar_arrays.outer_sonar_deg))
+        if len(pts):
+            out.cloud(SONAR_CLOUD_TOPIC, reading.stamp_ns, name, pts)
+
 
 class RunRecorder(Observer):
     """Records a run (any backend) into a bag with the topics of the module docstring.
@@ -490,14 +546,17 @@ class RunRecorder(Observer):
     Args:
         path: bag folder to create.
         storage: ``"mcap"`` or ``"sqlite3"``.
-        cloud_every: keep every this many delivered depth frames (0: none).
-        cloud_stride: pixel decimation of the kept clouds.
+        clouds: the depth clouds kept, a key of :data:`BAG_CLOUDS`.
+
+    Raises:
+        ConfigError: unknown storage or ``clouds``, or the folder exists.
     """
 
-    def __init__(self, path: Path | str, storage: str = "mcap", cloud_every: int = 3,
-                 cloud_stride: int = 4) -> None:  # fmt: skip
+    def __init__(self, path: Path | str, storage: str = "mcap", clouds: str = DEFAULT_BAG_CLOUDS) -> None:
+        if clouds not in BAG_CLOUDS:
+            raise ConfigError(f"bag clouds {clouds!r}: expected one of {', '.join(BAG_CLOUDS)}")
         self.bag = BagWriter(path, storage)
-        self.scheme = RunTopics(cloud_every, cloud_stride)
+        self.scheme = RunTopics(*BAG_CLOUDS[clouds])
 
     @property
     def counts(self) -> dict[str, int]:
@@ -505,7 +564,8 @@ class RunRecorder(Observer):
 
     def episode_start(self, runtime: LoopView) -> None:
         self.scheme.start(runtime)
-        self.scheme.write_static(self.bag, runtime.t0_ns)
+        odometry = getattr(runtime, "odometry", None)  # the Runtime's; not part of every LoopView
+        self.scheme.write_static(self.bag, runtime.t0_ns, getattr(odometry, "pose", None))
 
     def after_cycle(self, runtime: LoopView, cycle: CycleResult) -> None:
         self.scheme.write_cycle(self.bag, self.scheme.snapshot(runtime, cycle))
