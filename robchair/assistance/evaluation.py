@@ -92,8 +92,12 @@ class PlanarChair:
 
 
 def drive(chair: PlanarChair, stage: AssistedSource, cycles: int, rate_hz: float = 20.0,
-          until: Any = None) -> dict[str, Any]:  # fmt: skip
+          until: Any = None, stall_s: float | None = None) -> dict[str, Any]:  # fmt: skip
     """Run the stage and the safety layer on the chair for up to ``cycles`` cycles (or ``until()``).
+
+    ``stall_s``: end early when the chair has moved less than 5 cm and turned less than 0.1 rad over
+    the last ``stall_s`` seconds (stuck: the person pushes at a post that the safety layer holds
+    it before; the rest of the time limit would change nothing but the run time).
 
     Returns:
         ``poses`` (K, 3), ``applied`` (K, 2) the safety layer's output, ``twist`` (K, 2) the chair's,
@@ -126,6 +130,11 @@ def drive(chair: PlanarChair, stage: AssistedSource, cycles: int, rate_hz: float
             break  # the chair touched a wall: the episode ends there
         if until is not None and until():
             break
+        lag = round(stall_s * rate_hz) if stall_s else 0
+        if lag and k >= lag:
+            x0, y0, t0 = poses[-1 - lag]
+            if math.hypot(chair.x - x0, chair.y - y0) < 0.05 and abs(chair.theta - t0) < 0.1:
+                break
     return {"poses": np.array(poses), "applied": np.array(applied), "twist": np.array(twist),
             "reports": reports, "stops": [s.reason.value for s in safety.stops], "contact": contact,
             "clearance_m": min_clear}  # fmt: skip
@@ -133,8 +142,12 @@ def drive(chair: PlanarChair, stage: AssistedSource, cycles: int, rate_hz: float
 
 def run_episode(world: Any, spec: RobChairSpec, start: tuple[float, float, float],
                 route: list[tuple[float, float]], mode: str, user: Any, seed: int, max_time_s: float = 60.0,
-                rate_hz: float = 20.0) -> dict[str, Any]:  # fmt: skip
-    """One episode with a simulated user of :class:`sim.user.UserParams` ``user``; returns its metrics."""
+                rate_hz: float = 20.0, stall_s: float | None = 15.0) -> dict[str, Any]:  # fmt: skip
+    """One episode with a simulated user of :class:`sim.user.UserParams` ``user``; returns its metrics.
+
+    The episode ends at the goal, at a contact, after ``max_time_s`` or when stuck for ``stall_s``
+    (:func:`drive`); only the goal with no contact is a success.
+    """
     from sim.user import SimulatedUser
 
     limits = SafetyLimits.from_spec(spec)
@@ -149,7 +162,7 @@ def run_episode(world: Any, spec: RobChairSpec, start: tuple[float, float, float
             return joystick.command(obs)
 
     stage = AssistedSource(Ticking(), spec, limits.max_speed, limits.max_yaw_rate, mode, rate_hz=rate_hz)
-    d = drive(chair, stage, round(max_time_s * rate_hz), rate_hz, until=lambda: person.done)
+    d = drive(chair, stage, round(max_time_s * rate_hz), rate_hz, until=lambda: person.done, stall_s=stall_s)
     return episode_metrics(d, person, limits, rate_hz)
 
 

@@ -20,7 +20,9 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
 The person always wins:
 
 - a released dead-man, or a zero command, gives zero (``v = w = 0``) in every mode;
-- a reverse command passes unchanged (the chair's sensors look forward; the safety layer bounds it);
+- a reverse command beyond ``reverse_release`` of the speed cap passes unchanged and lets the doorway
+  go (the chair's sensors look forward; the safety layer bounds it); a slighter one, the tremor of a
+  stick about its centre, counts as no forward speed;
 - a command opposite to the assistance (cosine < 0 between the two twists scaled to the limits)
   held for ``override_s`` passes unchanged from then on: the person's command is applied at most
   ``ceil(override_s * rate_hz)`` cycles after it began (6 cycles, 0.3 s, at 20 Hz), and the doorway
@@ -41,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
+from robchair.assistance.passage import Passage, PassageParams, PointMemory, refine
 from robchair.assistance.window import Footprint, WindowParams, search
 from robchair.platform.config import bounds, check_dataclass
 from robchair.platform.errors import ConfigError
@@ -72,6 +75,10 @@ class AssistConfig:
         door_release_rad: the person's intended direction this far from the doorway lets it go, rad.
         door_lookahead_m: look-ahead of the pursuit of the doorway's centre line, m.
         door_through_m: the rear edge this far past the doorway's plane ends the passage, m.
+        steer_share: a turn command below this share of the yaw-rate cap never lets a doorway go.
+        reverse_release: a reverse command faster than this share of the speed cap passes unchanged
+            and lets the doorway go; a slighter one (tremor about the stick's centre) counts as
+            zero forward speed.
         crop_m: obstacle points farther than this from ``base_link`` are ignored, m.
         cell_m: obstacle points are thinned to one per cell of this size, m.
     """
@@ -84,6 +91,8 @@ class AssistConfig:
     door_release_rad: float = field(default=0.9, metadata=bounds(gt=0, le=math.pi))
     door_lookahead_m: float = field(default=0.7, metadata=bounds(gt=0))
     door_through_m: float = field(default=0.2, metadata=bounds(ge=0))
+    steer_share: float = field(default=0.3, metadata=bounds(ge=0, le=1.0))
+    reverse_release: float = field(default=0.5, metadata=bounds(ge=0, le=1.0))
     crop_m: float = field(default=2.5, metadata=bounds(gt=0))
     cell_m: float = field(default=0.04, metadata=bounds(gt=0))
 
@@ -178,6 +187,12 @@ class AssistedSource:
         self._mode = check_mode(mode)
         self._conflict = 0
         self._door: Doorway | None = None  # the doorway being passed, in odom
+        self._last_door: Doorway | None = None  # the last doorway engaged, in odom
+        self.dt = 1.0 / rate_hz
+        self.passage_params = PassageParams(door_speed=self.config.door_speed,
+                                            lookahead_m=self.config.door_lookahead_m)  # fmt: skip
+        self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
+        self._memory = PointMemory(round(self.passage_params.memory_s * rate_hz))
         self.last: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
 
@@ -219,18 +234,26 @@ class AssistedSource:
             )
         if self._mode == "off":
             return self._report(p, p, "pass", "assistance off")
-        if p.v < 0.0:
-            self._conflict, self._door = 0, None
+        if p.v < -self.config.reverse_release * self.max_speed:
+            self._conflict, self._door = 0, None  # a deliberate pull back lets the doorway go
             return self._report(p, p, "pass", "reverse: the person's command")
+        if p.v < 0.0:  # a slight backward deflection (tremor about the centre): no forward speed
+            p = Command(0.0, p.w, deadman=p.deadman, done=p.done)
         assert self.obstacles is not None, "AssistedSource needs obstacles= or bind(runtime)"
         cfg = self.config
         far = max(cfg.crop_m, self.doorway.max_range_m + self.doorway.max_width_m)
         seen = thin_points(np.asarray(self.obstacles(obs), dtype=float).reshape(-1, 2), far, cfg.cell_m)
         near = seen[np.einsum("ij,ij->i", seen, seen) <= cfg.crop_m * cfg.crop_m]
+        self._memory.add(near, obs.pose.x, obs.pose.y, obs.pose.theta)
         v, w, action, reason, extra = self._assist(p, obs.pose, near, seen)
         up = _unit(p.v, p.w, self.max_speed, self.max_yaw_rate)
-        ua = _unit(v, w, self.max_speed, self.max_yaw_rate)
-        self._conflict = self._conflict + 1 if cosine(up, ua) < 0.0 else 0
+        if action == "door":
+            # the passage's aim is the doorway (it may turn, wait or back off on the way): the person
+            # opposes it by pointing more than 90 degrees from both the doorway and its approach pose
+            opposed = self._steers_away(extra.pop("_door"), p, math.pi / 2)
+        else:
+            opposed = cosine(up, _unit(v, w, self.max_speed, self.max_yaw_rate)) < 0.0
+        self._conflict = self._conflict + 1 if opposed else 0
         if self._conflict >= self.override_cycles:
             self._door = None
             return self._report(p, p, "override", "the person's opposite command won", **extra)
@@ -253,51 +276,70 @@ class AssistedSource:
                 f"{d:.2f} m free ahead: speed cap {ramp * self.max_speed:.2f} m/s",
                 {"free_m": d},
             )
-        if self._mode == "door":
-            door = self._doorway(p, pose, seen)
-            if door is not None:
-                return self._pass_door(p, pose, door)
+        door = self._doorway(p, pose, seen)
+        guide = None
+        if door is not None:
+            behind = self._memory.in_base(pose.x, pose.y, pose.theta)
+            if self._mode == "door":
+                # the person's deflection toward the doorway sets the passage's pace
+                speed = self.max_speed * min(1.0, math.hypot(*_unit(p.v, p.w, self.max_speed,
+                                                                     self.max_yaw_rate)))  # fmt: skip
+                v, w, phase = self._passage.twist(door, speed, self.dt, pts, behind)
+                extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
+                         "door_phase": phase, "_door": door}  # fmt: skip
+                return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
+            vg, wg, _ = self._passage.twist(door, p.v, self.dt, pts, allow_reverse=False)
+            guide = (vg, wg)
         v, w, clear, clear_p = search(
-            self.footprint, self.window, p.v, p.w, self.max_speed, self.max_yaw_rate, pts
+            self.footprint, self.window, p.v, p.w, self.max_speed, self.max_yaw_rate, pts, guide
         )
         extra = {"clearance_m": clear, "person_clearance_m": clear_p}
+        if guide is not None:
+            extra["door_guide"] = guide
         if v == 0.0 and w == 0.0:
             return v, w, "stop", "no admissible twist within the horizon", extra
         return v, w, "window", f"person's twist clears {clear_p:.2f} m: nearest admissible twist", extra
 
     def _doorway(self, p: Command, pose: Pose2D, pts: np.ndarray) -> Doorway | None:
         cfg = self.config
-        heading = max(-math.pi / 2, min(math.pi / 2, p.w * 1.0))  # where the person points, base_link
+        heading = _intent(p)
         if self._door is not None:
-            d = self._door.inverse_transformed(pose.x, pose.y, pose.theta)
+            d = refine(self._door.inverse_transformed(pose.x, pose.y, pose.theta), pts)
+            self._door = d.transformed(pose.x, pose.y, pose.theta)
             along = -(d.cx * d.nx + d.cy * d.ny)  # base_link's distance past the doorway's plane
             if along - (self.footprint.half_depth - self.footprint.centre_x) > cfg.door_through_m:
                 self._door = None  # through: hand back
                 return None
-            if along < 0 and abs(_wrap(math.atan2(d.cy, d.cx) - heading)) > cfg.door_release_rad:
+            if along < 0 and self._steers_away(d, p):
                 self._door = None  # the person steers away
                 return None
             return d
         for d in find_doorways(pts, self.doorway):
             if abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
-                self._door = d.transformed(pose.x, pose.y, pose.theta)
+                d = refine(d, pts)
+                self._door = odom = d.transformed(pose.x, pose.y, pose.theta)
+                last = self._last_door
+                if last is None or math.hypot(odom.cx - last.cx, odom.cy - last.cy) > 0.3:
+                    # a new doorway (the same one again keeps its passage: how far it backed off)
+                    self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
+                self._last_door = odom
                 return d
         return None
 
-    def _pass_door(
-        self, p: Command, pose: Pose2D, d: Doorway
-    ) -> tuple[float, float, str, str, dict[str, Any]]:
-        cfg = self.config
-        # pure pursuit of the centre line: the point look-ahead past the foot of base_link on it
-        s = -(d.cx * d.nx + d.cy * d.ny)  # signed distance of base_link along the normal from the door
-        foot_x, foot_y = d.cx + s * d.nx, d.cy + s * d.ny
-        tx, ty = foot_x + cfg.door_lookahead_m * d.nx, foot_y + cfg.door_lookahead_m * d.ny
-        alpha = math.atan2(ty, tx)
-        v = min(p.v, cfg.door_speed) * max(0.0, math.cos(alpha))
-        w = 2.0 * max(v, 0.05) * math.sin(alpha) / math.hypot(tx, ty)
-        w = max(-self.max_yaw_rate, min(self.max_yaw_rate, w))
-        extra = {"door_width_m": d.width, "door_distance_m": math.hypot(d.cx, d.cy)}
-        return v, w, "door", f"passing a {d.width:.2f} m doorway", extra
+    def _steers_away(self, d: Doorway, p: Command, limit: float | None = None) -> bool:
+        """Whether the person turns (at least ``steer_share`` of the yaw-rate cap) toward a direction
+        (:func:`_intent`) farther than ``limit`` (default ``door_release_rad``) from both the
+        doorway's bearing and that of its approach pose. A straight push lets the passage carry on,
+        however the passage has turned the chair."""
+        if abs(p.w) < self.config.steer_share * self.max_yaw_rate:
+            return False
+        heading = _intent(p)
+        off = abs(_wrap(math.atan2(d.cy, d.cx) - heading))
+        a = self.passage_params.approach_m
+        ax, ay = d.cx - a * d.nx, d.cy - a * d.ny
+        if math.hypot(ax, ay) > 0.3:
+            off = min(off, abs(_wrap(math.atan2(ay, ax) - heading)))
+        return off > (self.config.door_release_rad if limit is None else limit)
 
 
 def _corridor_free(pts: np.ndarray, fp: Footprint) -> float:
@@ -308,6 +350,11 @@ def _corridor_free(pts: np.ndarray, fp: Footprint) -> float:
     if not inside.any():
         return math.inf
     return max(0.0, float(pts[inside, 0].min()) - fp.front_x)
+
+
+def _intent(p: Command) -> float:
+    """Where the person points, rad in ``base_link``: the heading their turn rate reaches in 1 s."""
+    return max(-math.pi / 2, min(math.pi / 2, p.w * 1.0))
 
 
 def _wrap(a: float) -> float:

@@ -94,6 +94,7 @@ class WindowParams:
         min_clearance_m: a candidate passing closer than this to a point is not admissible, m.
         clearance_sat_m: clearance beyond this scores as much as this, m.
         w_agree, w_clear, w_progress: weights of agreement, clearance and progress.
+        w_guide: weight of the agreement with a guide twist (the doorway's centre line).
     """
 
     n_v: int = 7
@@ -105,6 +106,7 @@ class WindowParams:
     w_agree: float = 1.0
     w_clear: float = 0.35
     w_progress: float = 0.25
+    w_guide: float = 2.0
 
 
 def search(
@@ -115,6 +117,7 @@ def search(
     max_speed: float,
     max_yaw_rate: float,
     points: np.ndarray,
+    guide: tuple[float, float] | None = None,
 ) -> tuple[float, float, float, float]:
     """Best admissible twist for a forward request.
 
@@ -127,6 +130,10 @@ def search(
         v_person, w_person: the person's request, m/s (> 0) and rad/s.
         max_speed, max_yaw_rate: the limits that scale the agreement, m/s and rad/s.
         points: obstacle points (N, 2) in ``base_link``, m.
+        guide: a twist toward progress (m/s, rad/s): the doorway passage's along the door's centre
+            line (:class:`robchair.assistance.passage.Passage`); it joins the candidates and each
+            candidate scores ``w_guide (1 - |candidate - guide| / 2)`` more (scaled to the limits).
+            With a guide the person's twist is searched around even when clear.
 
     Returns:
         ``(v, w, clearance_m, person_clearance_m)``: the chosen twist (0, 0 when nothing is admissible),
@@ -138,13 +145,14 @@ def search(
     reach += params.clearance_sat_m
     points = points[np.einsum("ij,ij->i", points, points) <= reach * reach].astype(np.float32)
     clear_p = float(arc_clearance(footprint, np.array([v_person]), np.array([w_person]), times, points)[0])
-    if clear_p >= params.clearance_sat_m:
+    if clear_p >= params.clearance_sat_m and guide is None:
         return v_person, w_person, clear_p, clear_p
     vs = np.linspace(0.0, v_person, params.n_v)
     ws = np.linspace(-max_yaw_rate, max_yaw_rate, params.n_w)
     vg, wg = np.meshgrid(vs, ws, indexing="ij")
-    v = np.concatenate([[v_person], vg.ravel()])
-    w = np.concatenate([[w_person], wg.ravel()])
+    extra_v, extra_w = ([guide[0]], [guide[1]]) if guide is not None else ([], [])
+    v = np.concatenate([[v_person], vg.ravel(), extra_v])
+    w = np.concatenate([[w_person], wg.ravel(), extra_w])
     clear = np.concatenate([[clear_p], arc_clearance(footprint, v[1:], w[1:], times, points)])
     up = np.array([v_person / max_speed, w_person / max_yaw_rate])
     dist = np.hypot(v / max_speed - up[0], w / max_yaw_rate - up[1])
@@ -153,6 +161,9 @@ def search(
         + params.w_clear * np.minimum(clear, params.clearance_sat_m) / params.clearance_sat_m
         + params.w_progress * v / max_speed
     )
+    if guide is not None:
+        gd = np.hypot((v - guide[0]) / max_speed, (w - guide[1]) / max_yaw_rate)
+        score += params.w_guide * (1.0 - 0.5 * gd)
     ok = clear >= params.min_clearance_m
     if not ok.any():
         return 0.0, 0.0, float(clear.max()), float(clear[0])

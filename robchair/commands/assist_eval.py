@@ -24,7 +24,7 @@ from typing import Any
 from robchair.outdir import OVERWRITE_HELP
 
 DEFAULT_OUT = "runs/assist-eval-<UTC time>"  # a new folder per run
-ENVS = ("random",)
+ENVS = ("random", "office")
 MEANS = ("agreement", "overridden_share", "time_s", "min_clearance_m", "joystick_path", "reversals",
          "peak_lon_accel", "rms_lon_accel", "peak_lat_accel", "rms_lat_accel", "peak_jerk",
          "safety_stops")  # fmt: skip
@@ -32,7 +32,8 @@ MEANS = ("agreement", "overridden_share", "time_s", "min_clearance_m", "joystick
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser("assist-eval", help="shared control with a simulated user, per assistance mode")
-    p.add_argument("--env", default="random", help="scenario set: random (floors with doorways; default)")
+    p.add_argument("--env", default="random",
+                   help="scenario set: random (floors with doorways; default) or office")  # fmt: skip
     p.add_argument("--user", default="tremor", help="simulated user preset: typical, tremor or switch")
     p.add_argument("--mode", action="append", help="assistance mode (repeat): off, shield, assist, door")
     p.add_argument("--episodes", type=int, default=20, help="episodes per mode (default 20)")
@@ -44,8 +45,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=_run)
 
 
-def scenario(index: int, door_width: tuple[float, float]) -> dict[str, Any]:
-    """Floor, start pose and route of evaluation episode ``index``."""
+def office_scenario(index: int, door_width: tuple[float, float]) -> dict[str, Any]:
+    """The office floor (``assets/scenes/office.toml``) with its 1.4 m doorway narrowed to a width
+    drawn from ``door_width``: the chair starts 0-1.5 m along the corridor, up to 0.4 m off its centre
+    line and 0.3 rad askew, and the user drives along it and through the doorway to 1.3 m inside."""
+    import dataclasses
+
+    import numpy as np
+
+    from robchair.platform.paths import ASSETS
+    from sim.planar import from_scene
+    from sim.rooms import EVAL_SEEDS
+    from sim.scene import load_scene
+
+    seed = EVAL_SEEDS[index]
+    rng = np.random.default_rng(seed)
+    width = float(rng.uniform(*door_width))
+    scene = load_scene(ASSETS / "scenes" / "office.toml")
+    objs = []
+    for o in scene.objects:
+        if o.name in ("room_wall_west_left", "room_wall_west_right"):  # the wall pieces y = +-0.7..+-3.0
+            sign = 1.0 if o.name.endswith("left") else -1.0
+            half = 0.5 * width
+            assert o.size is not None
+            o = dataclasses.replace(o, size=(o.size[0], 3.0 - half, o.size[2]),
+                                    xyz=(o.xyz[0], sign * 0.5 * (3.0 + half), o.xyz[2]))  # fmt: skip
+        objs.append(o)
+    scene = dataclasses.replace(scene, objects=tuple(objs))
+    start = (float(rng.uniform(0.0, 1.5)), float(rng.uniform(-0.4, 0.4)), float(rng.uniform(-0.3, 0.3)))
+    route = [(5.0, 0.0), (7.4, 0.0)]  # the wall's near face at x = 6.0, 0.1 m thick
+    return {"seed": seed, "floor": None, "world": from_scene(scene), "start": start, "route": route,
+            "door_width": width}  # fmt: skip
+
+
+def scenario(index: int, door_width: tuple[float, float], env: str = "random") -> dict[str, Any]:
+    """Floor, start pose and route of evaluation episode ``index`` of scenario set ``env``."""
+    if env == "office":
+        return office_scenario(index, door_width)
     import numpy as np
 
     from sim.planar import from_scene
@@ -107,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     episodes: dict[str, list[dict[str, Any]]] = {m: [] for m in modes}
     first: dict[str, Any] = {}
     for i in tqdm(range(args.seed, args.seed + args.episodes), desc=f"{args.user} on {args.env}", unit="ep"):
-        sc = scenario(i, tuple(args.door_width))
+        sc = scenario(i, tuple(args.door_width), args.env)
         first = first or sc
         for m in modes:
             ep = run_episode(sc["world"], spec, sc["start"], sc["route"], m, user, seed=i)

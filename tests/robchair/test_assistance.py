@@ -49,7 +49,7 @@ def test_the_persons_opposite_command_wins_within_the_stated_bound() -> None:
     within ceil(0.3 s x 20 Hz) = 6 cycles (the bound of :class:`AssistConfig`, override_s = 0.3 s), and
     stays. The doorway's steer-away release is switched off (door_release_rad = pi) so that only the
     override rule can hand the person control."""
-    k_opp = 10
+    k_opp = 3
     opposite = Command(0.0, 2.0, deadman=True)  # a hard left against the assistance's right turn
 
     def person(k: int) -> Command:
@@ -110,3 +110,32 @@ def test_assist_leaves_a_command_with_open_space_unchanged() -> None:
     c = stage.command(Observation(0, Pose2D(0, 0, 0), None, (), None))
     assert (c.v, c.w) == (0.3, 0.2)
     assert stage.last["action"] == "pass"
+
+
+# base_link 0.78 m before the wall (the front edge, 0.58 m ahead of it, 0.2 m before the wall), 0.2 m left
+# of the centre line, 5 degrees askew: the chair's left side (0.2 + 0.32 = 0.52 m) is beyond the jamb
+# (0.425 m), and 0.2 m is inside the stopping distance of any forward push of 0.4 m/s
+# (0.15 + 0.4 x 0.3 + 0.4^2 / 1.6 = 0.37 m, SafetyLimits defaults): going forward cannot pass
+TOO_CLOSE = (-0.78, 0.2, math.radians(5.0))
+
+
+def test_off_cannot_move_when_too_close_to_a_085_m_door_and_off_its_line() -> None:
+    """The hand computation above: the safety layer holds every forward push at the post."""
+    d = drive(doorway(DOOR_M), "off", Scripted(lambda k: FORWARD), TOO_CLOSE, 200)
+    assert not d.contact
+    assert max(p[0] for p in d.poses) < -0.7  # never got nearer the wall
+
+
+def test_door_backs_off_realigns_and_passes_when_too_close_and_off_its_line() -> None:
+    """The same start with ``door``: a short reverse (at most PassageParams.reverse_m = 1.0 m, at most
+    reverse_speed = 0.15 m/s), then through the doorway with no contact, ending on its centre line."""
+    d = drive(doorway(DOOR_M), "door", Scripted(lambda k: FORWARD), TOO_CLOSE, 500)
+    assert not d.contact
+    phases = [r.get("door_phase") for r in d.reports]
+    assert "back-off" in phases and phases.index("back-off") < phases.index("pass")
+    backs = [a[0] for a, ph in zip(d.applied, phases, strict=True) if ph == "back-off"]
+    assert min(backs) >= -0.15 - 1e-9
+    assert -sum(backs) / 20.0 <= 1.0 + 1e-9  # reverse travel of the commands at 20 Hz, m
+    x, y, _ = d.poses[-1]
+    assert x > 0.1 + 0.84  # the whole footprint (0.84 m deep) is through the 0.1 m wall
+    assert abs(y) < 0.425 - 0.32  # on the line: the chair's sides within the door's clear width
