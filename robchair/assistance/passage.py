@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robchair.assistance.doorway import Doorway
-from robchair.assistance.window import Footprint, arc_clearance
+from robchair.assistance.window import Footprint, arc_clearance, first_per_cell
 
 
 @dataclass(frozen=True)
@@ -146,8 +146,7 @@ class PointMemory:
         if not self._frames:
             return np.zeros((0, 2))
         p = np.vstack(self._frames)
-        _, first = np.unique(np.floor(p / self.cell).astype(np.int64), axis=0, return_index=True)
-        p = p[first] - (x, y)
+        p = p[first_per_cell(p, self.cell)] - (x, y)
         c, s = math.cos(theta), math.sin(theta)
         return np.stack([c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]], axis=1)
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
 from robchair.assistance.passage import Passage, PassageParams, PointMemory, refine
-from robchair.assistance.window import Footprint, WindowParams, search
+from robchair.assistance.window import Footprint, WindowParams, first_per_cell, search
 from robchair.platform.config import bounds, check_dataclass
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import Pose2D
@@ -110,8 +110,7 @@ def thin_points(points: np.ndarray, crop_m: float, cell_m: float) -> np.ndarray:
     p = points[np.einsum("ij,ij->i", points, points) <= crop_m * crop_m]
     if len(p) == 0:
         return p
-    _, first = np.unique(np.floor(p / cell_m).astype(np.int64), axis=0, return_index=True)
-    return p[np.sort(first)]
+    return p[np.sort(first_per_cell(p, cell_m))]
 
 
 def perception_obstacles(perception: Any, corridor_front_x: float) -> Callable[[Observation], np.ndarray]:

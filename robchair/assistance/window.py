@@ -20,6 +20,22 @@ import numpy as np
 from robchair.platform.spec import Body
 
 
+def first_per_cell(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """Index of the first point (N, 2) in each ``cell_m`` grid cell, in (ix, iy) lexicographic order.
+
+    The same indices as ``np.unique(floor(points / cell_m), axis=0, return_index=True)``: the two cell
+    indices are packed into one int64 key whose order is their lexicographic order, so numpy sorts a
+    flat array instead of rows (about 10x faster for a few thousand points).
+    """
+    cells = np.floor(points / cell_m).astype(np.int64)
+    if len(cells) == 0:
+        return np.zeros(0, dtype=np.intp)
+    lo = cells.min(axis=0)
+    span = int(cells[:, 1].max() - lo[1]) + 1
+    key = (cells[:, 0] - lo[0]) * span + (cells[:, 1] - lo[1])
+    return np.unique(key, return_index=True)[1]
+
+
 @dataclass(frozen=True)
 class Footprint:
     """The chair's rectangle in ``base_link``: x in [centre_x - half_depth, centre_x + half_depth]."""

@@ -139,3 +139,18 @@ def test_door_backs_off_realigns_and_passes_when_too_close_and_off_its_line() ->
     x, y, _ = d.poses[-1]
     assert x > 0.1 + 0.84  # the whole footprint (0.84 m deep) is through the 0.1 m wall
     assert abs(y) < 0.425 - 0.32  # on the line: the chair's sides within the door's clear width
+
+
+def test_first_point_per_cell_gives_the_indices_of_numpys_row_unique() -> None:
+    """The packed-key thinning returns exactly ``np.unique(floor(p / cell), axis=0, return_index=True)``
+    (the row-wise reference), with negative cells, repeated cells and points on cell edges; an empty
+    input gives no index."""
+    from robchair.assistance.window import first_per_cell
+
+    rng = np.random.default_rng(3)
+    for n in (1, 7, 400, 3000):
+        p = rng.normal(0.0, 2.0, (n, 2))
+        p[::5] = np.round(p[::5], 1)  # on 4 cm edges and repeated
+        ref = np.unique(np.floor(p / 0.04).astype(np.int64), axis=0, return_index=True)[1]
+        assert np.array_equal(first_per_cell(p, 0.04), ref)
+    assert first_per_cell(np.zeros((0, 2)), 0.04).size == 0
