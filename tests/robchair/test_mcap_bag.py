@@ -16,7 +16,6 @@ pytest.importorskip("mcap_ros2", reason="the viz extra (mcap, mcap-ros2-support)
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from robchair.cli import main
 from robchair.report import build_report
 from robchair.run_folder import RunFolder
 from tests.robchair.synthetic_run import CLOUD_SHAPE, SCAN_BEAMS, write_synthetic_run
@@ -67,13 +66,6 @@ def test_synthetic_run_bag_is_read_by_the_mcap_reader(tmp_path):
     cloud = topics["/kinect/points"]["first"]
     assert (cloud.height, cloud.width, cloud.point_step) == (*CLOUD_SHAPE, 12)
     assert len(topics["/scan"]["first"].ranges) == SCAN_BEAMS
-
-
-@pytest.fixture(scope="module")
-def sim_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sim") / "run"
-    assert main(["sim", "--duration", "0.3", "--out", str(out), "--no-progress"]) == 0
-    return out
 
 
 def test_sim_run_bag_is_read_by_the_mcap_reader(sim_run):

@@ -157,14 +157,11 @@ def test_unknown_pose_source_and_ground_truth_without_a_source_are_refused(spec)
         _perception(spec, pose="ground-truth")
 
 
-def test_the_bag_of_a_run_has_map_odom_base_link(tmp_path: Path) -> None:
+def test_the_bag_of_a_run_has_map_odom_base_link(sim_run: Path) -> None:
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from robchair.scenario import run_scenario
-
-    out = tmp_path / "run"
-    run_scenario("office_corridor", duration=0.3, out_dir=out, progress=False, pictures=False)
+    out = sim_run  # the shared `robchair sim` run on office_corridor (tests/robchair/conftest.py)
     store = get_typestore(Stores.ROS2_HUMBLE)
     pairs: set[tuple[str, str]] = set()
     with Reader(out / "bag") as reader:
