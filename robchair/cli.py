@@ -48,6 +48,7 @@ BENCHES = (
     "robchair.commands.bench_zoom",
     "robchair.commands.bench_laser",
     "robchair.commands.bench_assist",
+    "robchair.commands.bench_table",
 )
 
 

@@ -84,6 +84,15 @@ def _pin(n: int) -> set[int] | None:
 
 
 OLD_RUNNER = "sim/runner.py"
+#: Imports of the replaced runner rewritten to where their modules are now.
+OLD_RUNNER_IMPORTS = (
+    (
+        "from sim._kinect_kernels import transform_points as kernel",
+        "from robchair.commands.bench_sim import old_runner_transform_kernel as kernel",
+    ),
+    ("from robchair.kinematics import", "from robchair.platform.kinematics import"),
+    ("from robchair.spec import", "from robchair.platform.spec import"),
+)
 
 
 def old_runner_transform_kernel(t: Any, pts: Any) -> Any:
@@ -129,11 +138,10 @@ def load_old_runner() -> Any:
                              capture_output=True, text=True, check=True).stdout  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
         return None
-    # the old runner's point transform kernel has left sim._kinect_kernels; it gets its twin from here
-    src = src.replace(
-        "from sim._kinect_kernels import transform_points as kernel",
-        "from robchair.commands.bench_sim import old_runner_transform_kernel as kernel",
-    )
+    # the old runner's point transform kernel has left sim._kinect_kernels (it gets its twin from
+    # here) and the chair's model has moved to robchair.platform
+    for before, after in OLD_RUNNER_IMPORTS:
+        src = src.replace(before, after)
     spec = importlib.util.spec_from_loader("robchair_bench_old_runner", loader=None)
     assert spec is not None
     mod = importlib.util.module_from_spec(spec)
