@@ -72,10 +72,13 @@ def _sim(r: dict[str, Any]) -> tuple[str, str, str]:
         sim_s = max(m.get("sim_time_s", 1.0), 1e-9)
         stages = [("render", m.get("kinect_ms_per_sim_s")), ("sonar", m.get("sonar_ms_per_sim_s")),
                   ("physics", m.get("physics_ms_per_sim_s"))]  # fmt: skip
-        stages += [(k[4:-5], v) for k, v in sorted(m.items()) if k.startswith("map ") and k.endswith(" ms/s")]
+        stages += [(k[:-5], v) for k, v in sorted(m.items()) if k.startswith("map ") and k.endswith(" ms/s")]
         loop = 1e3 * m.get("loop_wall_s", 0.0) / sim_s
         stages.append(("rest", loop - sum(v for _, v in stages if isinstance(v, int | float))))
         txt += "; ms per sim s: " + ", ".join(f"{k} {_f(v, '.0f')}" for k, v in stages)
+        bound = row.get("ratio_bound")
+        if bound:
+            txt += f"; the shared simulator's stages allow at most {_f(bound.get('max_ratio'))}x"
         parts.append(txt)
     what = (
         f"the one loop (`Runtime`, safety on) on `{r.get('scenario')}`, {r.get('map_kind')} map, all layers: "

@@ -27,6 +27,7 @@ SIM = {
             "median": {"rtf": 1.0, "sim_time_s": 4.0, "loop_wall_s": 4.0, "kinect_ms_per_sim_s": 400.0,
                        "sonar_ms_per_sim_s": 50.0, "physics_ms_per_sim_s": 100.0, "map odometry ms/s": 300.0},
             "baseline_median": {"rtf": 2.0},
+            "ratio_bound": {"max_ratio": 1.07},
         },
     ],
     "load_average_before": [0.5, 0.4, 0.3],
@@ -67,8 +68,9 @@ def test_the_table_between_the_markers_gives_ratios_stages_machine_and_load_from
     sim, laser = lines[2], lines[3]  # sim first, then laser (the documented order)
     assert "2 cores: RTF 3.00, 2.00x the replaced runner's 1.50 (target >= 1.5x: met)" in sim
     assert "1 core: RTF 1.00, 0.50x the replaced runner's 2.00 (target >= 0.9x: missed)" in sim
-    assert "render 100, sonar 20, physics 50, odometry 80, rest 50" in sim
-    assert "render 400, sonar 50, physics 100, odometry 300, rest 150" in sim
+    assert "render 100, sonar 20, physics 50, map odometry 80, rest 50" in sim
+    assert "render 400, sonar 50, physics 100, map odometry 300, rest 150" in sim
+    assert "map odometry 300, rest 150; the shared simulator's stages allow at most 1.07x" in sim
     assert "`robchair bench sim --repeats 3`" in sim
     assert sim.endswith("| 2 x Test CPU 9000, load 0.5 before / 1.2 after (1-min average), 2026-12-02 |")
     assert "Embree mirror 1.25 ms, PyBullet `rayTestBatch` 15.00 ms (Embree 12.0x faster)" in laser
