@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import resource
 import shutil
@@ -26,6 +25,8 @@ import sys
 import time
 from pathlib import Path
 
+from robchair.commands.bench_output import cpu_model
+
 ROOT = Path(__file__).resolve().parents[1]
 MAIN_ROW = re.compile(r"^\| the main job: .*$", re.M)
 PICTURES = {  # run folder file -> assets/readme name
@@ -33,17 +34,6 @@ PICTURES = {  # run folder file -> assets/readme name
     ("default", "map_2d.png"): "sim_office_corridor_map_2d.png",
     ("pid", "step_responses.png"): "pid_step_responses.png",
 }
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``; the platform's processor string elsewhere)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return " ".join(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def machine(load_before: tuple[float, ...], load_after: tuple[float, ...]) -> str:

@@ -49,6 +49,7 @@ BENCHES = (
     "robchair.commands.bench_laser",
     "robchair.commands.bench_assist",
     "robchair.commands.bench_map",
+    "robchair.commands.bench_table",
 )
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
 import time
 from pathlib import Path
 from typing import Any
@@ -65,6 +66,17 @@ def median_of(runs: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; the platform's processor string elsewhere)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return " ".join(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def write_results(
     out: OutputDir,
     name: str,
@@ -75,7 +87,8 @@ def write_results(
     """Print the load average, then write ``result`` with the machine's state to ``bench_<name>.json``.
 
     Wall-clock figures depend on what else the machine runs, so the file records the load average
-    (``os.getloadavg()``) taken before and after the measurement, the CPU count and the UTC time. The
+    (``os.getloadavg()``) taken before and after the measurement, the CPU count and model and the UTC
+    time (``robchair bench table`` prints them beside each figure). The
     folder appears whole or not at all (:meth:`robchair.outdir.OutputDir.stage`).
 
     Args:
@@ -94,6 +107,7 @@ def write_results(
         "load_average_before": load_before,
         "load_average_after": load_after,
         "cpus": os.cpu_count(),
+        "cpu_model": cpu_model(),
         "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     with out.stage() as staging:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from robchair.commands.bench_output import median_of, verdict
-from robchair.commands.bench_sim import TARGET_RATIO_OLD, print_stage_table
+from robchair.commands.bench_sim import TARGET_RATIO_OLD, print_stage_table, ratio_bound
 
 
 def test_medians_of_repeated_runs_skip_fields_a_run_could_not_measure() -> None:
@@ -33,3 +33,19 @@ def test_the_stage_table_gives_each_stage_and_the_rest_in_ms_per_simulated_secon
     out = capsys.readouterr().out.splitlines()
     assert out[1].split()[-8:] == ["render", "sonar", "cast", "physics", "map", "odometry", "rest", "loop"]
     assert out[2].split()[-6:] == ["400.0", "100.0", "200.0", "300.0", "500.0", "1500.0"]
+
+
+def test_the_ratio_bound_is_the_replaced_runner_s_loop_time_over_the_shared_simulator_stages() -> None:
+    """One core: render 400 + sonar 100 + physics 200 = 700 ms per sim s shared; the replaced runner's
+    2.8 s loop over 4 sim s = 700 ms per sim s, so the new loop can reach at most 700 / 700 = 1.0x (hand
+    computation). Two cores overlap the stages, and without a baseline there is nothing to bound."""
+    med = {"kinect_ms_per_sim_s": 400.0, "sonar_ms_per_sim_s": 100.0, "physics_ms_per_sim_s": 200.0,
+           "loop_wall_s": 3.0, "sim_time_s": 2.0}  # fmt: skip
+    row = {"config": {"name": "1 core", "cpus": 1}, "median": med,
+           "baseline_median": {"loop_wall_s": 2.8, "sim_time_s": 4.0}}  # fmt: skip
+    b = ratio_bound(row)
+    assert b is not None
+    assert b["shared_ms_per_sim_s"] == 700.0 and abs(b["replaced_loop_ms_per_sim_s"] - 700.0) < 1e-9
+    assert abs(b["max_ratio"] - 1.0) < 1e-12
+    assert ratio_bound({**row, "config": {"name": "2 cores", "cpus": 2}}) is None
+    assert ratio_bound({**row, "baseline_median": None}) is None
