@@ -25,9 +25,10 @@ from tests.robchair.foxglove_client import connect_when_up, listen
 
 ROOT = Path(__file__).resolve().parents[2]
 LAYOUT = ROOT / "assets" / "foxglove" / "robchair_layout.json"
-#: a short, cheap run: Kinect v1 (640 x 480), no bag, no pictures, no zoom, no matching
+#: a short, cheap run: Kinect v1 (640 x 480), no bag, no pictures, no zoom, no matching (so the run
+#: map is on odometry poses, in ``odom``)
 SIM_ARGS = ["sim", "--duration", "1", "--sensor", "kinect1", "--no-bag", "--no-pictures", "--no-progress",
-            "--no-zoom", "--no-matching"]  # fmt: skip
+            "--no-zoom", "--no-matching", "--pose", "odometry"]  # fmt: skip
 #: a loaded machine can take minutes for a simulated second: bounds, not expectations
 BOUND_S = 900.0
 NEEDED = ("/tf", "/tf_static", "/kinect/points", "/map", "/vhv/markers")
@@ -211,7 +212,7 @@ def test_rerun_streams_the_entities_of_the_recording_while_the_run_happens(tmp_p
     memory = rec.memory_recording()
     with LiveObserver([RerunSink(recording=rec)]) as live:
         res = run_scenario("office_corridor", out_dir=tmp_path / "run", duration=0.5, sensor="kinect1",
-                           progress=False, pictures=False, zoom=False, matching=False,
+                           progress=False, pictures=False, zoom=False, matching=False, pose="odometry",
                            observers=[live])  # fmt: skip
     (tmp_path / "live.rrd").write_bytes(memory.drain_as_bytes())
     streamed = {c.entity_path for c in RrdReader(str(tmp_path / "live.rrd")).stream().to_chunks()}

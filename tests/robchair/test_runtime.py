@@ -180,7 +180,9 @@ def test_emulated_run_completes_the_route_and_the_bag_holds_the_odometry(tmp_pat
             for c, _, raw in r.messages([c for c in r.connections if c.topic == "/odom"])
         ]
     assert counts["/odom"] == res.cycles
-    assert counts["/tf"] == 3 * res.cycles  # odom -> base_link, and the two arrays' servo frames
+    # odom -> base_link and the two arrays' servo frames per cycle, plus the start pose at t0
+    # (map -> odom, odom -> base_link), so sonar readings before the first cycle are inside the TF range
+    assert counts["/tf"] == 3 * res.cycles + 2
     # the controller's diagnostics at 1 Hz of run time, in the bag and (the last sample) in the metrics
     assert abs(counts["/diagnostics"] - metrics["sim_time_s"]) <= 1.5
     diag = metrics["controller"]["diagnostics"]
@@ -484,6 +486,7 @@ def test_robchair_run_emulated_writes_bag_metrics_and_odometry(tmp_path: Path, c
     assert printed["route"]["goal_reached"] is True
     assert {p.name for p in out.iterdir()} == {
         "bag",
+        "maps.npz",
         "metrics.json",
         "odometry.csv",
         "timeseries.csv",

@@ -204,7 +204,9 @@ def test_decoded_bag_cloud_matches_a_kinect_v2_frame(tmp_path: Path) -> None:
     from mapping.pointcloud2 import decode
 
     out = tmp_path / "run"
-    run_scenario("office_corridor", duration=0.1, out_dir=out, progress=False, pictures=False)
+    run_scenario(
+        "office_corridor", duration=0.1, out_dir=out, progress=False, pictures=False, bag_clouds="decimated"
+    )  # the organised (every 4th pixel) clouds; the default voxel clouds are unorganised
     store = get_typestore(Stores.ROS2_HUMBLE)
     with Reader(out / "bag") as reader:
         conn = [c for c in reader.connections if c.topic == "/kinect/points"]
@@ -354,6 +356,8 @@ def test_sim_and_emulated_bags_of_the_same_sensors_have_the_same_topics_types_an
     assert main(["run", "--backend", "emulated", "--route", str(route), "--duration", "0.5",
                  "--out", str(emu_out)]) == 0  # fmt: skip
     a, b = _bag_names(sim_out / "bag"), _bag_names(emu_out / "bag")
+    # the emulated sonars hear nothing here, so the emulated run has no fused sonar points to record
+    a.pop("/sonar/points", None)
     assert a == b
     assert "/sonar/sonar_array_right/3" in a and "/odom" in a
     for name in ("metrics.json",):
