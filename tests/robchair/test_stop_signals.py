@@ -17,6 +17,7 @@ import re
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -162,25 +163,40 @@ def test_a_command_stopped_by_sigterm_removes_the_parent_folders_it_created(
     assert list(work.iterdir()) == [], sorted(str(p.relative_to(work)) for p in work.rglob("*"))
 
 
-def test_a_stop_signal_while_the_parents_of_out_are_created_leaves_none_of_them(
-    tmp_path, monkeypatch
-) -> None:
-    """SIGTERM arrives (sent to this process) just after the second missing parent of ``new/a/out`` is
-    made: the command ends by the signal, and neither ``new`` nor ``new/a`` is left (the rule of
-    :mod:`robchair.outdir`: a command stopped by a signal leaves no new folder behind)."""
-    from robchair.cli import stop_signals_raise
-    from robchair.outdir import staged_output_dir
-    from robchair.platform.errors import StopSignal
+def test_a_stop_signal_while_the_parents_of_out_are_created_leaves_none_of_them(tmp_path) -> None:
+    """SIGTERM arrives (sent by the process to itself) just after the second missing parent of
+    ``new/a/out`` is made: the command ends by the signal, and neither ``new`` nor ``new/a`` is left (the
+    rule of :mod:`robchair.outdir`: a command stopped by a signal leaves no new folder behind). It runs in
+    a child process, so a signal that escapes the handler ends the child, not the test session."""
+    script = textwrap.dedent(
+        """
+        import os, signal, sys
+        from pathlib import Path
+        from robchair.cli import stop_signals_raise
+        from robchair.outdir import staged_output_dir
+        from robchair.platform.errors import StopSignal
 
-    mkdir = Path.mkdir
+        root = Path(sys.argv[1])
+        mkdir = Path.mkdir
 
-    def mkdir_then_signal(self, *args, **kwargs):
-        mkdir(self, *args, **kwargs)
-        if self == tmp_path / "new" / "a":
-            os.kill(os.getpid(), signal.SIGTERM)
+        def mkdir_then_signal(self, *args, **kwargs):
+            mkdir(self, *args, **kwargs)
+            if self == root / "new" / "a":
+                os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr(Path, "mkdir", mkdir_then_signal)
-    with pytest.raises(StopSignal), stop_signals_raise():
-        with staged_output_dir(tmp_path / "new" / "a" / "out"):
-            pytest.fail("the signal came before the output was staged")
-    assert list(tmp_path.iterdir()) == []
+        Path.mkdir = mkdir_then_signal
+        try:
+            with stop_signals_raise():
+                with staged_output_dir(root / "new" / "a" / "out"):
+                    sys.exit("the signal came before the output was staged")
+        except StopSignal:
+            sys.exit(7)
+        sys.exit("no StopSignal")
+        """
+    )
+    work = tmp_path / "w"
+    work.mkdir()
+    proc = subprocess.run([sys.executable, "-c", script, str(work)], capture_output=True, text=True,
+                          env=_env(), timeout=120)  # fmt: skip
+    assert proc.returncode == 7, (proc.returncode, proc.stderr[-2000:])
+    assert list(work.iterdir()) == [], sorted(str(p.relative_to(work)) for p in work.rglob("*"))
