@@ -54,6 +54,7 @@ VARIANT: dict[str, str | None] = {
         "robchair sim office_tour --sensor kinect2-hd --duration 0.2 --seed 3 --out runs/tour --overwrite"
     ),
     "robchair sim --no-safety": "robchair sim --no-safety --duration 0.3 --no-pictures",
+    "robchair sim --pose odometry": "robchair sim --pose odometry --duration 0.3 --no-pictures",
     "robchair run --backend sim": "robchair run --backend sim --duration 0.5",
     BENCH: " && ".join(
         f"robchair bench {b} --help" for b in ("mapping", "sim", "table52", "env", "laser", "sweep", "zoom")
