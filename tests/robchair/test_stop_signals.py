@@ -34,6 +34,26 @@ def _env() -> dict[str, str]:
     return {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
 
 
+def _default_stop_signals() -> None:
+    """In the child before exec: SIGINT, SIGTERM and SIGHUP at their default dispositions.
+
+    A test run under ``nohup`` (SIGHUP ignored) or as a background job of a non-interactive shell
+    (SIGINT ignored) passes those dispositions on, and the command rightly keeps a stop signal its
+    parent ignored (POSIX ``exec``: ignored signals stay ignored). The command must meet the signal
+    as it would from a terminal, ``kill`` or ``systemctl``.
+    """
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)
+
+
+def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:  # type: ignore[type-arg]
+    """``robchair ARGS`` in a child process with pipes, the test's environment and default signals."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "robchair.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, env=_env(), cwd=cwd, preexec_fn=_default_stop_signals,
+    )  # fmt: skip
+
+
 def _wait_for(condition, bound_s: float, proc: subprocess.Popen) -> None:  # type: ignore[type-arg]
     """Poll ``condition`` every 10 ms for at most ``bound_s`` (fail early if the process ended)."""
     deadline = time.monotonic() + bound_s
@@ -65,10 +85,10 @@ def test_a_stop_signal_on_run_real_zeroes_the_motors_and_latches_the_stop_within
         cfg = tmp_path / "real.toml"
         cfg.write_text(f'[real]\nport = "{emu.device_path}"\n', encoding="utf-8")
         out = tmp_path / "R"
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "robchair.cli", "run", "--backend", "real", "--config", str(cfg),
-             "--route", str(ROOT / "examples/routes/short_turn.toml"), "--duration", "30", "--out", str(out)],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
+        proc = _spawn(
+            ["run", "--backend", "real", "--config", str(cfg), "--route",
+             str(ROOT / "examples/routes/short_turn.toml"), "--duration", "30", "--out", str(out)],
+            tmp_path,
         )  # fmt: skip
         _wait_for(lambda: any(rpm != 0 for _, _, rpm in _speeds(emu)), 120.0, proc)
         t_sig = time.monotonic_ns()
@@ -100,11 +120,7 @@ def test_a_stop_signal_on_sim_prints_one_line_and_leaves_no_staging_folder(
     tmp_path: Path, sig: signal.Signals
 ) -> None:
     out = tmp_path / "Z"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "robchair.cli", "sim", "--out", str(out), "--no-progress", "--no-pictures",
-         "--duration", "30"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
-    )  # fmt: skip
+    proc = _spawn(["sim", "--out", str(out), "--no-progress", "--no-pictures", "--duration", "30"], tmp_path)
 
     def driving() -> bool:  # the loop runs once the time series has rows below its header
         return any(len(p.read_bytes().splitlines()) > 2 for p in tmp_path.glob(".Z.partial-*/timeseries.csv"))
@@ -148,10 +164,7 @@ def test_a_command_stopped_by_sigterm_removes_the_parent_folders_it_created(
     work = tmp_path / "work"
     work.mkdir()
     parent = work / "new" / "a" / "b"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "robchair.cli", *_command(command, inputs, parent / "out")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=work,
-    )  # fmt: skip
+    proc = _spawn(_command(command, inputs, parent / "out"), work)
 
     def driving() -> bool:  # the loop runs once the time series has rows below its header
         return any(len(p.read_bytes().splitlines()) > 2 for p in parent.glob(".out.partial-*/timeseries.csv"))
@@ -200,3 +213,28 @@ def test_a_stop_signal_while_the_parents_of_out_are_created_leaves_none_of_them(
                           env=_env(), timeout=120)  # fmt: skip
     assert proc.returncode == 7, (proc.returncode, proc.stderr[-2000:])
     assert list(work.iterdir()) == [], sorted(str(p.relative_to(work)) for p in work.rglob("*"))
+
+
+def test_a_stop_signal_the_parent_ignores_stays_ignored_and_the_others_raise() -> None:
+    """Under ``nohup`` (SIGHUP ignored) a closed terminal must not stop the command: POSIX keeps an
+    ignored signal ignored across ``exec``, and ``nohup`` exists for that. SIGTERM, left at its default,
+    still stops it; after the block every disposition is what it was."""
+    from robchair.cli import stop_signals_raise
+    from robchair.platform.errors import StopSignal
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGHUP, signal.SIGTERM)}
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        with pytest.raises(StopSignal) as stopped, stop_signals_raise():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGHUP)  # ignored: nothing happens
+            assert callable(signal.getsignal(signal.SIGTERM))
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)  # the handler runs at the next bytecode; never reached past it
+        assert stopped.value.signo == signal.SIGTERM
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
