@@ -65,8 +65,9 @@ def _floor(x: float) -> int:
 
 # Points sampled to guess the frame's box (every _SAMPLE_STEP-th); the guess is widened by a margin and
 # points that still fall outside it are handled exactly by the sort path, so the guess never changes
-# the result, only the speed.
-_SAMPLE_STEP = 32
+# the result, only the speed. A prime step: every 32nd point of an HD frame (a 384-byte stride) cost
+# 0.86 ms, every 97th 0.11 ms, with the same table and no overflow.
+_SAMPLE_STEP = 97
 _MARGIN_CELLS = 2
 # Table slots addressable by the binning kernel's int32 indices.
 _INT32_SLOTS = 2**31 - 1
@@ -186,8 +187,8 @@ def _build_compiled(
         return *_sort_path(pts, spec, tol), "sort"
     # One (min, max) pair more: the scratch slot of the points that are not binned.
     table = np.empty((dense + 1, 2), dtype=pts.dtype)
-    table[:, 0] = np.inf
-    table[:, 1] = -np.inf
+    # one contiguous fill of (min, max) = (+inf, -inf) pairs, twice as fast as two strided column fills
+    table.view(np.complex64 if pts.dtype == np.float32 else np.complex128).fill(complex(np.inf, -np.inf))
     overflow = np.empty(max(4096, n // 64), np.int64)
     n_nonfinite, n_outside, n_over = K.bin_minmax(
         pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, table.reshape(-1), overflow

@@ -353,12 +353,13 @@ def _bench(args: argparse.Namespace, pinned: str) -> dict[str, Any]:
             print("  note: wall time is more than twice the CPU time: the machine is busy, prefer CPU times")
     evidence: dict[str, Any] = {}
     if not args.no_evidence:
-        from robchair.commands.bench_mapping_evidence import bench_insert, bench_walker
+        from robchair.commands.bench_mapping_evidence import bench_depth_frame, bench_insert, bench_walker
 
         print()
         evidence["insert"] = bench_insert(
             args.cell, args.tolerance, args.seed, repeat, max(0, args.prior_frames), octomap, args.quick
         )
+        evidence["depth_frame"] = bench_depth_frame(args.cell, args.tolerance, args.seed, repeat, args.quick)
         evidence["walker"] = bench_walker(args.seed, args.quick)
     result = {
         "benchmark": "mapping",

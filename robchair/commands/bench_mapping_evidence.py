@@ -59,22 +59,16 @@ def _runtime_params() -> Any:
     return run_evidence_params()
 
 
-def bench_insert(
-    cell: float,
-    tolerance: float,
-    seed: int,
-    repeat: int,
-    prior_frames: int,
-    octomap: Any,
-    quick: bool,
-) -> dict[str, Any]:
-    """Time the evidence insertion of the HD frame (and the baselines); print a small table."""
+def _timed_insert(
+    h: int, w: int, cell: float, tolerance: float, seed: int, repeat: int, prior_frames: int
+) -> tuple[dict[str, Any], list[Any], Any]:
+    """Time the insertion of ``h x w`` frames of the synthetic scene into a probabilistic map holding
+    ``prior_frames`` previous frames (max range, 30 Hz stamps): (result, frames, last stats)."""
     from mapping.grid import GridSpec
     from mapping.probabilistic import ProbabilisticVHV
     from mapping.synthetic import kinect_hd_like_cloud
 
-    h, w = (72, 128) if quick else (1080, 1920)
-    rng = np.random.default_rng(seed + 1)
+    rng = np.random.default_rng(seed)
     frames = [kinect_hd_like_cloud(rng, h, w) for _ in range(prior_frames + 2)]
     origin = np.array([0.0, 0.0, 1.0])
     spec = GridSpec(cell_size=cell, size_x=20.0, size_y=20.0)
@@ -103,6 +97,38 @@ def bench_insert(
         cells_updated=st.cells_updated,
         intervals=st.intervals,
     )
+    return res, frames, st
+
+
+def bench_depth_frame(cell: float, tolerance: float, seed: int, repeat: int, quick: bool) -> dict[str, Any]:
+    """The per-frame cost the drive loop pays per map layer: a 512 x 424 depth frame (Kinect v2 depth
+    resolution; the synthetic scene keeps the HD field of view) into a probabilistic map holding 3
+    previous frames, max range 6 m, 30 Hz stamps, the runtime's evidence parameters. No target of its
+    own: it shows what the HD figures mean for the loop."""
+    h, w = (36, 64) if quick else (424, 512)
+    res, _, st = _timed_insert(h, w, cell, tolerance, seed + 2, repeat, 3)
+    p = res["probabilistic"]
+    print(
+        f"  depth frame {w}x{h} ({h * w:,} points, max range {MAX_RANGE_M:g} m, 3 previous frames): "
+        f"median {p['median_ms']:.1f} ms, CPU {p['cpu_median_ms']:.1f} ms; "
+        f"{st.frame_structures} structures -> {st.fan_passages:,} fan passages"
+    )
+    return res
+
+
+def bench_insert(
+    cell: float,
+    tolerance: float,
+    seed: int,
+    repeat: int,
+    prior_frames: int,
+    octomap: Any,
+    quick: bool,
+) -> dict[str, Any]:
+    """Time the evidence insertion of the HD frame (and the baselines); print a small table."""
+    h, w = (72, 128) if quick else (1080, 1920)
+    origin = np.array([0.0, 0.0, 1.0])
+    res, frames, st = _timed_insert(h, w, cell, tolerance, seed + 1, repeat, prior_frames)
     flat = [
         np.ascontiguousarray(f.reshape(-1, 3)[np.isfinite(f.reshape(-1, 3)).all(axis=1)], np.float64)
         for f in frames

@@ -112,12 +112,20 @@ def _mapping(r: dict[str, Any]) -> tuple[str, str, str]:
         f"(target >= {_f(hd.get('target_ratio_open3d'), 'g')}x: {_met(hd.get('meets_open3d_target'))}); "
         f"OctoMap {_f(hd.get('ratio_octomap'), '.0f')}x"
     )
-    ins = (r.get("evidence") or {}).get("insert") or {}
+    ev = r.get("evidence") or {}
+    ins = (ev.get("insert") or {}).get("verdict") or {}
     if "median_ms" in ins:
         res += (
             f"; probabilistic update {_f(ins.get('median_ms'), '.1f')} ms wall, "
             f"{_f(ins.get('cpu_median_ms'), '.1f')} ms CPU (target <= {_f(ins.get('target_ms'), 'g')} ms: "
             f"{_met(ins.get('meets_time_target'))})"
+        )
+    df = ev.get("depth_frame") or {}
+    depth = df.get("probabilistic") or {}
+    if "cpu_median_ms" in depth:
+        res += (
+            f"; a {df.get('points', 0):,}-point depth frame (512x424 in a full run) into the probabilistic "
+            f"map {_f(depth.get('cpu_median_ms'), '.1f')} ms CPU"
         )
     return "VHV build and evidence update of a 1920x1080 frame, one core", "`robchair bench mapping`", res
 

@@ -47,6 +47,9 @@ def test_quick_bench_writes_json_whose_counts_match_an_independent_build(tmp_pat
     assert prob["median_ms"] > 0 and prob["free_intervals"] > 0 and prob["fan_passages"] > 0
     assert "octomap" not in ev["insert"] and "dufomap" in ev["insert"]  # run, or skipped with a reason
     assert ev["walker"]["cells"] > 0 and ev["walker"]["rate_hz"] == 30.0
+    depth = ev["depth_frame"]
+    assert depth["points"] == 36 * 64 and depth["max_range_m"] == 6.0  # the quick run's depth frame
+    assert depth["probabilistic"]["cpu_median_ms"] >= 0 and depth["probabilistic"]["fan_passages"] > 0
 
 
 @pytest.mark.slow
