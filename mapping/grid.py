@@ -280,12 +280,22 @@ def voxel_filter(points: ArrayLike, size: float, t_lattice: ArrayLike | None = N
     if p.shape[-1:] != (3,):
         raise ValueError(f"voxel_filter points: expected shape (..., 3), got {p.shape}")
     p = p.reshape(-1, 3)
+    t = np.eye(4) if t_lattice is None else np.asarray(t_lattice, dtype=np.float64)
+    if p.dtype in (np.float32, np.float64) and p.shape[0]:
+        from mapping._voxel_first import first_per_voxel  # one pass with a hash table: no sort
+
+        keep = np.empty(p.shape[0], np.int64)
+        m = first_per_voxel(
+            p, np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]), 1.0 / size, keep
+        )
+        if m >= 0:
+            return np.asarray(p[keep[:m]], dtype=np.float32)
+    # other dtypes, and voxel indices beyond the kernel's packing: sort the voxel keys
     p = p[np.isfinite(p).all(axis=1)]
     if not len(p):
         return np.empty((0, 3), dtype=np.float32)
     q = p.astype(np.float64)
     if t_lattice is not None:
-        t = np.asarray(t_lattice, dtype=np.float64)
         q = q @ t[:3, :3].T + t[:3, 3]
     keys = np.floor(q * (1.0 / size)).astype(np.int64)
     keys -= keys.min(axis=0)

@@ -9,7 +9,8 @@ indoor cloud is mapped.
 
 Outputs: occupancy.png, elevation.png, vhv_3d.png (not with --no-pictures), map.pgm + map.yaml
 (map_server), vhv_boxes.ply and voxels.ply (meshes), map_bag/ (ROS 2 Humble bag: /map OccupancyGrid,
-/vhv_markers MarkerArray) and summary.json (with timing_s: the seconds spent reading and building).
+/vhv_markers MarkerArray) and summary.json (with timing_s: the seconds spent reading and building,
+wall and CPU).
 Bag clouds are placed at their header stamps in a fixed frame through the bag's /tf and /tf_static
 (--fixed-frame, default odom; --pose-topic for a bag with nav_msgs/Odometry instead of TF); a bag
 without TF is mapped in its message frame, as recorded. Without --size the grid follows the data's
@@ -176,21 +177,39 @@ class _Extent:
         self.lo = [math.inf, math.inf]
         self.hi = [-math.inf, -math.inf]
         self.medians: list[tuple[float, float, int]] = []  # per-frame median and weight, for capped grids
+        self.deferred: list[Any] = []  # frames whose median is taken only if the grid is capped
         self.origins: list[tuple[float, float]] = []
 
-    def add(self, points: Any, sensor_origin: Any) -> None:
+    def add(self, points: Any, sensor_origin: Any, stats: Any, defer: bool = False) -> None:
+        """One frame: its (N, 3) points and their measures (:func:`_measure`). ``defer`` keeps a
+        reference to the points and takes their median only if a capped grid needs it (for frames held
+        in memory anyway); :meth:`settle` takes the deferred ones at once."""
         import numpy as np
 
         p = np.asarray(points).reshape(-1, 3)
-        uv = p[np.isfinite(p).all(axis=1)][:, self.cols].astype(np.float64)
-        if uv.shape[0]:
+        if stats[0] > 0:
             for k in range(2):
-                self.lo[k] = min(self.lo[k], float(uv[:, k].min()))
-                self.hi[k] = max(self.hi[k], float(uv[:, k].max()))
-            med = np.median(uv, axis=0)
-            self.medians.append((float(med[0]), float(med[1]), int(uv.shape[0])))
+                self.lo[k] = min(self.lo[k], float(stats[4 + 2 * k]))
+                self.hi[k] = max(self.hi[k], float(stats[5 + 2 * k]))
+            if defer:
+                self.deferred.append(p)
+            else:
+                self.medians.append(self._median(p))
         if sensor_origin is not None:
             self.origins.append((float(sensor_origin[self.cols[0]]), float(sensor_origin[self.cols[1]])))
+
+    def _median(self, p: Any) -> tuple[float, float, int]:
+        """The frame's median point in the grid plane and its number of finite points."""
+        import numpy as np
+
+        uv = p[np.isfinite(p).all(axis=1)][:, self.cols].astype(np.float64)
+        med = np.median(uv, axis=0)
+        return float(med[0]), float(med[1]), int(uv.shape[0])
+
+    def settle(self) -> None:
+        """Take the medians of the deferred frames now (their points are about to be released)."""
+        self.medians += [self._median(p) for p in self.deferred]
+        self.deferred = []
 
     def grid(self, args: argparse.Namespace) -> tuple[GridSpec, str]:
         """GridSpec over the points and the sensor plus a margin, each side bounded; and how it was chosen."""
@@ -199,7 +218,7 @@ class _Extent:
         from mapping.grid import GridSpec
 
         cell = args.cell
-        if not self.medians:
+        if not self.medians and not self.deferred:
             n = math.ceil(1.0 / cell)
             return GridSpec(
                 cell, n * cell, n * cell, (0.0, 0.0), args.axis
@@ -213,6 +232,7 @@ class _Extent:
         for k in range(2):
             if hi[k] - lo[k] + 2 * margins[k] > MAX_GRID_SIDE_M:
                 capped = True
+                self.settle()
                 # Far outliers should not drag a bounded grid away from the bulk of the points.
                 med = np.array([(m[k], m[2]) for m in self.medians])
                 order = np.argsort(med[:, 0])
@@ -247,17 +267,24 @@ def _warm_up(spec: GridSpec, args: argparse.Namespace, points: Any, origin: Any)
     map_tf.make_map(spec, args).insert(points, sensor_origin=origin)
 
 
-def _drop_close(points: Any, origin: Any, min_range: float) -> tuple[Any, int]:
-    """The points farther than ``min_range`` from ``origin`` (None: the frame's origin), as (N, 3),
-    and how many were dropped. Non-finite points are kept (the map counts those itself)."""
+def _measure(points: Any, origin: Any, min_range: float, axis: str, band: tuple[float, float]) -> Any:
+    """The frame's points farther than ``min_range`` from ``origin`` (None: the frame's origin) as
+    (N, 3), how many were dropped, and the measures of the kept finite points (``frame_pass``'s
+    ``out``: count, count in ``band``, height range, grid-plane bounds), in one pass. Non-finite
+    points are kept (the map counts those itself)."""
     import numpy as np
 
+    from mapping.grid import AXIS_COLUMNS
+    from robchair.commands._map_pass import frame_pass
+
     pts = np.asarray(points).reshape(-1, 3)
+    q = pts if pts.dtype in (np.float32, np.float64) else pts.astype(np.float64)
     ref = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
-    with np.errstate(invalid="ignore", over="ignore"):
-        close = np.sum((pts - ref) ** 2, axis=1) <= min_range * min_range
-    n = int(np.count_nonzero(close))
-    return (pts[~close] if n else pts), n
+    cu, cv, ch = AXIS_COLUMNS[axis]
+    close = np.empty(pts.shape[0], np.bool_)
+    out = np.empty(8)
+    n = int(frame_pass(q, ref, min_range * min_range, cu, cv, ch, band[0], band[1], close, out))
+    return (pts[~close] if n else pts), n, out
 
 
 def _placed_frames(frames: Any, placement: Any, sensor_origin: Any) -> Any:
@@ -285,7 +312,8 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
 
     import numpy as np
 
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    band_m = _band(args)
     frames: list[Any] | None = None
     if args.size is not None:
         centre = tuple(args.centre) if args.centre is not None else (0.0, 0.0)
@@ -300,11 +328,14 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         bar = tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"})
         n_kept = 0
         for frame, origin in _placed_frames(bar, placement, user_origin):
-            extent.add(_drop_close(frame.points, origin, args.min_range)[0], origin)
+            measured = _measure(frame.points, origin, args.min_range, args.axis, band_m)
+            extent.add(measured[0], origin, measured[2], defer=kept is not None)
             if kept is not None:
-                kept.append((frame, origin))
+                kept.append((frame, origin, *measured))
                 n_kept += int(np.asarray(frame.points).size // 3)
-                kept = kept if n_kept <= MAX_KEPT_POINTS else None  # a long bag is read again
+                if n_kept > MAX_KEPT_POINTS:  # a long bag is read again
+                    kept = None
+                    extent.settle()
         spec, how = extent.grid(args)
         frames = kept
         if placement is not None and frames is None:
@@ -317,11 +348,14 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
     sensor_origin_used = sensor_origin
     warmed: set[str] = set()
     dropped_close = 0
-    band = map_tf.BandCheck(_band(args), spec.columns[2])
-    pairs = frames if frames is not None else _placed_frames(iter(source), placement, sensor_origin)
-    for frame, origin in tqdm(pairs, **bar_kw):
-        points, n_close = _drop_close(frame.points, origin, args.min_range)
-        band.add(points)
+    band = map_tf.BandCheck(band_m, spec.columns[2])
+    pairs: Any = frames
+    if pairs is None:
+        pairs = ((f, o, None, 0, None) for f, o in _placed_frames(iter(source), placement, sensor_origin))
+    for frame, origin, points, n_close, measures in tqdm(pairs, **bar_kw):
+        if points is None:
+            points, n_close, measures = _measure(frame.points, origin, args.min_range, args.axis, band_m)
+        band.add_measures(measures)
         dropped_close += n_close
         if str(points.dtype) not in warmed:
             _warm_up(spec, args, points, origin)
@@ -335,6 +369,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
     return {
         "map": m,
         "read_and_build_s": time.perf_counter() - t_start,
+        "read_and_build_cpu_s": time.process_time() - cpu_start,
         "label": label,
         "grid_size_source": how,
         "build_ms": build_ms,
@@ -420,7 +455,12 @@ def _map_all(args: argparse.Namespace, sources: list[Any], placements: list[Any]
                     "band_check": r["band_check"].summary(r["label"], args.axis),
                     "tf": placement.summary() if placement is not None else map_tf.no_tf_summary(source),
                     # reading, placing and inserting every frame (the map built), and the inserts alone
-                    "timing_s": {"read_and_build": r["read_and_build_s"], "build": r["build_ms"] / 1e3},
+                    # and the CPU time of the first (all threads of the process)
+                    "timing_s": {
+                        "read_and_build": r["read_and_build_s"],
+                        "build": r["build_ms"] / 1e3,
+                        "read_and_build_cpu": r["read_and_build_cpu_s"],
+                    },
                 },
                 pictures=not args.no_pictures,
             )

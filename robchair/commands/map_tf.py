@@ -190,6 +190,14 @@ class BandCheck:
             self.in_band += int(np.count_nonzero((h >= self.band[0]) & (h <= self.band[1])))
             self.low, self.high = min(self.low, float(h.min())), max(self.high, float(h.max()))
 
+    def add_measures(self, measures: Any) -> None:
+        """Count one frame from its measures (``robchair.commands._map_pass.frame_pass``'s ``out``:
+        finite count, count in the band, lowest and highest height)."""
+        if measures[0] > 0:
+            self.finite += int(measures[0])
+            self.in_band += int(measures[1])
+            self.low, self.high = min(self.low, float(measures[2])), max(self.high, float(measures[3]))
+
     def warning(self, label: str, axis: str) -> str | None:
         """The stderr line when most points are outside the band (None otherwise)."""
         if not self.finite or self.finite - self.in_band < BAND_WARN_FRACTION * self.finite:

@@ -205,11 +205,14 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     ``room_seed`` picks one; ``walkers`` people walk on it), ``laser`` (the Hokuyo URG-04LX) and
     ``safety`` (False: the agent's command reaches the motors unchanged, for ground-truth studies).
     :class:`robchair.envs.arguments.NavigationSettings` checks them all. ``render()`` returns a
-    top-down picture of the episode's map, the scene, the path, the chair and the goal.
+    top-down picture of the episode's map, the scene, the path, the chair and the goal;
+    ``render_mode="foxglove"`` (with ``live_port``, default 8765) serves every step live over a Foxglove
+    WebSocket instead (:mod:`robchair.envs.live`).
     """
 
     metadata: dict[str, Any] = {  # noqa: RUF012
-        "render_modes": ["rgb_array"],
+        # foxglove: the episodes served live over a Foxglove WebSocket (robchair.envs.live)
+        "render_modes": ["rgb_array", "foxglove"],
         "render_fps": AGENT_HZ,
         # vector envs reset a finished sub-env on the step after it ended (a step after the end raises)
         "autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -222,6 +225,11 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             NavigationEnvError: an unknown keyword or a bad value, named with what was expected.
         """
         EzPickle.__init__(self, render_mode, **kwargs)
+        kwargs = dict(kwargs)
+        live_port = kwargs.pop("live_port", None)
+        from robchair.envs.live import check_live, open_live
+
+        check_live(render_mode, live_port)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise NavigationEnvError(
                 f"render_mode={render_mode!r}: expected None or one of {self.metadata['render_modes']}"
@@ -280,6 +288,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._prev_distance = 0.0
         self.dynamics = EpisodeDynamics()
         self._ended = False
+        self.live = None
+        try:
+            self.live = open_live(render_mode, live_port)  # last: a server runs only for a built env
+        except NavigationEnvError:
+            self.close()  # the port is in use: release the chair built above
+            raise
 
     # ---- construction ------------------------------------------------------------------------
 
@@ -382,6 +396,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._steps = 0
         rt = self.runtime
         rt.reset(start, self._new_perception())
+        if self.live is not None:
+            self.live.attach(rt)
         if self.pose_source == "ground_truth":
             rt.odometry = GroundTruthLocalisation(self.chair)  # type: ignore[assignment]
         rt.start()
@@ -526,6 +542,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
             return None
+        if self.live is not None:  # every step is already on the live server
+            return None
         episode = None
         if self._map is not None:
             pose = self.chair.ground_truth_pose()
@@ -548,8 +566,13 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         """Stop the runtime and release the physics (idempotent)."""
         chair = getattr(self, "chair", None)
         if chair is not None and not self._closed:
-            self._release_chair()
-            self._closed = True
+            try:
+                self._release_chair()
+            finally:
+                self._closed = True
+                live = getattr(self, "live", None)
+                if live is not None:
+                    live.close()
 
 
 __all__ = [

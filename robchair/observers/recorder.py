@@ -431,6 +431,10 @@ class RunTopics:
         self.sonar_mounts = {
             n: runtime.spec.mounts[n] for n in runtime.sonar_names if n in runtime.spec.mounts
         }
+        if self.has_cloud and self.cloud_voxel:  # the filter's compiled kernel loads now, not in a cycle
+            from mapping.grid import voxel_filter
+
+            voxel_filter(np.zeros((1, 3), np.float32), self.voxel_m)
 
     def topics(self) -> dict[str, str]:
         """Topic -> message type of every topic the run has."""
