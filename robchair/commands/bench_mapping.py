@@ -37,7 +37,9 @@ from typing import Any
 from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
 from robchair.commands.bench_output import verdict as bench_verdict
 
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+# NUMBA_NUM_THREADS is not among them: numba refuses a changed value once its threads run (a later
+# kernel in the same process raises); numba.set_num_threads(1) below single-threads it instead.
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 # Thesis: about 6 frames/s of 2,073,600-point clouds (C++, 4-core i7), i.e. ~166 ms per frame.
 THESIS_MS_PER_HD_FRAME = 166.0
