@@ -71,9 +71,24 @@ class DoorwayParams:
 def find_doorways(points: np.ndarray, params: DoorwayParams) -> list[Doorway]:
     """Doorways in obstacle points (N, 2) of ``base_link`` (x forward, y left), nearest first.
 
+    The sweep runs both ways (right to left, and on the points mirrored left to right): a doorway
+    seen at an angle shows its near jamb much closer than its far one, and a sweep finds the way
+    back in only from the far jamb's side.
+
     Returns:
         The doorways, in ``base_link``; empty when there is none.
     """
+    found = _sweep(points, params)
+    for d in _sweep(points * np.array([1.0, -1.0]), params):
+        m = Doorway(d.cx, -d.cy, d.nx, -d.ny, d.width)
+        if all(math.hypot(m.cx - f.cx, m.cy - f.cy) > 0.2 for f in found):
+            found.append(m)
+    found.sort(key=lambda d: math.hypot(d.cx, d.cy))
+    return found
+
+
+def _sweep(points: np.ndarray, params: DoorwayParams) -> list[Doorway]:
+    """The doorways found sweeping the points by increasing bearing (see :func:`find_doorways`)."""
     if len(points) < 2:
         return []
     r = np.hypot(points[:, 0], points[:, 1])
@@ -111,5 +126,4 @@ def find_doorways(points: np.ndarray, params: DoorwayParams) -> list[Doorway]:
         if mid @ n < 0:
             n = -n
         found.append(Doorway(float(mid[0]), float(mid[1]), float(n[0]), float(n[1]), width))
-    found.sort(key=lambda d: math.hypot(d.cx, d.cy))
     return found

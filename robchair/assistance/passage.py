@@ -9,14 +9,21 @@ turn to its heading):
 1. ``approach``: drive to the approach pose, ``approach_m`` before the doorway's plane on its centre
    line, facing through it. The chair turns toward that pose and moves forward as it faces it
    (``v = v_person cos^2(bearing)``, none while the safety layer's corridor holds a point within
-   ``stop_gap_m``); there (``align``) it turns in place onto the door's normal.
+   ``stop_gap_m``); within ``arrive_m`` of it, or once it lies beside or behind the chair within
+   ``pass_by_m`` (chasing a point that close only turns the chair back and forth), it turns in place
+   onto the door's normal (``align``), and from then on never approaches again.
 2. ``back-off``: when the approach pose lies behind the chair and near (it came too close to the
    wall, off the line or askew: the jambs would stop it), or when turning toward it would sweep a
    corner into something, it reverses (toward that pose, or straight back) at ``reverse_speed``, at
    most ``reverse_m`` per passage, each step checked against the points seen in the last
    ``memory_s`` (the sensors look forward; the safety layer only checks forward motion).
-3. ``pass``: once on the line (``line_tol_m``) and aligned (``align_tol_rad``), pure pursuit of the
-   centre line at the person's speed (at most ``door_speed``) until the rear is through.
+3. ``pass``: once aligned (``align_tol_rad``), follow the centre line at the person's speed (at most
+   ``door_speed``): head for the point ``lookahead_m`` ahead on the line, turning at ``heading_gain``
+   per radian off it and slowing by ``cos^2`` of that, until the rear is through. The residual offset
+   from the line decays over about ``lookahead_m`` of travel. A jamb in the safety layer's corridor
+   within ``stop_gap_m`` slows the chair to a creep; where even that would stop it before the front is
+   between the jambs, the chair backs off turning onto the normal (within ``reverse_m``) and follows
+   the line again from farther out.
 
 Everything here is in a doorway frame: ``s`` the signed distance of ``base_link`` along the normal
 from the doorway's plane (negative before it), ``e`` its offset left of the centre line, ``phi`` its
@@ -33,16 +40,23 @@ import numpy as np
 from robchair.assistance.doorway import Doorway
 from robchair.assistance.window import Footprint, arc_clearance, first_per_cell
 
+APPROACH_DECEL = 0.4  # m/s^2: half the safety layer's braking deceleration (0.8 m/s^2, SafetyLimits)
+
 
 @dataclass(frozen=True)
 class PassageParams:
     """Parameters of the passage (SI units).
 
     Attributes:
-        approach_m: ``base_link``'s distance before the doorway's plane at the approach pose, m. 0.85 m
-            puts the front edge (0.58 m ahead of ``base_link``) 0.27 m before the wall, and keeps the
-            corners' turning circle (radius hypot(0.58, 0.32) = 0.66 m) clear of it.
+        approach_m: ``base_link``'s distance before the doorway's plane at the approach pose, m. 1.0 m
+            puts the front edge (0.58 m ahead of ``base_link``) 0.42 m before the wall, beyond
+            ``stop_gap_m``, so a jamb a few cm inside the safety corridor does not stop the chair there;
+            the front corners' turning circle (radius hypot(0.58, 0.32) = 0.66 m) stays clear of the
+            wall, and the rear corners' (hypot(0.26, 0.32) = 0.41 m) of the far wall of a 1.6 m
+            corridor (0.6 m behind).
         arrive_m: the approach pose is reached within this, m.
+        pass_by_m: an approach pose beside or behind the chair (more than 60 degrees off its heading)
+            within this counts as reached, m.
         line_tol_m: the chair is on the centre line within this, m.
         align_tol_rad: and aligned with the normal within this, rad.
         turn_accel: deceleration planned when turning in place onto a heading, rad/s^2.
@@ -50,18 +64,23 @@ class PassageParams:
         reverse_speed: backing-off speed, m/s.
         reverse_m: longest back-off of one passage, m.
         reverse_near_m: an approach pose behind the chair and nearer than this is reached in reverse, m.
-        lookahead_m: pure-pursuit look-ahead along the centre line while passing, m.
+        lookahead_m: look-ahead along the centre line while passing, m.
+        heading_gain: yaw rate per radian of heading error while passing, 1/s.
         door_speed: fastest forward speed through the doorway, m/s.
         memory_s: how long seen points are kept to check a back-off, s.
         stop_gap_m: a point this near ahead of the front edge in the safety layer's corridor (the
             chair's width plus ``corridor_margin_m`` a side) would stop the chair there (the stopping
-            distance at ``door_speed``: 0.15 + 0.35 x 0.3 + 0.35^2 / 1.6 = 0.33 m): the pass turns in
-            place instead, or approaches again while the front is still before the jambs, m.
+            distance at ``door_speed``: 0.15 + 0.45 x 0.3 + 0.45^2 / 1.6 = 0.41 m): the approach does
+            not creep forward into it, and the pass slows down within it, m.
+        creep_gap_m: while passing, the forward speed is ``(gap - creep_gap_m) / 0.6`` within ``stop_gap_m``
+            of a point in that corridor (the safety layer's stopping distance 0.15 + 0.3 v + v^2 / 1.6
+            stays below the gap); the chair backs off when that falls under 0.02 m/s, m.
         corridor_margin_m: the safety layer's lateral margin, m.
     """
 
-    approach_m: float = 0.85
-    arrive_m: float = 0.02
+    approach_m: float = 1.0
+    arrive_m: float = 0.05
+    pass_by_m: float = 0.15
     line_tol_m: float = 0.03
     align_tol_rad: float = math.radians(2.5)
     turn_accel: float = 1.0
@@ -69,10 +88,12 @@ class PassageParams:
     reverse_speed: float = 0.15
     reverse_m: float = 1.0
     reverse_near_m: float = 0.6
-    lookahead_m: float = 0.6
-    door_speed: float = 0.35
+    lookahead_m: float = 0.25
+    heading_gain: float = 2.5
+    door_speed: float = 0.45
     memory_s: float = 3.0
-    stop_gap_m: float = 0.35
+    stop_gap_m: float = 0.45
+    creep_gap_m: float = 0.17
     corridor_margin_m: float = 0.05
 
 
@@ -177,6 +198,7 @@ class Passage:
         self.params, self.footprint, self.max_yaw_rate = params, footprint, max_yaw_rate
         self.phase = "approach"
         self.reversed_m = 0.0
+        self._backed = 0.0
 
     def twist(self, d: Doorway, v_person: float, dt: float, ahead: np.ndarray,
               behind: np.ndarray | None = None,
@@ -194,16 +216,46 @@ class Passage:
         p = self.params
         s, e, phi = door_coordinates(d)
         aligned = abs(phi) <= p.align_tol_rad
-        if self.phase == "pass" or (aligned and (abs(e) <= p.line_tol_m or self.phase == "align")):
+        if self.phase in ("pass", "back-off-pass") or (
+            aligned and (abs(e) <= p.line_tol_m or self.phase == "align")
+        ):
             v, w = self._pass(d, v_person)
-            if v > 0.0 and self._blocked(ahead):
-                if s + self.footprint.front_x < -0.05:  # not yet between the jambs: approach again
-                    self.phase = "approach"
-                    return self._approach(d, v_person, dt, ahead, behind, allow_reverse)
-                v = 0.0
+            front_before = s + self.footprint.front_x < -0.05  # the front is not yet between the jambs
+            if self.phase == "back-off-pass" and front_before:
+                return self._back_off_pass(phi, dt, behind, allow_reverse)
+            gap = self._gap(ahead)
+            if v > 0.0 and gap < p.stop_gap_m:
+                # a jamb in the safety corridor: creep, slow enough that the safety layer lets the line
+                # law correct on the way (stopping distance 0.15 + 0.3 v + v^2 / 1.6 < gap)
+                v = min(v, max(0.0, (gap - p.creep_gap_m) / 0.6))
+                if v < 0.02 and front_before:
+                    return self._back_off_pass(phi, dt, behind, allow_reverse)
             self.phase = "pass"
             return v, w, "pass"
         return self._approach(d, v_person, dt, ahead, behind, allow_reverse)
+
+    def _back_off_pass(self, phi: float, dt: float, behind: np.ndarray | None,
+                       allow_reverse: bool) -> tuple[float, float, str]:  # fmt: skip
+        """Back by ``2 pass_by_m`` per attempt (within ``reverse_m``) turning onto the door's normal,
+        then follow the line again from farther out; without room behind, turn in place onto it."""
+        p = self.params
+        w = _turn_to(_wrap(-phi), p, self.max_yaw_rate)
+        if (allow_reverse and self.reversed_m < p.reverse_m and self._reverse_clear(behind)
+                and (self.phase != "back-off-pass" or self._backed < p.pass_by_m * 2)):  # fmt: skip
+            if self.phase != "back-off-pass":
+                self._backed = 0.0
+            self.phase = "back-off-pass"
+            self.reversed_m += p.reverse_speed * dt
+            self._backed += p.reverse_speed * dt
+            return -p.reverse_speed, w, "back-off"
+        self.phase = "pass"
+        return 0.0, w, "pass"
+
+    def _gap(self, pts: np.ndarray) -> float:
+        """Free length (m) ahead of the front edge in the safety layer's corridor (+inf when clear)."""
+        fp, p = self.footprint, self.params
+        inside = (np.abs(pts[:, 1]) <= fp.half_width + p.corridor_margin_m) & (pts[:, 0] > fp.front_x)
+        return float(pts[inside, 0].min()) - fp.front_x if len(pts) and inside.any() else math.inf
 
     def _blocked(self, pts: np.ndarray) -> bool:
         """Whether a point lies within ``stop_gap_m`` ahead of the front edge in the safety corridor."""
@@ -220,7 +272,12 @@ class Passage:
         # the approach pose in base_link: A = c - approach_m n
         ax, ay = d.cx - p.approach_m * d.nx, d.cy - p.approach_m * d.ny
         dist = math.hypot(ax, ay)
-        if dist <= p.arrive_m or (self.phase == "align" and dist <= 3 * p.arrive_m):
+        bearing = math.atan2(ay, ax)
+        if (
+            self.phase == "align"
+            or dist <= p.arrive_m
+            or (dist <= p.pass_by_m and abs(bearing) > math.pi / 3)
+        ):
             turn, phase = _wrap(-phi), "align"
         else:
             turn, phase = math.atan2(ay, ax), "approach"
@@ -228,7 +285,7 @@ class Passage:
         if (phase == "approach" and abs(turn) > math.pi / 2 and dist <= p.reverse_near_m and allow_reverse
                 and self.reversed_m < p.reverse_m and self._reverse_clear(behind)):  # fmt: skip
             # the approach pose is near and behind (too close to the wall, off the line): reverse onto it
-            v = -min(p.reverse_speed, 0.5 * dist + 0.01) * math.cos(back) ** 2
+            v = -min(p.reverse_speed, dist + 0.03) * math.cos(back) ** 2
             self.phase = "back-off"
             self.reversed_m += abs(v) * dt
             return v, _turn_to(back, p, self.max_yaw_rate), "back-off"
@@ -247,7 +304,8 @@ class Passage:
         v = max(0.0, v_person) * max(0.0, math.cos(turn)) ** 2
         if self._blocked(ahead):  # the safety layer would stop a forward creep, and the turn with it
             v = 0.0
-        return min(v, p.door_speed, 0.5 * dist + 0.01), w, phase
+        # the person's pace, braking at APPROACH_DECEL onto the approach pose (the chair turns in place there)
+        return min(v, math.sqrt(2.0 * APPROACH_DECEL * dist) + 0.02), w, phase
 
     def _turn_clear(self, turn: float, pts: np.ndarray | None) -> bool:
         """Whether turning in place by ``turn`` rad keeps the footprint 3 cm from ``pts``."""
@@ -267,10 +325,9 @@ class Passage:
 
     def _pass(self, d: Doorway, v_person: float) -> tuple[float, float]:
         p = self.params
-        s = -(d.cx * d.nx + d.cy * d.ny)
-        foot_x, foot_y = d.cx + s * d.nx, d.cy + s * d.ny
-        tx, ty = foot_x + p.lookahead_m * d.nx, foot_y + p.lookahead_m * d.ny
-        alpha = math.atan2(ty, tx)
-        v = min(max(0.0, v_person), p.door_speed) * max(0.0, math.cos(alpha))
-        w = 2.0 * max(v, 0.05) * math.sin(alpha) / math.hypot(tx, ty)
-        return v, max(-self.max_yaw_rate, min(self.max_yaw_rate, w))
+        _, e, phi = door_coordinates(d)
+        alpha = _wrap(-math.atan2(e, p.lookahead_m) - phi)  # heading error to the point ahead on the line
+        v = min(max(0.0, v_person), p.door_speed) * max(0.0, math.cos(alpha)) ** 2
+        w = p.heading_gain * alpha
+        cap = min(p.turn_rate, self.max_yaw_rate)
+        return v, max(-cap, min(cap, w))

@@ -10,7 +10,9 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
   to ``shield_stop_m`` of free corridor ahead (the slow-down zone of Nav2's Collision Monitor,
   https://docs.nav2.org/configuration/packages/configuring-collision-monitor.html, made continuous);
 - ``assist``: the admissible twist nearest the person's over a short horizon
-  (:func:`robchair.assistance.window.search`, a dynamic-window search);
+  (:func:`robchair.assistance.window.search`, a dynamic-window search); near a doorway the person
+  points at, the doorway passage's twist (:class:`robchair.assistance.passage.Passage`, back-off
+  included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it;
 - ``door``: ``assist``, and when a doorway (:func:`robchair.assistance.doorway.find_doorways`) lies
   where the person's command points, the chair follows the doorway's centre line at the person's
   speed (at most ``door_speed``) and hands control back once its rear edge is through, or as soon as
@@ -19,10 +21,11 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
 
 The person always wins:
 
-- a released dead-man, or a zero command, gives zero (``v = w = 0``) in every mode;
-- a reverse command beyond ``reverse_release`` of the speed cap passes unchanged and lets the doorway
-  go (the chair's sensors look forward; the safety layer bounds it); a slighter one, the tremor of a
-  stick about its centre, counts as no forward speed;
+- a released dead-man, or a zero command, gives zero (``v = w = 0``) in every mode (the dead-man
+  also ends a doorway passage; a zero command pauses it);
+- a reverse command beyond ``reverse_release`` of the speed cap held for ``override_s`` passes
+  unchanged and lets the doorway go (the chair's sensors look forward; the safety layer bounds it); a
+  slighter or shorter one, the tremor of a stick about its centre, counts as no forward speed;
 - a command opposite to the assistance (cosine < 0 between the two twists scaled to the limits)
   held for ``override_s`` passes unchanged from then on: the person's command is applied at most
   ``ceil(override_s * rate_hz)`` cycles after it began (6 cycles, 0.3 s, at 20 Hz), and the doorway
@@ -44,7 +47,7 @@ import numpy as np
 
 from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
 from robchair.assistance.passage import Passage, PassageParams, PointMemory, refine
-from robchair.assistance.window import Footprint, WindowParams, first_per_cell, search
+from robchair.assistance.window import Footprint, WindowParams, arc_clearance, first_per_cell, search
 from robchair.platform.config import bounds, check_dataclass
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import Pose2D
@@ -52,6 +55,8 @@ from robchair.platform.spec import RobChairSpec
 from robchair.sources import Command, CommandSource, Observation
 
 MODES = ("off", "shield", "assist", "door")
+SAME_DOOR_M = 0.5  # m: a doorway found again within this of the last one keeps its passage
+GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage's twist before taking it
 
 
 def check_mode(mode: str) -> str:
@@ -76,9 +81,9 @@ class AssistConfig:
         door_lookahead_m: look-ahead of the pursuit of the doorway's centre line, m.
         door_through_m: the rear edge this far past the doorway's plane ends the passage, m.
         steer_share: a turn command below this share of the yaw-rate cap never lets a doorway go.
-        reverse_release: a reverse command faster than this share of the speed cap passes unchanged
-            and lets the doorway go; a slighter one (tremor about the stick's centre) counts as
-            zero forward speed.
+        reverse_release: a reverse command faster than this share of the speed cap, held for
+            ``override_s``, passes unchanged and lets the doorway go; a slighter or shorter one
+            (tremor about the stick's centre) counts as zero forward speed.
         crop_m: obstacle points farther than this from ``base_link`` are ignored, m.
         cell_m: obstacle points are thinned to one per cell of this size, m.
     """
@@ -86,10 +91,10 @@ class AssistConfig:
     override_s: float = field(default=0.3, metadata=bounds(gt=0, le=2.0))
     shield_slow_m: float = field(default=1.0, metadata=bounds(gt=0))
     shield_stop_m: float = field(default=0.2, metadata=bounds(ge=0))
-    door_speed: float = field(default=0.35, metadata=bounds(gt=0))
+    door_speed: float = field(default=0.45, metadata=bounds(gt=0))
     door_engage_rad: float = field(default=0.45, metadata=bounds(gt=0, le=math.pi))
     door_release_rad: float = field(default=0.9, metadata=bounds(gt=0, le=math.pi))
-    door_lookahead_m: float = field(default=0.7, metadata=bounds(gt=0))
+    door_lookahead_m: float = field(default=0.25, metadata=bounds(gt=0))
     door_through_m: float = field(default=0.2, metadata=bounds(ge=0))
     steer_share: float = field(default=0.3, metadata=bounds(ge=0, le=1.0))
     reverse_release: float = field(default=0.5, metadata=bounds(ge=0, le=1.0))
@@ -185,6 +190,7 @@ class AssistedSource:
         self.override_cycles = max(1, math.ceil(self.config.override_s * rate_hz - 1e-9))
         self._mode = check_mode(mode)
         self._conflict = 0
+        self._reverse = 0  # cycles the person has pulled back beyond reverse_release
         self._door: Doorway | None = None  # the doorway being passed, in odom
         self._last_door: Doorway | None = None  # the last doorway engaged, in odom
         self.dt = 1.0 / rate_hz
@@ -202,7 +208,7 @@ class AssistedSource:
     @mode.setter
     def mode(self, mode: str) -> None:
         self._mode = check_mode(mode)
-        self._conflict, self._door = 0, None
+        self._conflict, self._reverse, self._door = 0, 0, None
 
     def bind(self, runtime: Any) -> None:
         """Take the obstacle points from the runtime's perception (unless given at construction)."""
@@ -224,7 +230,9 @@ class AssistedSource:
             or (p.v == 0.0 and p.w == 0.0)
             or not (math.isfinite(p.v) and math.isfinite(p.w))
         ):
-            self._conflict, self._door = 0, None
+            self._conflict, self._reverse = 0, 0
+            if p.deadman is False:
+                self._door = None  # a released dead-man ends the passage; a zero command only pauses it
             zero = Command(0.0, 0.0, deadman=p.deadman, done=p.done)
             if not (math.isfinite(p.v) and math.isfinite(p.w)):
                 return self._report(p, p, "pass", "non-finite command: the safety layer stops")
@@ -233,10 +241,12 @@ class AssistedSource:
             )
         if self._mode == "off":
             return self._report(p, p, "pass", "assistance off")
-        if p.v < -self.config.reverse_release * self.max_speed:
+        pulled = p.v < -self.config.reverse_release * self.max_speed
+        self._reverse = self._reverse + 1 if pulled else 0
+        if self._reverse >= self.override_cycles:
             self._conflict, self._door = 0, None  # a deliberate pull back lets the doorway go
             return self._report(p, p, "pass", "reverse: the person's command")
-        if p.v < 0.0:  # a slight backward deflection (tremor about the centre): no forward speed
+        if p.v < 0.0:  # a slighter or shorter pull back (tremor about the centre): no forward speed
             p = Command(0.0, p.w, deadman=p.deadman, done=p.done)
         assert self.obstacles is not None, "AssistedSource needs obstacles= or bind(runtime)"
         cfg = self.config
@@ -246,7 +256,7 @@ class AssistedSource:
         self._memory.add(near, obs.pose.x, obs.pose.y, obs.pose.theta)
         v, w, action, reason, extra = self._assist(p, obs.pose, near, seen)
         up = _unit(p.v, p.w, self.max_speed, self.max_yaw_rate)
-        if action == "door":
+        if "_door" in extra:
             # the passage's aim is the doorway (it may turn, wait or back off on the way): the person
             # opposes it by pointing more than 90 degrees from both the doorway and its approach pose
             opposed = self._steers_away(extra.pop("_door"), p, math.pi / 2)
@@ -287,7 +297,17 @@ class AssistedSource:
                 extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
                          "door_phase": phase, "_door": door}  # fmt: skip
                 return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
-            vg, wg, _ = self._passage.twist(door, p.v, self.dt, pts, allow_reverse=False)
+            vg, wg, phase = self._passage.twist(door, p.v, self.dt, pts, behind)
+            if vg <= 0.0 or self._guide_clear(vg, wg, pts):
+                # backing off (checked against the points seen behind), turning in place, or clear for
+                # the next half second: the passage's own twist reaches the approach pose and the line
+                extra = {
+                    "door_width_m": door.width,
+                    "door_phase": phase,
+                    "door_guide": (vg, wg),
+                    "_door": door,
+                }
+                return vg, wg, "window", f"{phase}: guided through a {door.width:.2f} m doorway", extra
             guide = (vg, wg)
         v, w, clear, clear_p = search(
             self.footprint, self.window, p.v, p.w, self.max_speed, self.max_yaw_rate, pts, guide
@@ -298,6 +318,12 @@ class AssistedSource:
         if v == 0.0 and w == 0.0:
             return v, w, "stop", "no admissible twist within the horizon", extra
         return v, w, "window", f"person's twist clears {clear_p:.2f} m: nearest admissible twist", extra
+
+    def _guide_clear(self, v: float, w: float, pts: np.ndarray) -> bool:
+        """Whether holding ``(v, w)`` for ``GUIDE_HORIZON_S`` keeps the window's minimum clearance."""
+        times = np.linspace(0.0, GUIDE_HORIZON_S, 4)
+        clear = arc_clearance(self.footprint, np.array([v]), np.array([w]), times, pts.astype(np.float32))
+        return float(clear[0]) >= self.window.min_clearance_m
 
     def _doorway(self, p: Command, pose: Pose2D, pts: np.ndarray) -> Doorway | None:
         cfg = self.config
@@ -318,7 +344,7 @@ class AssistedSource:
                 d = refine(d, pts)
                 self._door = odom = d.transformed(pose.x, pose.y, pose.theta)
                 last = self._last_door
-                if last is None or math.hypot(odom.cx - last.cx, odom.cy - last.cy) > 0.3:
+                if last is None or math.hypot(odom.cx - last.cx, odom.cy - last.cy) > SAME_DOOR_M:
                     # a new doorway (the same one again keeps its passage: how far it backed off)
                     self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
                 self._last_door = odom

@@ -1,7 +1,7 @@
 """`robchair assist-eval`: shared control with a simulated user, per assistance mode.
 
     robchair assist-eval [--env random] --user PRESET --mode MODE [--mode MODE ...] --episodes N
-                         --seed S --out DIR [--door-width LO HI]
+                         --seed S --out DIR [--door-width LO HI] [--pictures K] [--ray [--num-cpus C]]
 
 Each episode is a random floor of the evaluation seeds (:data:`sim.rooms.EVAL_SEEDS`, from index
 ``--seed``) with doorways ``--door-width`` m wide (default 0.80-0.90 m: real office doors, SPEC
@@ -9,14 +9,18 @@ section 7): the chair starts in the corridor 1.5-3 m beside a room's doorway, fa
 corridor, and the simulated user (:mod:`sim.user`, preset ``--user``) drives into the room through
 it. Every mode drives the same episodes (:func:`robchair.assistance.evaluation.run_episode`, a
 kinematic planar chair with the real assistance stage and safety layer). Prints one table row per
-mode; writes ``DIR/assist_eval.json`` (one record per mode with its means, and every episode) and
-``DIR/paths.png`` (the first episode's floor plan with each mode's path).
+mode; writes ``DIR/assist_eval.json`` (one record per mode with its means, and every episode),
+``DIR/paths.png`` and ``DIR/paths_<k>.png`` (the first ``--pictures`` episodes' floor plans with each
+mode's path) and ``DIR/report.md`` (the command, the table and the pictures). ``--ray`` runs the
+episodes as Ray tasks (:func:`robchair.sweep.executor.ordered_tasks`, as ``nav-eval --ray``), with the
+same results.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -40,6 +44,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--seed", type=int, default=0, help="index of the first evaluation floor (default 0)")
     p.add_argument("--door-width", type=float, nargs=2, default=(0.8, 0.9), metavar=("LO", "HI"),
                    help="doorway clear width range, m (default 0.80 0.90)")  # fmt: skip
+    p.add_argument(
+        "--pictures",
+        type=int,
+        default=3,
+        help="paths pictures of the first K episodes (default 3, at least 1)",
+    )
+    p.add_argument("--ray", action="store_true", help="run the episodes as Ray tasks (a local instance)")
+    p.add_argument("--num-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
     p.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT})")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.set_defaults(func=_run)
@@ -118,6 +130,10 @@ def _check(args: argparse.Namespace) -> list[str]:
         raise ConfigError(f"--env {args.env!r}: expected one of {', '.join(ENVS)}")
     if args.episodes < 1:
         raise ConfigError(f"--episodes {args.episodes}: expected an integer >= 1")
+    if args.pictures < 0:
+        raise ConfigError(f"--pictures {args.pictures}: expected an integer >= 0")
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise ConfigError(f"--num-cpus {args.num_cpus}: expected an integer >= 1")
     if not 0 <= args.seed < 10_000 - args.episodes:
         raise ConfigError(f"--seed {args.seed}: expected 0 <= seed < {10_000 - args.episodes}")
     lo, hi = args.door_width
@@ -126,39 +142,69 @@ def _check(args: argparse.Namespace) -> list[str]:
     return modes
 
 
-def _run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+def episode_set(index: int, door_width: tuple[float, float], env: str, modes: list[str],
+                user: str) -> dict[str, dict[str, Any]]:  # fmt: skip
+    """Every mode on evaluation episode ``index`` (one Ray task with ``--ray``): ``{mode: metrics}``."""
     from robchair.assistance.evaluation import run_episode
-    from robchair.outdir import check_output_dir, timestamped_dir
     from robchair.platform.spec import load_spec
     from sim.user import preset
 
+    sc = scenario(index, door_width, env)
+    spec, params = load_spec(), preset(user)
+    out = {}
+    for m in modes:
+        ep = run_episode(sc["world"], spec, sc["start"], sc["route"], m, params, seed=index)
+        ep.update(floor_seed=sc["seed"], door_width_m=sc["door_width"])
+        out[m] = ep
+    return out
+
+
+def _run(args: argparse.Namespace) -> int:
+    import contextlib
+    import shlex
+    import sys
+
+    from tqdm import tqdm
+
+    from robchair.commands.assist_eval_report import picture, print_table, report_page
+    from robchair.outdir import check_output_dir, timestamped_dir
+
     modes = _check(args)
-    user = preset(args.user)
-    spec = load_spec()
+    if getattr(args, "verbose", 0) == 0:  # one line per safety stop would bury the progress bar
+        logging.getLogger("robchair.platform.safety").setLevel(logging.ERROR)
     if args.out is None:
         args.out = timestamped_dir("assist-eval")
     out_dir = check_output_dir(args.out, overwrite=args.overwrite)  # refuse before any episode
-    episodes: dict[str, list[dict[str, Any]]] = {m: [] for m in modes}
-    first: dict[str, Any] = {}
-    for i in tqdm(range(args.seed, args.seed + args.episodes), desc=f"{args.user} on {args.env}", unit="ep"):
-        sc = scenario(i, tuple(args.door_width), args.env)
-        first = first or sc
-        for m in modes:
-            ep = run_episode(sc["world"], spec, sc["start"], sc["route"], m, user, seed=i)
-            ep.update(floor_seed=sc["seed"], door_width_m=sc["door_width"])
-            episodes[m].append(ep)
+    door = (float(args.door_width[0]), float(args.door_width[1]))
+    calls = [(i, door, args.env, modes, args.user) for i in range(args.seed, args.seed + args.episodes)]
+    desc = f"{args.user} on {args.env}"
+    with contextlib.ExitStack() as stack:
+        if args.ray:
+            from robchair.sweep.executor import ordered_tasks, ray_session
+
+            ray = stack.enter_context(ray_session(None, args.num_cpus))
+            sets = list(ordered_tasks(ray, episode_set, calls, desc))
+        else:
+            sets = [episode_set(*c) for c in tqdm(calls, desc=desc, unit="ep")]
+    episodes = {m: [s[m] for s in sets] for m in modes}
     records = [_summary(m, eps, args) for m, eps in episodes.items()]
-    _table(records)
+    print_table(records)
     doc = {"env": args.env, "user": args.user, "episodes": args.episodes, "seed": args.seed,
            "door_width_m": list(args.door_width), "modes": records,
            "episodes_by_mode": {m: [{k: v for k, v in e.items() if k != "path"} for e in eps]
                                 for m, eps in episodes.items()}}  # fmt: skip
+    command = (
+        "robchair " + shlex.join(sys.argv[1:]) if sys.argv[1:2] == ["assist-eval"] else "robchair assist-eval"
+    )
     with out_dir.stage() as out:
         (out / "assist_eval.json").write_text(json.dumps(doc, indent=2) + "\n")
-        picture(first, {m: eps[0]["path"] for m, eps in episodes.items()}, out / "paths.png", args.user)
-    print(f"wrote {Path(args.out) / 'assist_eval.json'} and {Path(args.out) / 'paths.png'}")
+        names = []
+        for k, s in enumerate(sets[: max(1, args.pictures)]):
+            names.append("paths.png" if k == 0 else f"paths_{k}.png")
+            picture(scenario(args.seed + k, door, args.env), s, out / names[-1], args.user)
+        (out / "report.md").write_text(report_page(doc, names, command))
+    where = Path(args.out)
+    print(f"wrote {where / 'assist_eval.json'}, {where / 'report.md'} and {len(names)} pictures")
     return 0
 
 
@@ -174,37 +220,3 @@ def _summary(mode: str, eps: list[dict[str, Any]], args: argparse.Namespace) -> 
     ok = [e["time_s"] for e in eps if e["success"]]
     rec["time_to_goal_s"] = float(np.mean(ok)) if ok else None
     return rec
-
-
-def _table(records: list[dict[str, Any]]) -> None:
-    cols = [("mode", "{:8s}"), ("success_rate", "{:8.1%}"), ("collisions", "{:5d}"), ("agreement", "{:6.3f}"),
-            ("overridden_share", "{:6.3f}"), ("time_to_goal_s", "{:7.1f}"), ("safety_stops", "{:6.2f}"),
-            ("min_clearance_m", "{:6.3f}"), ("peak_lon_accel_max", "{:6.2f}"), ("rms_lon_accel", "{:6.3f}"),
-            ("peak_lat_accel", "{:6.2f}"), ("peak_jerk", "{:6.1f}"), ("joystick_path", "{:6.1f}"),
-            ("reversals", "{:6.1f}")]  # fmt: skip
-    heads = ["mode", "success", "coll", "agree", "overr", "t_goal", "stops", "clear", "a_lon^", "a_rms",
-             "a_lat^", "jerk^", "stick", "revs"]  # fmt: skip
-    print(" ".join(f"{h:>8s}" for h in heads))
-    for r in records:
-        cells = ["-" if r[k] is None else f.format(r[k]) for k, f in cols]
-        print(" ".join(f"{c:>8s}" for c in cells))
-
-
-def picture(sc: dict[str, Any], paths: dict[str, list[list[float]]], path: Path, user: str) -> None:
-    """The floor plan of ``sc`` with each mode's path (PNG)."""
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=80)
-    for x0, y0, x1, y1 in sc["world"].segments:
-        ax.plot([x0, x1], [y0, y1], color="0.3", lw=1.0)
-    for mode, p in paths.items():
-        xy = list(zip(*p, strict=True)) if p else ([], [])
-        ax.plot(xy[0], xy[1], lw=1.6, label=mode)
-    ax.plot(*sc["start"][:2], "ko", ms=4)
-    ax.plot(*sc["route"][-1], "k*", ms=9)
-    ax.set_aspect("equal")
-    ax.set_title(f"{user} user, floor {sc['seed']}, door {sc['door_width']:.2f} m", fontsize=9)
-    ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

@@ -75,17 +75,10 @@ def _distributed(
     ray: Any, env_id: str, seeds: list[int], spec: str, kwargs: dict[str, Any], pictures: int
 ) -> Any:
     """The same episodes as :func:`_serial`, as Ray tasks; yielded in seed order."""
-    from tqdm import tqdm
+    from robchair.sweep.executor import ordered_tasks
 
-    task = ray.remote(num_cpus=1, max_retries=0)(_episode_task)
-    refs = [task.remote(env_id, seed, spec, kwargs, k < pictures) for k, seed in enumerate(seeds)]
-    pending = set(refs)
-    with tqdm(total=len(refs), desc=f"{spec} on {env_id} (ray)", unit="ep") as bar:
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-            pending.difference_update(ready)
-            bar.update(len(ready))
-    yield from ray.get(refs)
+    calls = [(env_id, seed, spec, kwargs, k < pictures) for k, seed in enumerate(seeds)]
+    yield from ordered_tasks(ray, _episode_task, calls, f"{spec} on {env_id}")
 
 
 def _picture(ep: dict[str, Any], path: Path, title: str) -> None:

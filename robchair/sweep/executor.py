@@ -85,6 +85,24 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
         ray.shutdown()
 
 
+def ordered_tasks(ray: Any, fn: Callable[..., Any], calls: list[tuple[Any, ...]], desc: str) -> Iterator[Any]:
+    """``fn(*call)`` for every call as a Ray task (one CPU each, no retries), with a progress bar;
+    the results are yielded in the order of ``calls`` once all have finished.
+
+    ``fn`` must be importable in the workers (a module-level function)."""
+    from tqdm import tqdm
+
+    task = ray.remote(num_cpus=1, max_retries=0)(fn)
+    refs = [task.remote(*call) for call in calls]
+    pending = set(refs)
+    with tqdm(total=len(refs), desc=f"{desc} (ray)", unit="ep") as bar:
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+            pending.difference_update(ready)
+            bar.update(len(ready))
+    yield from ray.get(refs)
+
+
 #: What a sweep writes into its folder; ``overwrite`` replaces these and nothing else.
 SWEEP_ENTRIES = (MARKER, "sweep.json", "runs", "records", "results.csv", "results.json", "figures")
 

@@ -17,6 +17,9 @@ docstring); the ``-v0`` ids keep the nominal chair.
 * ``RobChair/NavigationDynamic-v1`` - random floors with two people walking.
 * ``RobChair/NavigationDiscrete-v1`` - the light observation with five discrete actions
   (:data:`robchair.envs.navigation.DISCRETE_ACTIONS`: stop, forward slow, forward fast, turn left, right).
+* ``RobChair/SharedControl-v0`` - :class:`robchair.envs.shared_control.RobChairSharedControlEnv`: the
+  light observation plus a simulated user's joystick; the action is the applied command, the reward
+  trades progress and safety against agreement with the person; office scene.
 
 Example:
     >>> import gymnasium
@@ -61,6 +64,9 @@ _REGISTRATIONS.update(
     }
 )
 
+_REGISTRATIONS["RobChair/SharedControl-v0"] = {"scene": "office", **_LIGHT}
+_ENTRY_POINTS = {"RobChair/SharedControl-v0": "robchair.envs.shared_control:RobChairSharedControlEnv"}
+
 ENV_IDS = tuple(_REGISTRATIONS)
 
 for _id, _kwargs in _REGISTRATIONS.items():
@@ -68,7 +74,7 @@ for _id, _kwargs in _REGISTRATIONS.items():
     if _id not in gymnasium.registry:
         gymnasium.register(
             id=_id,
-            entry_point="robchair.envs.navigation:RobChairNavigationEnv",
+            entry_point=_ENTRY_POINTS.get(_id, "robchair.envs.navigation:RobChairNavigationEnv"),
             max_episode_steps=300,
             kwargs=dict(_kwargs),
         )

@@ -63,6 +63,24 @@ def test_the_persons_opposite_command_wins_within_the_stated_bound() -> None:
     assert all(d.reports[k]["applied"] == (opposite.v, opposite.w) for k in range(won[0], 40))
 
 
+def test_a_tremor_blip_backward_keeps_the_doorway_and_a_held_pull_back_wins_within_the_bound() -> None:
+    """A pull back beyond reverse_release (0.5) of the speed cap (0.62 m/s) for 2 cycles (0.1 s, a
+    tremor's half period at 5 Hz) counts as no forward speed: the passage goes on. Held, it is applied
+    unchanged within ceil(0.3 s x 20 Hz) = 6 cycles (override_s = 0.3 s, :class:`AssistConfig`)."""
+    pull = Command(-0.4, 0.0, deadman=True)
+    blip = {5, 6}
+
+    def person(k: int) -> Command:
+        return pull if k in blip or k >= 20 else FORWARD
+
+    d = drive(doorway(DOOR_M), "door", Scripted(person), START, 40)
+    assert all(d.reports[k]["action"] == "door" for k in range(3, 20))  # the blip did not end the passage
+    assert all(d.reports[k]["applied"][0] >= 0.0 for k in blip)
+    won = [k for k in range(20, 40) if d.reports[k]["applied"] == (pull.v, pull.w)]
+    assert won and won[0] - 20 + 1 <= 6
+    assert all(d.reports[k]["applied"] == (pull.v, pull.w) for k in range(won[0], 40))
+
+
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("deadman", [True, False])
 def test_a_zero_command_gives_zero_motion_in_every_mode(mode: str, deadman: bool) -> None:
@@ -126,10 +144,12 @@ def test_off_cannot_move_when_too_close_to_a_085_m_door_and_off_its_line() -> No
     assert max(p[0] for p in d.poses) < -0.7  # never got nearer the wall
 
 
-def test_door_backs_off_realigns_and_passes_when_too_close_and_off_its_line() -> None:
-    """The same start with ``door``: a short reverse (at most PassageParams.reverse_m = 1.0 m, at most
-    reverse_speed = 0.15 m/s), then through the doorway with no contact, ending on its centre line."""
-    d = drive(doorway(DOOR_M), "door", Scripted(lambda k: FORWARD), TOO_CLOSE, 500)
+@pytest.mark.parametrize("mode", ["door", "assist"])
+def test_door_and_assist_back_off_realign_and_pass_when_too_close_and_off_its_line(mode: str) -> None:
+    """The start above with ``door`` or ``assist`` (the doorway passage guides both): a short reverse
+    (at most PassageParams.reverse_m = 1.0 m, at most reverse_speed = 0.15 m/s), then through the
+    doorway with no contact, ending on its centre line."""
+    d = drive(doorway(DOOR_M), mode, Scripted(lambda k: FORWARD), TOO_CLOSE, 500)
     assert not d.contact
     phases = [r.get("door_phase") for r in d.reports]
     assert "back-off" in phases and phases.index("back-off") < phases.index("pass")
@@ -139,6 +159,28 @@ def test_door_backs_off_realigns_and_passes_when_too_close_and_off_its_line() ->
     x, y, _ = d.poses[-1]
     assert x > 0.1 + 0.84  # the whole footprint (0.84 m deep) is through the 0.1 m wall
     assert abs(y) < 0.425 - 0.32  # on the line: the chair's sides within the door's clear width
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_side_doorway_seen_at_an_angle_from_the_corridor_is_found_on_either_side(side: float) -> None:
+    """A corridor wall 0.8 m to one side (y = side x 0.8), a 0.88 m gap in it from x = 0.32 to 1.20,
+    the room's far wall 2.2 m beyond (seen through the gap): seen from the origin facing +x, the near
+    jamb is 0.86 m away and the far one 1.44 m; hand values: the doorway's centre (0.76, side x 0.8),
+    width 0.88 m, normal (0, side) (away from the chair)."""
+    from robchair.assistance.doorway import DoorwayParams, find_doorways
+
+    xs = np.arange(-0.5, 3.0, 0.02)
+    wall = xs[(xs <= 0.32 + 1e-9) | (xs >= 1.20 - 1e-9)]
+    far = np.arange(-0.5, 3.0, 0.02)
+    far = far[(far * 0.8 / 3.0 > 0.32) & (far * 0.8 / 3.0 < 1.20)]  # seen through the gap only
+    pts = np.vstack([np.stack([wall, np.full(len(wall), side * 0.8)], axis=1),
+                     np.stack([far, np.full(len(far), side * 3.0)], axis=1)])  # fmt: skip
+    pts = pts[np.abs(np.arctan2(pts[:, 1], pts[:, 0])) <= math.radians(120.0)]  # the laser's field of view
+    found = find_doorways(pts, DoorwayParams())
+    assert len(found) >= 1
+    d = found[0]
+    assert (d.cx, d.cy, d.width) == pytest.approx((0.76, side * 0.8, 0.88), abs=0.021)
+    assert (d.nx, d.ny) == pytest.approx((0.0, side), abs=1e-6)
 
 
 def test_first_point_per_cell_gives_the_indices_of_numpys_row_unique() -> None:

@@ -162,8 +162,9 @@ def test_randomisation_ranges_are_arguments_and_bad_ranges_are_refused():
         e.close()
 
 
-def test_the_environment_pickles_and_deep_copies_into_an_equal_environment():
-    e = gymnasium.make("RobChair/NavigationSonar-v0")
+@pytest.mark.parametrize("env_id", ["RobChair/NavigationSonar-v0", "RobChair/SharedControl-v0"])
+def test_the_environment_pickles_and_deep_copies_into_an_equal_environment(env_id):
+    e = gymnasium.make(env_id)
     try:
         clone = pickle.loads(pickle.dumps(e))
         twin = copy.deepcopy(e)
