@@ -58,8 +58,12 @@ def test_a_channel_other_than_1_or_2_is_refused(bad: int) -> None:
 
 
 def test_go_value_outside_plus_minus_1000_is_refused() -> None:
-    with pytest.raises(ProtocolError, match="1001"):
-        codec.go(1, 1001)
+    """Manual, ``!G``: -1000..1000; both ends are commands, one beyond either is not."""
+    assert codec.go(1, -1000).encode() == b"!G 1 -1000\r"
+    assert codec.go(2, 1000).encode() == b"!G 2 1000\r"
+    for bad in (1001, -1001):
+        with pytest.raises(ProtocolError, match=f"!G value {bad} outside -1000..1000"):
+            codec.go(1, bad)
 
 
 def test_command_with_bad_kind_name_or_argument_is_refused() -> None:

@@ -287,13 +287,15 @@ def test_a_host_stall_counts_as_a_watchdog_trip_only_while_a_wheel_was_commanded
 
 
 def test_the_watchdog_period_is_written_read_back_and_kept_armed(fake) -> None:
-    """Manual, ``^RWD``: 0..65000 ms, 0 disabling the watchdog. The driver writes 1..65000 and reads
-    the value back (``~RWD``); 0, 65001 and a read-only session are refused, a controller that keeps
+    """Manual, ``^RWD``: 0..65000 ms, 0 disabling the watchdog. The driver writes 1..65000 (both ends)
+    and reads the value back (``~RWD``); 0, 65001 and a read-only session are refused, a controller that keeps
     its old value is a fault."""
     drv = opened(fake)
     drv.set_watchdog_ms(250)
     assert fake.received[-2:] == ["^RWD 250", "~RWD"]
     assert fake.config["RWD"] == [250] and drv.watchdog_ms == 250
+    drv.set_watchdog_ms(1)
+    assert fake.config["RWD"] == [1]
     drv.set_watchdog_ms(65000)
     assert fake.config["RWD"] == [65000]
     for bad in (0, 65001, True, 100.0):
