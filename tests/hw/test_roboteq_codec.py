@@ -58,8 +58,12 @@ def test_a_channel_other_than_1_or_2_is_refused(bad: int) -> None:
 
 
 def test_go_value_outside_plus_minus_1000_is_refused() -> None:
-    with pytest.raises(ProtocolError, match="1001"):
-        codec.go(1, 1001)
+    """Manual, ``!G``: -1000..1000; both ends are commands, one beyond either is not."""
+    assert codec.go(1, -1000).encode() == b"!G 1 -1000\r"
+    assert codec.go(2, 1000).encode() == b"!G 2 1000\r"
+    for bad in (1001, -1001):
+        with pytest.raises(ProtocolError, match=f"!G value {bad} outside -1000..1000"):
+            codec.go(1, bad)
 
 
 def test_command_with_bad_kind_name_or_argument_is_refused() -> None:
@@ -266,3 +270,35 @@ def test_firmware_id_without_version_is_a_protocol_error() -> None:
 )
 def test_wrap_int32_matches_a_signed_32_bit_counter(value: int, wrapped: int) -> None:
     assert codec.wrap_int32(value) == wrapped
+
+
+@pytest.mark.parametrize(
+    ("decode", "what"),
+    [
+        (codec.decode_fault_flags, "fault flag (?FF)"),
+        (codec.decode_status_flags, "status flag (?FS)"),
+        (codec.decode_motor_flags, "motor flag (?FM)"),
+    ],
+)
+def test_a_flag_word_beyond_sixteen_bits_is_refused_naming_the_query(decode, what) -> None:
+    """Manual (firmware 2.x): flag words are unsigned 16-bit, 0..65535; 65536 is no flag word."""
+    with pytest.raises(ProtocolError) as info:
+        decode(65536)
+    assert str(info.value) == f"{what} word 65536 outside 0..65535"
+
+
+def test_queries_and_config_reads_name_the_channel_they_ask_for() -> None:
+    """Manual: ``?C 2`` reads channel 2 only, ``~KP 1`` the gain of channel 1; channels are 1 and 2 on
+    the MDC2230, and without a channel every channel answers. (Built inside the test, not at import.)"""
+    assert codec.query("C", 2).encode() == b"?C 2\r"
+    assert codec.query("C").encode() == b"?C\r"
+    assert codec.get_config("KP", 1).encode() == b"~KP 1\r"
+    assert codec.get_config("RWD").encode() == b"~RWD\r"
+    with pytest.raises(ProtocolError, match="channel 3 must be 1 or 2"):
+        codec.query("C", 3)
+
+
+def test_a_bool_is_no_flag_word() -> None:
+    """Manual: flag words are integers 0..65535; ``True`` is not an answer the controller can give."""
+    with pytest.raises(ProtocolError, match="fault flag"):
+        codec.decode_fault_flags(True)

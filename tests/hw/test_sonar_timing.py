@@ -132,7 +132,66 @@ def test_the_emulated_backend_fires_its_two_arrays_in_one_group():
     backend = get_backend("emulated", {})
     try:
         left, right = backend.sonar_arrays
-        assert left.group is right.group is not None
-        assert left.group.cycle_time_s == pytest.approx(0.195)
+        assert isinstance(left, RangerSonarArray) and isinstance(right, RangerSonarArray)
+        group = left.group
+        assert group is not None and right.group is group
+        assert group.cycle_time_s == pytest.approx(0.195)
     finally:
         backend.close()
+
+
+def test_slots_fire_sonars_one_two_three_in_turn_and_are_counted_one_by_one():
+    """Firing schedule (module docstring): slot k fires sonar k of every array, k = 0, 1, 2, 0, ...
+    Opening the left array fires its three sonars (3 slots), opening the right array three more
+    (6 slots, 2 cycles); then every 100 ms read fires one slot: 6 reads make 12 slots, 4 cycles."""
+    scene = Scene()
+    clock, _, arrays, group = _arrays(scene)
+    assert (group.slots, group.cycles) == (6, 2)
+    n0 = len(scene.pings)
+    for _ in range(6):
+        clock.advance(0.1)
+        arrays[0].read()
+    left = [ADDRESSES.index(a) for a, _ in scene.pings[n0:] if a in ADDRESSES[:3]]
+    assert left == [0, 1, 2, 0, 1, 2]
+    assert (group.slots, group.cycles) == (12, 4)
+
+
+def test_arrays_opened_before_their_group_is_formed_are_primed_by_the_first_read():
+    """An array joined to a group after it was opened has no ping in the group yet: the first read
+    fires the group's three slots (65 ms apart, datasheet firing interval) and returns a full set."""
+    scene = Scene({0x70: 0.5, 0x72: 1.0})
+    clock, _, arrays, _ = _arrays(scene, grouped=False, acoustic_groups=APART)
+    group = SonarFiringGroup(arrays, clock=clock)
+    assert arrays[0].group is group
+    reading = arrays[0].read()
+    assert reading.ranges_m == (0.5, math.inf, 1.0)
+    assert group.slots == 3
+
+
+class OffsetClock:
+    """The same time as ``base``, read 10 s later (a second time source for the firing slots)."""
+
+    OFFSET_NS = 10_000_000_000
+
+    def __init__(self, base):
+        self.base = base
+
+    def now_ns(self):
+        return self.base.now_ns() + self.OFFSET_NS
+
+    def sleep_until_ns(self, t_ns):
+        self.base.sleep_until_ns(t_ns - self.OFFSET_NS)
+
+
+def test_slots_are_timed_and_stamped_by_the_groups_clock_or_by_default_the_first_arrays():
+    """``SonarFiringGroup(clock=...)`` times the slots (and so the readings' stamps); without one it
+    uses the first array's clock. A group clock 10 s ahead stamps the readings 10 s later."""
+    scene = Scene({0x70: 0.5})
+    clock, _, arrays, _ = _arrays(scene, grouped=False, acoustic_groups=APART)
+    group = SonarFiringGroup(arrays, clock=OffsetClock(clock))
+    assert arrays[0].group is arrays[1].group is group
+    reading = arrays[0].read()  # primes the new group: three slots of both arrays, six pings
+    assert reading.stamp_ns == scene.pings[-6][1] + OffsetClock.OFFSET_NS
+    solo = SonarFiringGroup([arrays[1]])  # default: the array's own clock
+    stamp = arrays[1].read().stamp_ns
+    assert solo.slots == 3 and stamp == scene.pings[-3][1]

@@ -144,6 +144,18 @@ def test_a_missing_device_times_out_on_open():
     assert not s.is_open
 
 
+def test_the_busy_timeout_message_names_the_sonar_the_wait_and_the_likely_causes():
+    """A 0.6 s timeout is 600 ms; the message says what register 0 did and what that usually means."""
+    clock, _, bus = make(x70=0.5)
+    s = SRF08(bus, 0x7E, clock=clock, timeout_s=0.6)
+    with pytest.raises(DeviceTimeoutError) as info:
+        s.open()
+    assert str(info.value) == (
+        "srf08@0x7E: still busy 600 ms after the ranging started (register 0 reads 0xFF or is not"
+        " acknowledged): device absent, wrong address, or not finishing its ranging"
+    )
+
+
 @pytest.mark.parametrize("mode", [BusyMode.FF, BusyMode.NACK])
 def test_a_new_ranging_waits_for_an_uncollected_one_instead_of_being_lost(mode):
     clock, scene, bus = make(busy_mode=mode, x70=0.5)
@@ -276,7 +288,11 @@ def test_an_io_error_on_one_sonar_leaves_the_other_five_reading(caplog):
         assert math.isnan(r.ranges_m[1]) and r.ranges_m[0] == pytest.approx(0.60)
     assert bus.devices[0x74].rangings == before
     assert arrays[1].skipped_counts == [0, 9, 0]
-    assert cycle(arrays[1]).ranges_m[1] == pytest.approx(0.70)
+    assert isinstance(arrays[1].last_errors[1], DeviceIOError)  # the bus's EIO, kept for diagnostics
+    with caplog.at_level(logging.INFO, logger="hw.sonar_array"):
+        assert cycle(arrays[1]).ranges_m[1] == pytest.approx(0.70)
+    back = [r for r in caplog.records if r.getMessage() == "array1: sonar 2 is back"]
+    assert len(back) == 1 and back[0].levelno == logging.WARNING
     assert arrays[1].dead == (False, False, False)
     assert arrays[1].error_counts == [0, 5, 0]
     for arr in arrays:
@@ -321,3 +337,173 @@ def test_a_script_with_times_out_of_order_is_refused():
 
     with pytest.raises(HardwareError, match=r"keyframes\[1\]"):
         ScriptedRanges([(1.0, {0x70: 1.0}), (0.5, {0x70: 0.5})])
+
+
+def test_echoes_at_the_three_centimetre_minimum_are_valid_and_closer_ones_are_not():
+    """SPEC table 5.1 / datasheet: the SRF08 measures from 3 cm; a result of 3 cm reads 0.03 m, 2 cm is
+    inside the ring-down and reads NaN (REP-117 invalid)."""
+    clock, scene, bus = make(x70=0.03)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        assert s.read().range_m == 0.03
+        scene.ranges[0x70] = 0.02
+        assert math.isnan(s.read().range_m)
+
+
+def test_a_reading_is_stamped_with_its_ping_and_carries_the_sensors_cone():
+    """REP-117 / ``sensor_msgs/Range``: the stamp is the time of the ping (the clock when the ranging
+    command was written), not of the read; the field of view is the SPEC's 60 degrees (table 5.1)."""
+    clock, _, bus = make(x70=0.5)
+    with SRF08(bus, 0x70, clock=clock) as s:
+        clock.advance(1.0)
+        ping = clock.now_ns()
+        r = s.read()
+        assert clock.now_ns() > ping  # the read waited out the 65 ms ranging
+        assert r.stamp_ns == ping
+        assert r.field_of_view_rad == pytest.approx(math.radians(60.0))
+
+
+class ReadOnlyRanger:
+    """A :class:`hw.interfaces.Ranger` with only ``read`` (no split start/collect), at a fixed range;
+    ``start_ranging`` here is a trap: a ranger without ``collect`` must be read whole."""
+
+    def __init__(self, clock, range_m, split_start=False):
+        self.clock, self.range_m, self.reads, self.name = clock, range_m, 0, f"fixed {range_m} m"
+        if split_start:
+            self.start_ranging = self._trap
+
+    def _trap(self):
+        raise AssertionError("start_ranging used on a ranger that has no collect")
+
+    def open(self):
+        pass
+
+    def close(self):
+        pass
+
+    def read(self):
+        from hw.interfaces import RangeReading
+
+        self.reads += 1
+        return RangeReading(self.clock.now_ns(), self.range_m, 0.03, 6.0, math.radians(60.0))
+
+
+def test_rangers_without_a_split_ranging_are_read_whole_in_their_slot():
+    """Any :class:`hw.interfaces.Ranger` can sit in an array: one without ``start_ranging`` and
+    ``collect`` is read inside its slot (the SRF08 firing schedule, one sonar per 65 ms slot)."""
+    clock = ManualClock()
+    rangers = [
+        ReadOnlyRanger(clock, 1.0),
+        ReadOnlyRanger(clock, 2.0, split_start=True),
+        ReadOnlyRanger(clock, 3.0),
+    ]
+    with RangerSonarArray(rangers, clock=clock) as arr:
+        assert [r.reads for r in rangers] == [1, 1, 1]  # open fired each once
+        assert arr.read().ranges_m == (1.0, 2.0, 3.0)
+
+
+def test_an_uncollected_ranging_delays_the_next_ping_until_the_device_is_idle_in_sleep_mode():
+    """Datasheet: a ranging at the default range takes 65 ms and the SRF08 ignores the bus meanwhile.
+    Pinged at t0 and again 30 ms later without collecting, the second ping goes out when the first
+    ranging ends, t0 + 65 ms (5 ms polls from 30 ms: 35, ..., 65), not a whole ranging after the call."""
+    clock, _, bus = make(busy_mode=BusyMode.NACK, x70=0.5)
+    with SRF08(bus, 0x70, clock=clock, wait="sleep", poll_interval_s=0.005) as s:
+        t0 = s.start_ranging()
+        clock.advance(0.030)
+        assert s.start_ranging() - t0 == 65_000_000
+        assert bus.devices[0x70].rangings == 2
+
+
+class CountingBus(SRF08Bus):
+    """An :class:`SRF08Bus` that counts register-0 reads (busy polls), can float the echo registers,
+    and fails scripted register-0 reads: ``eio`` holds one flag per read, True raising EIO."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register0_reads = 0
+        self.floating = False
+        self.eio: list[bool] = []
+
+    def read_byte_data(self, i2c_addr, register, force=None):
+        if register == 0:
+            self.register0_reads += 1
+            if self.eio and self.eio.pop(0):
+                raise OSError(errno.EIO, "Input/output error")
+        return super().read_byte_data(i2c_addr, register, force)
+
+    def read_i2c_block_data(self, i2c_addr, register, length, force=None):
+        if self.floating:  # SDA floating high: nothing drives the bus
+            return [0xFF] * length
+        return super().read_i2c_block_data(i2c_addr, register, length, force)
+
+
+def test_a_collected_ranging_lets_the_next_ping_go_out_without_polling_first():
+    """Datasheet: once the echo registers have been read the ranging is over, so the next ranging
+    command can be written at once; only an uncollected ranging needs register 0 polled first."""
+    clock = ManualClock()
+    bus = CountingBus(clock, lambda a, t: 0.5, addresses=[0x70])
+    with SRF08(bus, 0x70, clock=clock) as s:
+        s.read()
+        before = bus.register0_reads
+        s.start_ranging()
+        assert bus.register0_reads == before
+
+
+def test_echo_registers_reading_0xffff_are_an_io_error_not_a_range():
+    """Datasheet: the echo is 16 bits, high byte first; 0xFFFF (655.35 m) is SDA floating high, no
+    device driving the bus. The driver raises an EIO DeviceIOError naming the sonar and 0xFFFF."""
+    clock = ManualClock()
+    bus = CountingBus(clock, lambda a, t: 0.5, addresses=[0x70])
+    with SRF08(bus, 0x70, clock=clock) as s:
+        s.start_ranging()
+        bus.floating = True
+        with pytest.raises(DeviceIOError) as info:
+            s.read_range_cm()
+        assert info.value.errno == errno.EIO
+        message = str(info.value.strerror)
+        assert "srf08@0x70" in message and "0xFFFF" in message
+
+
+def test_io_errors_while_polling_are_retried_in_a_row_and_a_busy_answer_resets_the_count():
+    """``retries=2``: two I/O errors (EIO, not a busy NACK) in a row are retried; an answer in between
+    (busy 0xFF, the 65 ms ranging is not over) starts the count again, so busy, EIO, EIO, busy, EIO,
+    EIO still ends in a range."""
+    clock = ManualClock()
+    bus = CountingBus(clock, lambda a, t: 0.5, addresses=[0x70])
+    with SRF08(bus, 0x70, clock=clock, retries=2) as s:
+        s.start_ranging()
+        bus.eio = [False, True, True, False, True, True]
+        assert s.read_range_cm() == 50
+        assert not bus.eio
+
+
+def test_a_third_io_error_in_a_row_while_polling_raises_naming_the_sonar():
+    """``retries=2`` allows 3 attempts: the third EIO in a row is raised as DeviceIOError(EIO)."""
+    clock = ManualClock()
+    bus = CountingBus(clock, lambda a, t: 0.5, addresses=[0x70])
+    with SRF08(bus, 0x70, clock=clock, retries=2) as s:
+        s.start_ranging()
+        bus.eio = [True, True, True, False]
+        with pytest.raises(DeviceIOError) as info:
+            s.read_range_cm()
+        assert info.value.errno == errno.EIO
+        assert str(info.value.strerror).startswith("srf08@0x70: I/O error while polling register 0: ")
+        assert bus.eio == [False]
+
+
+@pytest.mark.parametrize(
+    ("max_range_m", "register"),
+    [(0.043, 0), (0.044, 1), (1.0, 23), (1.075, 24), (2.021, 46), (2.022, 47), (11.008, 255)],
+)
+def test_the_range_register_is_the_smallest_whose_range_covers_the_request(max_range_m, register):
+    """Datasheet: range = register x 43 mm + 43 mm. By hand: 0 gives 43 mm; 44 mm needs 1 (86 mm);
+    1 m needs 23 (1032 mm); 1075 mm is exactly 24; 2021 mm exactly 46, 2022 mm needs 47 (2064 mm);
+    11008 mm is the largest, 255."""
+    assert range_register_for(max_range_m) == register
+
+
+@pytest.mark.parametrize("bad", [0.042, 11.009, 12.0, math.inf, math.nan])
+def test_a_range_outside_the_registers_43_mm_to_11_008_m_is_refused(bad):
+    """Datasheet: the range register spans 43 mm (0) to 11.008 m (255)."""
+    with pytest.raises(CommandError) as info:
+        range_register_for(bad)
+    assert str(info.value) == f"max_range_m={bad!r} must be within 0.043..11.008 m"
