@@ -3,7 +3,8 @@
 Workload: physics at 240 Hz with the motor plants and PIDs, the runtime at 60 Hz with the safety layer
 on, a Kinect v2 (512x424) at 30 Hz, six sonars (two arrays) at 20 Hz, and every Kinect frame inserted
 into the perception stage's main map (``--map``: the probabilistic VHV map by default, or the thesis's
-accumulate-only one), placed by scan-to-map matching, with the zoom and the odometry map beside it,
+accumulate-only one), placed by scan-to-map matching, with the zoom and the odometry map beside it, at
+``robchair sim``'s rates (:data:`robchair.scenario.MATCH_EVERY`, :data:`robchair.scenario.EVALUATION_EVERY`),
 while the chair drives the office corridor route (:func:`robchair.scenario.run_scenario`).
 
 Configurations, all measured in the same run:
@@ -234,6 +235,7 @@ def _measure_all(
     import statistics
 
     from robchair.commands.bench_output import median_of, verdict
+    from robchair.scenario import EVALUATION_EVERY, MATCH_EVERY
 
     load0 = os.getloadavg()
     # warm-up (imports, numba kernels, Open3D): not timed
@@ -263,7 +265,8 @@ def _measure_all(
     head = f"{'configuration':28s} " + " ".join(f"{c:>{max(7, len(c))}s}" for c in cols)
     print(
         f"robchair bench sim: {args.scenario}, {args.map} map, {args.duration:g} sim s per run, "
-        f"median of {args.repeats}"
+        f"median of {args.repeats}; matching every {MATCH_EVERY} Kinect frames, the odometry map every "
+        f"{EVALUATION_EVERY} (robchair sim's defaults)"
     )
     print(head)
     print("-" * len(head))
