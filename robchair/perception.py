@@ -25,7 +25,9 @@ by odometry in ``odom`` is registered against the *matched* map before it is ins
 ``map -> odom`` (a rejected match keeps the previous one, i.e. odometry, and is counted by reason) and
 the frame goes into the matched map at ``T_map_odom x T_odom_sensor``. ``pose`` chooses which map is
 the main one (``odometry``, ``matched`` or ``ground-truth``); the others are kept beside it in
-:attr:`Perception.pose_maps`, so a run can compare them.
+:attr:`Perception.pose_maps`, so a run can compare them. ``match_every`` registers only every k-th frame
+(odometry from the last match between) and ``evaluation_every`` feeds the maps beside the main one every
+k-th frame.
 
 Zoom. With ``zoom_half_width``, a :class:`mapping.zoom.ZoomMap` square of that half-width around the
 chair (moving with it) is mapped ``zoom_factor`` times finer, fed by the same points in the same insert
@@ -58,7 +60,7 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, SonarArrayReading
-from robchair.perception_depth import pinhole_rays
+from robchair.perception_depth import no_return_points
 from robchair.perception_layers import (
     MapLayer,
     PointMap,
@@ -116,9 +118,16 @@ class Perception:
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
             (default: :func:`robchair.perception_layers.run_evidence_params`, dynamic decay on;
             depth frames carry their capture stamps as its clock).
+        evaluation_every: the evaluation maps (the pose maps other than the main one, and the
+            :meth:`add_layer` layers) take every ``evaluation_every``-th depth frame (the 0th, k-th, ...);
+            the main map and the zoom take every frame. 1 (default): every frame.
+        match_every: with a matcher, every ``match_every``-th depth frame (the 0th, k-th, ...) is
+            registered; the frames between are placed with the last ``map -> odom``, i.e. by odometry
+            from the last match. 1 (default): every frame.
 
     Raises:
-        ConfigError: an unknown ``pose`` or ``map_kind``, or ``"ground-truth"`` without ``ground_truth``.
+        ConfigError: an unknown ``pose`` or ``map_kind``, ``"ground-truth"`` without ``ground_truth``,
+            or ``evaluation_every`` or ``match_every`` < 1.
     """
 
     def __init__(
@@ -142,6 +151,8 @@ class Perception:
         evidence_params: Any = None,
         clear_no_return: bool = True,
         depth_max_range_m: float | None = None,
+        evaluation_every: int = 1,
+        match_every: int = 1,
     ) -> None:
         from mapping.grid import GridSpec
         from mapping.vhv import VHVMap
@@ -153,6 +164,10 @@ class Perception:
             raise ConfigError("pose = 'ground-truth' needs a ground-truth pose source (a simulated chair)")
         if map_kind not in MAP_KINDS:
             raise ConfigError(f"map kind {map_kind!r}: expected one of {', '.join(MAP_KINDS)}")
+        for name, every in (("evaluation_every", evaluation_every), ("match_every", match_every)):
+            if int(every) < 1:
+                raise ConfigError(f"{name} = {every!r}: expected an integer >= 1")
+        self.evaluation_every, self.match_every = int(evaluation_every), int(match_every)
         self.spec = spec
         self.map_kind = map_kind
         self.tolerance = float(tolerance)
@@ -318,7 +333,9 @@ class Perception:
         pts = np.asarray(frame.points).reshape(-1, 3)
         t_odom_sensor = t_world_base["odometry"] @ t_base_sensor
         poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
-        if self.matcher is not None:
+        if self.matcher is not None and seq % self.match_every:
+            poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor  # between matches: odometry
+        elif self.matcher is not None:
             # the frame, placed by odometry in odom, is registered against the matched map first
             t0 = time.perf_counter()
             res = self.matcher.match(
@@ -338,11 +355,14 @@ class Perception:
             if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
                 main.append((self.zoom, poses[self.pose], False))
                 names.append("zoom")
-        others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map]
-        names += [k for k, m in self.pose_maps.items() if m is not self.map]
-        names += [ly.name for ly in self.layers]
+        evaluate = seq % self.evaluation_every == 0  # the evaluation maps take every k-th frame
+        others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map and evaluate]
+        names += [k for k, m in self.pose_maps.items() if m is not self.map and evaluate]
+        if not evaluate:
+            placed = []
+        names += [ly.name for ly in self.layers if evaluate]
         r = self._camera_range if self.clear_no_return else None
-        far = self._no_return_points(frame, r) if r else None
+        far = no_return_points(frame, r, self.camera_stride, self._rays) if r else None
         from mapping.probabilistic import ProbabilisticVHV
 
         stamp = {"stamp": frame.stamp_ns * 1e-9}
@@ -376,32 +396,6 @@ class Perception:
             t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
                 self._after_frame[seq] = (t, d, pose)
-
-    def _no_return_points(self, frame: DepthFrame, range_m: float) -> np.ndarray | None:
-        """Points (M, 3) in the camera frame at depth ``range_m`` along the rays of no-return pixels.
-
-        The pixel rays come from a pinhole model fitted once per (frame_id, H, W) to the frame's own
-        returns (``y/x`` linear in the column, ``z/x`` in the row); a frame that does not fit a pinhole
-        (residual over 1 %) gives none. Every ``camera_stride``-th pixel each way is used: the free
-        space is built per cell, not per ray.
-        """
-        pts = np.asarray(frame.points)
-        if pts.ndim != 3:
-            return None
-        h, w = pts.shape[:2]
-        key = (frame.frame_id, h, w)
-        rays = self._rays.get(key)
-        if rays is None:
-            rays = pinhole_rays(pts, self.camera_stride)
-            if rays is None:
-                return None
-            self._rays[key] = rays
-        if rays.size == 0:
-            return None
-        s = self.camera_stride
-        nan = ~np.isfinite(pts[::s, ::s]).all(axis=2)
-        d = rays[nan]
-        return np.asarray(d * (range_m / d[:, :1]))  # the range is a depth (x), not a distance
 
     def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:

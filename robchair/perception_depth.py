@@ -1,10 +1,13 @@
 """Depth-frame geometry for the perception stage: the pixel rays of a camera, fitted to its own frames.
 
 :func:`pinhole_rays` gives :meth:`robchair.perception.Perception` the unit ray of every
-``stride``-th pixel, so that pixels without a return can clear free space along their rays.
+``stride``-th pixel, so that pixels without a return can clear free space along their rays
+(:func:`no_return_points`).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -32,3 +35,31 @@ def pinhole_rays(pts: np.ndarray, stride: int) -> np.ndarray | None:
     uu, vv = np.meshgrid(np.arange(w)[::stride], np.arange(h)[::stride])
     d = np.stack([np.ones(uu.shape), np.polyval(cu, uu), np.polyval(cv, vv)], axis=-1)
     return np.asarray(d / np.linalg.norm(d, axis=-1, keepdims=True))
+
+
+def no_return_points(
+    frame: Any, range_m: float, stride: int, rays_cache: dict[Any, np.ndarray]
+) -> np.ndarray | None:
+    """Points (M, 3) in the camera frame at depth ``range_m`` along the rays of no-return pixels.
+
+    The pixel rays come from a pinhole model fitted once per (frame_id, H, W) of ``frame`` (a
+    :class:`hw.interfaces.DepthFrame`) to the frame's own returns (:func:`pinhole_rays`, kept in
+    ``rays_cache``); a frame that does not fit a pinhole (residual over 1 %) gives none. Every
+    ``stride``-th pixel each way is used: the free space is built per cell, not per ray.
+    """
+    pts = np.asarray(frame.points)
+    if pts.ndim != 3:
+        return None
+    h, w = pts.shape[:2]
+    key = (frame.frame_id, h, w)
+    rays = rays_cache.get(key)
+    if rays is None:
+        rays = pinhole_rays(pts, stride)
+        if rays is None:
+            return None
+        rays_cache[key] = rays
+    if rays.size == 0:
+        return None
+    nan = ~np.isfinite(pts[::stride, ::stride]).all(axis=2)
+    d = rays[nan]
+    return np.asarray(d * (range_m / d[:, :1]))  # the range is a depth (x), not a distance

@@ -55,6 +55,11 @@ GOAL_TOLERANCE_M = 0.15
 POSE_DEFAULT = "matched"  # the pose the run's map is built with (see robchair.perception.POSE_SOURCES)
 ZOOM_HALF_WIDTH_M = 1.0  # a 2 m x 2 m fine region around the chair ...
 ZOOM_FACTOR = 5  # ... at 1 cm (5 cm / 5)
+# The evaluation maps (odometry beside the matched map, ground truth) take every 3rd Kinect frame (10 Hz)
+# and the matching registers every 2nd (15 Hz, odometry between): tests/robchair/test_perception_rates.py
+# bounds both against the every-frame path (2D map IoU, matched pose within a map cell).
+EVALUATION_EVERY = 3
+MATCH_EVERY = 2
 
 
 def grid_covering(xy_min: tuple[float, float], xy_max: tuple[float, float], cell_size: float = CELL_SIZE,
@@ -158,6 +163,8 @@ def run_scenario(
     zoom: bool = True,
     map_kind: str = "probabilistic",
     observers: Sequence[Observer] = (),
+    evaluation_every: int = EVALUATION_EVERY,
+    match_every: int = MATCH_EVERY,
 ) -> RunResult:
     """Run a scenario through the runtime and (with ``write``) write its run folder.
 
@@ -189,6 +196,10 @@ def run_scenario(
         map_kind: the maps (odometry and ground-truth pose): ``"probabilistic"`` (free space and
             unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
         observers: more observers of the loop, called after the run's own (e.g. the live view).
+        evaluation_every, match_every: the evaluation maps (odometry beside the matched map, ground
+            truth) take every k-th depth frame, the matching registers every k-th frame
+            (:class:`robchair.perception.Perception`; default :data:`EVALUATION_EVERY`,
+            :data:`MATCH_EVERY`; 1: every frame).
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).
@@ -220,17 +231,15 @@ def run_scenario(
     target = None
     if write:
         target = Path(out_dir) if out_dir is not None else default_out_dir(scenario)
+    opts = _options(progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits,
+                    bag_storage, pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom,
+                    bag_clouds)  # fmt: skip
+    opts.update(evaluation_every=evaluation_every, match_every=match_every)
     try:
         if target is None:
-            return _drive(scenario, spec, chair, backend, config, duration, None, _options(
-                progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds),
-                observers)  # fmt: skip
+            return _drive(scenario, spec, chair, backend, config, duration, None, opts, observers)
         with staged_output_dir(target) as stage:
-            res = _drive(scenario, spec, chair, backend, config, duration, stage, _options(
-                progress, write_bag, mapping_thread, ground_truth_map, safety, safety_limits, bag_storage,
-                pictures, sensor, seed, camera_backend, wall0, pose, matching, zoom, bag_clouds),
-                observers)  # fmt: skip
+            res = _drive(scenario, spec, chair, backend, config, duration, stage, opts, observers)
         res.out_dir = target.resolve()
         if res.error is not None and res.exception is not None:
             raise res.exception
@@ -273,7 +282,8 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
                             ground_truth=chair.ground_truth_transform,
                             zoom_half_width=ZOOM_HALF_WIDTH_M if o.get("zoom", True) else None,
                             zoom_factor=ZOOM_FACTOR, map_kind=config.map_kind,
-                            depth_max_range_m=depth_range)  # fmt: skip
+                            depth_max_range_m=depth_range, evaluation_every=o.get("evaluation_every", 1),
+                            match_every=o.get("match_every", 1))  # fmt: skip
     evaluation = GroundTruthEvaluation(chair, scenario.scene, o["ground_truth_map"])
     observers: list[Observer] = [evaluation]
     recorder = None

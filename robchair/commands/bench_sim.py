@@ -2,8 +2,9 @@
 
 Workload: physics at 240 Hz with the motor plants and PIDs, the runtime at 60 Hz with the safety layer
 on, a Kinect v2 (512x424) at 30 Hz, six sonars (two arrays) at 20 Hz, and every Kinect frame inserted
-into the perception stage's map (``--map``: the probabilistic VHV map by default, or the thesis's
-accumulate-only one; the odometry map only: what the real chair would compute),
+into the perception stage's main map (``--map``: the probabilistic VHV map by default, or the thesis's
+accumulate-only one), placed by scan-to-map matching, with the zoom and the odometry map beside it, at
+``robchair sim``'s rates (:data:`robchair.scenario.MATCH_EVERY`, :data:`robchair.scenario.EVALUATION_EVERY`),
 while the chair drives the office corridor route (:func:`robchair.scenario.run_scenario`).
 
 Configurations, all measured in the same run:
@@ -15,15 +16,17 @@ Configurations, all measured in the same run:
   bit the serial run's (a test checks it).
 * ``2 cores, pybullet camera`` (``--pybullet-camera``): as ``2 cores`` with PyBullet's CPU renderer.
 
-Baseline: the scenario runner this loop replaced (its own loop without the runtime or the safety
-layer), loaded from the last git revision that had it (``sim/runner.py``) and run on the same
-simulator, alternating with the new loop so both see the same machine load. Reported: medians of
-``--repeats`` runs, and new / old. Real-time factor = simulated time / wall time of the loop (setup
-excluded). The process keeps freed heap blocks (``robchair sim --keep-freed-memory``), as the old
-runner always did. The JSON records the load average before and after.
+Baseline: the revision this loop replaced, as a whole: its scenario runner (its own loop without the
+runtime or the safety layer) on its own simulator (render, sonars, physics as they were then), i.e. the
+last main-line revision that had ``sim/runner.py``, unpacked from git history and run in a child
+process (:mod:`robchair.commands.bench_sim_baseline`), alternating with the new loop so both see the
+same machine load. Reported: medians of ``--repeats`` runs, and new / old. Real-time factor = simulated
+time / wall time of the loop (setup excluded). Both processes keep freed heap blocks (``robchair sim
+--keep-freed-memory``; the old runner always did). The JSON records the load average before and after
+and the baseline's revision.
 
-Both loops call the same simulator, so on one core the new loop's time per simulated second is at
-least its render + sonar + physics stages: the bench prints the ratio that bound allows
+On one core the new loop's time per simulated second is at least its own simulator's render + sonar +
+physics stages: the bench prints the ratio over the baseline that this bound allows
 (:func:`ratio_bound`; ``ratio_bound`` per row in the JSON).
 """
 
@@ -31,10 +34,12 @@ from __future__ import annotations
 
 import argparse
 import os
-from pathlib import Path
 from typing import Any
 
 from robchair.commands.bench_output import add_out_arguments, results_dir, write_results
+from robchair.commands.bench_sim_baseline import BaselineRunner, baseline_revision
+
+BASELINE_WHAT = "the replaced scenario runner on its own simulator: that whole revision, in a child process"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -87,73 +92,6 @@ def _pin(n: int) -> set[int] | None:
     return before
 
 
-OLD_RUNNER = "sim/runner.py"
-#: Imports of the replaced runner rewritten to where their modules are now.
-OLD_RUNNER_IMPORTS = (
-    (
-        "from sim._kinect_kernels import transform_points as kernel",
-        "from robchair.commands.bench_sim import old_runner_transform_kernel as kernel",
-    ),
-    ("from robchair.kinematics import", "from robchair.platform.kinematics import"),
-    ("from robchair.spec import", "from robchair.platform.spec import"),
-)
-
-
-def old_runner_transform_kernel(t: Any, pts: Any) -> Any:
-    """``R p + t`` of the 4x4 ``t`` for (..., 3) float32 points, compiled without the GIL as the replaced
-    runner's capture threads had it (float64 sums, float32 out)."""
-    global _OLD_KERNEL
-    if _OLD_KERNEL is None:
-        import numba
-        import numpy as np
-
-        @numba.njit(cache=False, nogil=True)
-        def kernel(t, pts):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-            flat = pts.reshape(-1, 3)
-            out = np.empty_like(flat)
-            for k in range(flat.shape[0]):
-                x, y, z = flat[k, 0], flat[k, 1], flat[k, 2]
-                for i in range(3):
-                    out[k, i] = t[i, 0] * x + t[i, 1] * y + t[i, 2] * z + t[i, 3]
-            return out.reshape(pts.shape)
-
-        _OLD_KERNEL = kernel
-    return _OLD_KERNEL(t, pts)
-
-
-_OLD_KERNEL: Any = None
-
-
-def load_old_runner() -> Any:
-    """The replaced scenario runner as a module, from the last git revision that had it (None: no git)."""
-    import importlib.util
-    import subprocess
-    import sys
-
-    root = Path(__file__).resolve().parents[2]
-    try:
-        gone = subprocess.run(
-            ["git", "-C", str(root), "log", "-1", "--diff-filter=D", "--format=%H", "--", OLD_RUNNER],
-            capture_output=True, text=True, check=True,
-        ).stdout.strip()  # fmt: skip
-        if not gone:
-            return None
-        src = subprocess.run(["git", "-C", str(root), "show", f"{gone}^:{OLD_RUNNER}"],
-                             capture_output=True, text=True, check=True).stdout  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    # the old runner's point transform kernel has left sim._kinect_kernels (it gets its twin from
-    # here) and the chair's model has moved to robchair.platform
-    for before, after in OLD_RUNNER_IMPORTS:
-        src = src.replace(before, after)
-    spec = importlib.util.spec_from_loader("robchair_bench_old_runner", loader=None)
-    assert spec is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    exec(compile(src, f"{gone[:10]}:{OLD_RUNNER}", "exec"), mod.__dict__)  # our own history
-    return mod
-
-
 def measure(
     config: dict[str, Any],
     scenario: str,
@@ -162,24 +100,23 @@ def measure(
     old: Any = None,
     map_kind: str = "probabilistic",
 ) -> dict[str, Any]:
-    """One run of the workload under ``config`` (``old``: the replaced runner module); RTF and components."""
+    """One run of the workload under ``config`` (``old``: the replaced revision's
+    :class:`robchair.commands.bench_sim_baseline.BaselineRunner`); RTF and components."""
     from robchair.scenario import run_scenario
 
     kw = dict(duration=duration, sensor="kinect2", seed=seed, progress=False, write=False,
               camera_backend=config["camera_backend"], mapping_thread=config["mapping_thread"],
               pipeline=config["mapping_thread"], sonar_hz=20.0, raycast_threads=config["raycast_threads"],
               ground_truth_map=False)  # fmt: skip
-    before = _pin(config["cpus"])
-    try:
-        res = (
-            old.run_scenario(scenario, **kw)
-            if old is not None
-            else run_scenario(scenario, map_kind=map_kind, **kw)
-        )
-    finally:
-        if before is not None:
-            os.sched_setaffinity(0, before)
-    m: dict[str, Any] = res.metrics if old is not None else res.metrics()  # type: ignore[assignment]
+    if old is not None:  # the child process pins itself
+        m: dict[str, Any] = old.run(scenario, config["cpus"], **kw)
+    else:
+        before = _pin(config["cpus"])
+        try:
+            m = run_scenario(scenario, map_kind=map_kind, **kw).metrics()
+        finally:
+            if before is not None:
+                os.sched_setaffinity(0, before)
     frames = m["frames"]["kinect_frames"] if old is not None else m["frames"]["depth_frames"]
     main = m["wall_time_s"]["components"]
     sim_s = max(m["sim_time_s"], 1e-9)
@@ -215,24 +152,24 @@ STAGES = (
 
 
 def ratio_bound(row: dict[str, Any]) -> dict[str, float] | None:
-    """How fast the new loop can be against the replaced runner when both share the simulator.
+    """How fast the new loop can be against the baseline, given the new loop's simulator stages.
 
-    Both loops call the same simulator for the Kinect render, the sonar casts and the physics, so the
-    new loop's wall time per simulated second is at least the sum of those stages (on one core, where
-    the stages run one after the other): its RTF over the replaced runner's is at most the runner's
-    loop time over that sum, however cheap the rest of the loop and the maps become.
+    On one core the stages run one after the other, so the new loop's wall time per simulated second
+    is at least the sum of its Kinect render, sonar casts and physics: its RTF over the baseline's is
+    at most the baseline's loop time over that sum, however cheap the rest of the loop and the maps
+    become.
 
     Returns:
-        ``{"shared_ms_per_sim_s", "replaced_loop_ms_per_sim_s", "max_ratio"}``, or None without a
+        ``{"simulator_ms_per_sim_s", "replaced_loop_ms_per_sim_s", "max_ratio"}``, or None without a
         baseline or in a configuration whose stages overlap (more than one CPU).
     """
     old, m = row.get("baseline_median"), row["median"]
     if not old or row["config"].get("cpus") != 1:
         return None
-    shared = sum(m.get(f, 0.0) for _, f in STAGES)
+    sim = sum(m.get(f, 0.0) for _, f in STAGES)
     loop_old = 1e3 * old["loop_wall_s"] / max(old["sim_time_s"], 1e-9)
-    return {"shared_ms_per_sim_s": shared, "replaced_loop_ms_per_sim_s": loop_old,
-            "max_ratio": loop_old / max(shared, 1e-9)}  # fmt: skip
+    return {"simulator_ms_per_sim_s": sim, "replaced_loop_ms_per_sim_s": loop_old,
+            "max_ratio": loop_old / max(sim, 1e-9)}  # fmt: skip
 
 
 def print_stage_table(rows: list[dict[str, Any]]) -> None:
@@ -257,14 +194,11 @@ def print_stage_table(rows: list[dict[str, Any]]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import statistics
-
     if getattr(args, "live", False):
         from robchair.commands.bench_live import run_live_bench
 
         return run_live_bench(args)
 
-    from robchair.commands.bench_output import median_of, verdict
     from robchair.commands.sim import retain_freed_memory
     from robchair.platform.errors import RobChairError
 
@@ -274,14 +208,44 @@ def _run(args: argparse.Namespace) -> int:
     retain_freed_memory()
     ncpu = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     configs = [c for c in CONFIGS if args.pybullet_camera or c["camera_backend"] != "pybullet"]
-    old = None if args.no_baseline else load_old_runner()
-    if old is None and not args.no_baseline:
-        print(
-            "baseline: the replaced runner is not in this checkout's git history; measuring the new loop only"
-        )
+    rev = None if args.no_baseline else baseline_revision()
+    old = None
+    if rev is None and not args.no_baseline:
+        print("baseline: no git history with the replaced runner here; measuring the new loop only")
+    elif rev is not None:
+        print(f"baseline: the replaced runner on its own simulator, revision {rev.describe()} as a whole "
+              f"(the last main-line revision before the one loop), in a child process")  # fmt: skip
+        old = BaselineRunner(rev)
+    try:
+        return _measure_all(args, configs, ncpu, old, out)
+    finally:
+        if old is not None:
+            old.close()
+
+
+def _baseline_json(old: Any) -> dict[str, str] | None:
+    if old is None:
+        return None
+    return {"revision": old.rev.sha, "date": old.rev.date, "subject": old.rev.subject, "what": BASELINE_WHAT}
+
+
+def _measure_all(
+    args: argparse.Namespace, configs: list[dict[str, Any]], ncpu: int, old: Any, out: Any
+) -> int:
+    import statistics
+
+    from robchair.commands.bench_output import median_of, verdict
+    from robchair.scenario import EVALUATION_EVERY, MATCH_EVERY
+
     load0 = os.getloadavg()
     # warm-up (imports, numba kernels, Open3D): not timed
     measure(CONFIGS[0], args.scenario, 0.1)
+    if old is not None:
+        try:
+            measure(CONFIGS[0], args.scenario, 0.1, old=old)
+        except RuntimeError as exc:
+            print(f"baseline: revision {old.rev.sha[:10]} did not run ({exc}); measuring the new loop only")
+            old = None
     rows: list[dict[str, Any]] = []
     for cfg in configs:
         if cfg["cpus"] > ncpu:
@@ -301,7 +265,8 @@ def _run(args: argparse.Namespace) -> int:
     head = f"{'configuration':28s} " + " ".join(f"{c:>{max(7, len(c))}s}" for c in cols)
     print(
         f"robchair bench sim: {args.scenario}, {args.map} map, {args.duration:g} sim s per run, "
-        f"median of {args.repeats}"
+        f"median of {args.repeats}; matching every {MATCH_EVERY} Kinect frames, the odometry map every "
+        f"{EVALUATION_EVERY} (robchair sim's defaults)"
     )
     print(head)
     print("-" * len(head))
@@ -337,9 +302,9 @@ def _run(args: argparse.Namespace) -> int:
         b = r["ratio_bound"] = ratio_bound(r)
         if b is not None:
             print(
-                f"{r['config']['name']}: the shared simulator's render + sonar + physics take "
-                f"{b['shared_ms_per_sim_s']:.0f} of the replaced runner's "
-                f"{b['replaced_loop_ms_per_sim_s']:.0f} ms per sim s, so new/old is at most "
+                f"{r['config']['name']}: the new loop's simulator (render + sonar + physics) takes "
+                f"{b['simulator_ms_per_sim_s']:.0f} ms per sim s against the baseline's whole loop's "
+                f"{b['replaced_loop_ms_per_sim_s']:.0f}, so new/old is at most "
                 f"{b['max_ratio']:.2f}x with a loop and maps that cost nothing"
             )
     result = {
@@ -349,6 +314,7 @@ def _run(args: argparse.Namespace) -> int:
         "repeats": args.repeats,
         "targets": targets,
         "targets_ratio_to_replaced_runner": TARGET_RATIO_OLD,
+        "baseline": _baseline_json(old),
         "rows": rows,
     }
     write_results(out, "sim", result, load0, load1)

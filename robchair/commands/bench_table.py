@@ -78,7 +78,7 @@ def _sim(r: dict[str, Any]) -> tuple[str, str, str]:
         txt += "; ms per sim s: " + ", ".join(f"{k} {_f(v, '.0f')}" for k, v in stages)
         bound = row.get("ratio_bound")
         if bound:
-            txt += f"; the shared simulator's stages allow at most {_f(bound.get('max_ratio'))}x"
+            txt += f"; the new loop's simulator stages allow at most {_f(bound.get('max_ratio'))}x"
         parts.append(txt)
     what = (
         f"the one loop (`Runtime`, safety on) on `{r.get('scenario')}`, {r.get('map_kind')} map, all layers: "

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+
+import pytest
+
 from robchair.commands.bench_output import median_of, verdict
 from robchair.commands.bench_sim import TARGET_RATIO_OLD, print_stage_table, ratio_bound
 
@@ -35,8 +40,8 @@ def test_the_stage_table_gives_each_stage_and_the_rest_in_ms_per_simulated_secon
     assert out[2].split()[-6:] == ["400.0", "100.0", "200.0", "300.0", "500.0", "1500.0"]
 
 
-def test_the_ratio_bound_is_the_replaced_runner_s_loop_time_over_the_shared_simulator_stages() -> None:
-    """One core: render 400 + sonar 100 + physics 200 = 700 ms per sim s shared; the replaced runner's
+def test_the_ratio_bound_is_the_baseline_s_loop_time_over_the_new_loop_s_simulator_stages() -> None:
+    """One core: render 400 + sonar 100 + physics 200 = 700 ms per sim s of simulator; the replaced runner's
     2.8 s loop over 4 sim s = 700 ms per sim s, so the new loop can reach at most 700 / 700 = 1.0x (hand
     computation). Two cores overlap the stages, and without a baseline there is nothing to bound."""
     med = {"kinect_ms_per_sim_s": 400.0, "sonar_ms_per_sim_s": 100.0, "physics_ms_per_sim_s": 200.0,
@@ -45,7 +50,21 @@ def test_the_ratio_bound_is_the_replaced_runner_s_loop_time_over_the_shared_simu
            "baseline_median": {"loop_wall_s": 2.8, "sim_time_s": 4.0}}  # fmt: skip
     b = ratio_bound(row)
     assert b is not None
-    assert b["shared_ms_per_sim_s"] == 700.0 and abs(b["replaced_loop_ms_per_sim_s"] - 700.0) < 1e-9
+    assert b["simulator_ms_per_sim_s"] == 700.0 and abs(b["replaced_loop_ms_per_sim_s"] - 700.0) < 1e-9
     assert abs(b["max_ratio"] - 1.0) < 1e-12
     assert ratio_bound({**row, "config": {"name": "2 cores", "cpus": 2}}) is None
     assert ratio_bound({**row, "baseline_median": None}) is None
+
+
+def test_the_sim_baseline_is_the_main_line_revision_just_before_the_merge_that_removed_the_runner() -> None:
+    """``git log --first-parent``: the merge of the one loop (ce4fea0, "Merge branch 'loop'") removed
+    sim/runner.py from the main line; its first parent 6fea3e8 is the main line that still had it (read
+    off the history by hand). The loop branch's own parent of the removal (ad71dbf) is not it."""
+    from robchair.commands.bench_sim_baseline import ROOT, baseline_revision
+
+    git = shutil.which("git")
+    if git is None or subprocess.run([git, "-C", str(ROOT), "cat-file", "-e", "ce4fea0^{commit}"]).returncode:
+        pytest.skip("no git history with the one loop's merge here")
+    rev = baseline_revision()
+    assert rev is not None and rev.sha.startswith("6fea3e8770")
+    assert rev.describe().startswith("6fea3e8770 (")

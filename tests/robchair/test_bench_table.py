@@ -70,7 +70,7 @@ def test_the_table_between_the_markers_gives_ratios_stages_machine_and_load_from
     assert "1 core: RTF 1.00, 0.50x the replaced runner's 2.00 (target >= 0.9x: missed)" in sim
     assert "render 100, sonar 20, physics 50, map odometry 80, rest 50" in sim
     assert "render 400, sonar 50, physics 100, map odometry 300, rest 150" in sim
-    assert "map odometry 300, rest 150; the shared simulator's stages allow at most 1.07x" in sim
+    assert "map odometry 300, rest 150; the new loop's simulator stages allow at most 1.07x" in sim
     assert "`robchair bench sim --repeats 3`" in sim
     assert sim.endswith("| 2 x Test CPU 9000, load 0.5 before / 1.2 after (1-min average), 2026-12-02 |")
     assert "Embree mirror 1.25 ms, PyBullet `rayTestBatch` 15.00 ms (Embree 12.0x faster)" in laser
