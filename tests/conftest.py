@@ -47,7 +47,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             key = parent[key]
         return key
 
-    uses = {}
+    uses: dict[str, list[str]] = {}
     for item in items:
         if item.get_closest_marker("xdist_group") is None:
             uses[item.nodeid] = keys = _shared_fixtures(item)
@@ -55,6 +55,6 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
                 a, b = root(keys[0]), root(other)
                 parent[max(a, b)] = min(a, b)
     for item in items:
-        keys = uses.get(item.nodeid)
-        if keys:
-            item.add_marker(pytest.mark.xdist_group(root(keys[0])))
+        shared = uses.get(item.nodeid)
+        if shared:
+            item.add_marker(pytest.mark.xdist_group(root(shared[0])))
