@@ -347,3 +347,15 @@ def test_the_limits_name_the_platform_maximum_in_the_unit_of_each_cap() -> None:
         "safety.max_yaw_rate = 3.0: expected a finite number <= the platform maximum 2.142 rad/s"
     )
     assert SafetyLimits.from_spec(spec, {"max_speed": 0.5}).max_speed == 0.5
+
+
+def test_an_obstacle_exactly_at_the_stopping_distance_does_not_stop_the_chair() -> None:
+    """Module docstring: a stop needs an obstacle *closer* than the stopping distance. With margin
+    0.25 m, reaction 0.5 s and braking 0.5 m/s^2, at 0.5 m/s it is 0.25 + 0.25 + 0.25 / 1.0 = 0.75 m
+    (exact in binary): an obstacle at 0.75 m does not stop the chair, one at 0.74 m does."""
+    lim = SafetyLimits(margin_m=0.25, reaction_time_s=0.5, brake_decel=0.5, max_accel=0.5)
+    assert lim.stopping_distance(0.5) == 0.75
+    s = SafetyLayer(lim)
+    s._v = 0.5
+    assert s.filter(0.5, 0.0, SafetyInputs(sonar_distance_m=0.75), DT).stop is None
+    assert s.filter(0.5, 0.0, SafetyInputs(map_distance_m=0.74), DT).stop is StopReason.OBSTACLE_MAP
