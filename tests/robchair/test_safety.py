@@ -296,7 +296,8 @@ def test_reversing_and_turning_right_are_capped_from_below() -> None:
 def test_a_command_the_ramp_shortens_is_reported_as_limited_and_one_within_every_limit_is_not() -> None:
     """``limited`` (SafetyDecision): 0.32 m/s asked from 0.3 m/s is within the 0.05 m/s step: unchanged
     and not limited; 0.36 m/s is cut to 0.35 m/s, by 0.01 m/s: limited. Turning: 0.1 rad/s from rest
-    is within the 0.15 rad/s step."""
+    is within the 0.15 rad/s step (not limited, no stop and no detail); 0.2 rad/s is cut to 0.15 rad/s,
+    by 0.05 rad/s: limited."""
     s = cruising(0.3)
     d = s.filter(0.32, 0.0, SafetyInputs(), DT)
     assert (d.v, d.limited) == (0.32, False)
@@ -305,6 +306,9 @@ def test_a_command_the_ramp_shortens_is_reported_as_limited_and_one_within_every
     assert d.v == pytest.approx(0.35, abs=1e-12) and d.limited
     d = SafetyLayer(LIM).filter(0.0, 0.1, SafetyInputs(), DT)
     assert (d.v, d.w, d.limited) == (0.0, 0.1, False)
+    assert (d.stop, d.detail) == (None, "")  # SafetyDecision: no stop, no detail text
+    d = SafetyLayer(LIM).filter(0.0, 0.2, SafetyInputs(), DT)  # 0.2 rad/s from rest: cut to 0.15
+    assert d.w == pytest.approx(0.15, abs=1e-12) and d.limited
 
 
 def test_the_wheel_ramp_shrinks_the_step_keeping_its_direction() -> None:
