@@ -14,6 +14,7 @@ from robchair.platform.kinematics import (
     Odometry,
     Pose2D,
     int32_delta,
+    integrate_arc,
     wrap_angle,
     wrap_int32,
 )
@@ -166,3 +167,23 @@ def test_encoder_on_wheel_changes_the_count_scale():
     dd = DiffDrive(spec_from_dict(d))
     assert dd.wheel_angle_to_counts(2 * math.pi) == pytest.approx(4000)
     assert DD.wheel_angle_to_counts(2 * math.pi) == pytest.approx(116000)
+
+
+def test_a_boolean_is_not_an_encoder_count():
+    """Odometry.update refuses a count that is not an integer (its docstring); True and False are not
+    counter readings, though Python's bool is an int subclass."""
+    with pytest.raises(KinematicsError, match=r"counts_left = True: expected an integer encoder count"):
+        Odometry(SPEC).update(True, 0)
+    with pytest.raises(KinematicsError, match=r"counts_right = False"):
+        Odometry(SPEC).update(0, False)
+
+
+def test_an_arc_of_exactly_two_radians_lands_on_its_circle():
+    """Hand geometry: with b = 0.5 m, the right wheel driving 1 m and the left 0 m, base_link moves
+    d = 0.5 m while turning dtheta = 2 rad, on a circle of radius d / dtheta = 0.25 m about (0, 0.25):
+    it ends at (0.25 sin 2, 0.25 (1 - cos 2)) = (0.22732, 0.35404) heading 2 rad (the chord formula's
+    half angle is exactly 1 rad here)."""
+    pose = integrate_arc(Pose2D(), 0.0, 1.0, 0.5)
+    assert pose.x == pytest.approx(0.25 * math.sin(2.0), abs=1e-12)
+    assert pose.y == pytest.approx(0.25 * (1.0 - math.cos(2.0)), abs=1e-12)
+    assert pose.theta == pytest.approx(2.0, abs=1e-12)

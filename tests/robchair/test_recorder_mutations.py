@@ -95,3 +95,32 @@ def test_odom_to_base_link_on_tf_follows_the_chair_forward(bag) -> None:
     assert all(b >= a - 1e-12 for a, b in itertools.pairwise(xs))  # never backwards
     assert 0.06 <= xs[-1] <= 0.45 + 1e-9
     assert all(abs(xyz[1]) < 0.02 and xyz[2] == 0.0 for _, xyz in odom)
+
+
+@pytest.mark.parametrize(
+    ("matrix", "quat"),
+    [
+        # yaw 2.5 rad about z (REP-103): (0, 0, sin 1.25, cos 1.25)
+        (
+            ((math.cos(2.5), -math.sin(2.5), 0.0), (math.sin(2.5), math.cos(2.5), 0.0), (0.0, 0.0, 1.0)),
+            (0.0, 0.0, math.sin(1.25), math.cos(1.25)),
+        ),
+        # pitch 0.3 rad about y: (0, sin 0.15, 0, cos 0.15)
+        (
+            ((math.cos(0.3), 0.0, math.sin(0.3)), (0.0, 1.0, 0.0), (-math.sin(0.3), 0.0, math.cos(0.3))),
+            (0.0, math.sin(0.15), 0.0, math.cos(0.15)),
+        ),
+        # roll pi about x, diag(1, -1, -1): (1, 0, 0, 0), not a yaw although its z column is axis-aligned
+        (((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0)), (1.0, 0.0, 0.0, 0.0)),
+    ],
+    ids=["yaw", "pitch", "roll-pi"],
+)
+def test_the_tf_rotation_is_the_unit_quaternion_of_the_transform(matrix, quat) -> None:
+    """The /tf rotation of a transform (x, y, z, w), hand computed as (axis sin(a / 2), cos(a / 2))."""
+    import numpy as np
+
+    from robchair.observers.recorder import _quat
+
+    m = np.eye(4)
+    m[:3, :3] = matrix
+    assert _quat(m) == pytest.approx(quat, abs=1e-12)

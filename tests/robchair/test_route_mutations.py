@@ -178,3 +178,130 @@ def test_a_route_built_in_code_is_checked_like_a_file(kwargs: dict) -> None:
     with pytest.raises(ConfigError):
         Route(((0.0, 0.0),))
     Route(((0.0, 0.0), (1.0, 0.0)), speed=0.05, lookahead_m=0.05, goal_tolerance_m=0.05)
+
+
+def test_a_route_built_in_code_names_its_bad_key_and_value_under_route() -> None:
+    """The config dialect (robchair.platform.config, Route docstring): ``route.<key> = <value>: expected
+    <what>``, the value shown as TOML lists: one waypoint (0, 0) is ``[[0.0, 0.0]]``, and a zero speed
+    is ``route.speed = 0.0``."""
+    from robchair.platform.errors import ConfigError
+
+    with pytest.raises(ConfigError) as one:
+        Route(((0.0, 0.0),))
+    assert str(one.value).startswith("route.waypoints = [[0.0, 0.0]]: expected a list of at least 2")
+    with pytest.raises(ConfigError) as slow:
+        Route(((0.0, 0.0), (1.0, 0.0)), speed=0.0)
+    assert str(slow.value).startswith("route.speed = 0.0: expected a finite number > 0")
+
+
+def test_a_bad_value_in_a_route_file_is_refused_naming_the_file_and_line(tmp_path) -> None:
+    """Route.load's documented message ``<file>:<line>: <key> = <value>: expected <what>``: a file whose
+    second line is ``speed = -1.0`` is refused as ``<file>:2: speed = -1.0: expected ...``; a file that
+    is not there as ``<file>: route file does not exist``."""
+    from robchair.platform.errors import ConfigError
+
+    path = tmp_path / "bad.toml"
+    path.write_text("waypoints = [[0.0, 0.0], [1.0, 0.0]]\nspeed = -1.0\n")
+    with pytest.raises(ConfigError) as err:
+        Route.load(path)
+    assert str(err.value).startswith(f"{path}:2: speed = -1.0: expected a finite number > 0")
+    missing = tmp_path / "none.toml"
+    with pytest.raises(ConfigError) as gone:
+        Route.load(missing)
+    assert str(gone.value) == f"{missing}: route file does not exist"
+
+
+def test_a_new_follower_is_not_done_and_starts_at_the_beginning_of_the_path() -> None:
+    """PurePursuit's documented state: ``done`` is False until the last waypoint is reached, and the
+    progress along the path starts at 0 m."""
+    pp = PurePursuit(Route(((0.0, 0.0), (3.0, 0.0))), DiffDrive(load_spec()))
+    assert pp.done is False
+    assert pp._s == 0.0
+
+
+CORNER = ((0.0, 0.0), (1.0, 0.0), (1.0, 2.0))
+
+
+def _cross_track(waypoints, x: float, y: float, progress: float = 0.0) -> float:
+    pp = PurePursuit(Route(waypoints), DiffDrive(load_spec()))
+    pp._s = progress
+    return pp.cross_track_error(Pose2D(x, y, 0.0))
+
+
+@pytest.mark.parametrize(
+    ("waypoints", "x", "y", "progress", "expected"),
+    [
+        # behind the start of (0, 0) -> (10, 0): the nearest path point is the start itself
+        (((0.0, 0.0), (10.0, 0.0)), -0.5, 0.3, 0.0, math.hypot(0.5, 0.3)),
+        # a route that ends on a repeated waypoint: past its end, the nearest point is the end (1, 0)
+        (((0.0, 0.0), (1.0, 0.0), (1.0, 0.0)), 1.2, 0.3, 0.0, math.hypot(0.2, 0.3)),
+        # beside the first leg of the corner route, 0.5 m right of (0.9, 0); the corner (1, 0) is farther
+        (CORNER, 0.9, -0.5, 0.0, 0.5),
+        # past the end of the first leg, at (1.5, 0.1): the second leg's (1, 0.1) is 0.5 m away, nearer than
+        # the corner (hypot(0.5, 0.1) = 0.50990 m); the first leg does not extend beyond its end
+        (CORNER, 1.5, 0.1, 0.0, 0.5),
+        # progress 1.2 m (0.2 m up the second leg): at (1.5, 0.3) the nearest point is (1, 0.3), not a point
+        # on the first leg's extension beyond the corner
+        (CORNER, 1.5, 0.3, 1.2, 0.5),
+        # progress 0.5 m on (0, 0) -> (10, 0) and the chair back at (0.2, 0): progress does not go back,
+        # the distance is to (0.5, 0)
+        (((0.0, 0.0), (10.0, 0.0)), 0.2, 0.0, 0.5, 0.3),
+    ],
+    ids=["behind-start", "repeated-end", "beside-first-leg", "past-first-leg", "past-corner", "no-return"],
+)
+def test_the_cross_track_error_is_measured_to_the_nearest_point_of_the_path_ahead(
+    waypoints, x: float, y: float, progress: float, expected: float
+) -> None:
+    """PurePursuit's documented projection (class docstring): the closest path point within the window
+    [progress, progress + 2 look-aheads] (1.2 m here), the path being the polyline itself (segments end
+    at their waypoints); each expected distance is a hand computation given beside its case."""
+    assert _cross_track(waypoints, x, y, progress) == pytest.approx(expected, abs=1e-9)
+
+
+def test_a_chair_exactly_at_the_goal_tolerance_is_done() -> None:
+    """Done *within* ``goal_tolerance_m`` (class docstring), the bound included: route (0, 0) -> (2, 0)
+    with a 0.125 m tolerance (exact in binary), chair at (1.875, 0): 0.125 m from the goal and progress
+    1.875 m = 2 - 0.125 m (the follower's progress already at 1 m, so the search window reaches it)."""
+    route = Route(((0.0, 0.0), (2.0, 0.0)), speed=0.4, goal_tolerance_m=0.125)
+    pp = PurePursuit(route, DiffDrive(load_spec()))
+    pp._s = 1.0
+    cmd, _ = _command(route, 1.875, 0.0, 0.0, pp)
+    assert cmd.done and (cmd.v, cmd.w) == (0.0, 0.0) and pp.done is True
+
+
+def test_a_multi_leg_route_is_done_at_its_last_waypoint_not_its_second() -> None:
+    """Corner route (0, 0) -> (1, 0) -> (1, 2) (length 3 m): a chair at its second waypoint (1, 0) with
+    progress 1 m is 2 m from the last one, so it is not done and drives on; one at (1, 1.95) with progress
+    2.95 m is within the 0.1 m tolerance: done."""
+    cmd, pp = _command(Route(CORNER, speed=0.4), 1.0, 0.0, math.pi / 2)
+    assert not cmd.done and cmd.v > 0.0
+    pp._s = 2.5
+    done, _ = _command(Route(CORNER, speed=0.4), 1.0, 1.95, math.pi / 2, pp)
+    assert done.done
+
+
+def test_a_goal_point_abeam_turns_the_chair_in_place_toward_it() -> None:
+    """Route (0, 0) -> (0, 5), chair at the origin heading +x: the goal point (0, 0.6) is abeam to the
+    left (x_r = 0, y_r = 0.6), not ahead, so the chair turns in place counter-clockwise at half the
+    maximum yaw rate (class docstring; REP-103 positive yaw is to the left): (0, 1.07086)."""
+    cmd, _ = _command(Route(((0.0, 0.0), (0.0, 5.0)), speed=0.4), 0.0, 0.0, 0.0)
+    assert (cmd.v, cmd.w) == pytest.approx((0.0, 0.5 * MAX_YAW_RATE), abs=1e-9)
+
+
+def test_a_route_table_of_a_run_file_is_read_and_its_errors_name_the_file_and_line(tmp_path) -> None:
+    """Route.from_dict takes a checked table (``ConfigTable``, as ``robchair run`` passes its ``[route]``):
+    a good table gives its values, and a bad value on line 3 is named ``<file>:3: route.speed``."""
+    from robchair.platform.config import ConfigTable, load_toml
+    from robchair.platform.errors import ConfigError
+
+    good = tmp_path / "good.toml"
+    good.write_text("[route]\nwaypoints = [[0.0, 0.0], [2.0, 0.0]]\nspeed = 0.5\n")
+    data, source = load_toml(good)
+    route = Route.from_dict(ConfigTable(data["route"], source, "route"))
+    assert route == Route(((0.0, 0.0), (2.0, 0.0)), speed=0.5)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[route]\nwaypoints = [[0.0, 0.0], [2.0, 0.0]]\nspeed = 0.0\n")
+    data, source = load_toml(bad)
+    with pytest.raises(ConfigError) as err:
+        Route.from_dict(ConfigTable(data["route"], source, "route"))
+    assert str(err.value).startswith(f"{bad}:3: route.speed = 0.0: expected a finite number > 0")
