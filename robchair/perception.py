@@ -118,9 +118,10 @@ class Perception:
         evidence_params: :class:`mapping.probabilistic.EvidenceParams` of the probabilistic maps
             (default: :func:`robchair.perception_layers.run_evidence_params`, dynamic decay on;
             depth frames carry their capture stamps as its clock).
-        evaluation_every: the evaluation maps (the pose maps other than the main one, and the
-            :meth:`add_layer` layers) take every ``evaluation_every``-th depth frame (the 0th, k-th, ...);
-            the main map and the zoom take every frame. 1 (default): every frame.
+        evaluation_every: the evaluation maps (the pose maps other than the main one and the
+            odometry map, and the :meth:`add_layer` layers) take every ``evaluation_every``-th depth
+            frame (the 0th, k-th, ...); the main map, the odometry map (what a recorded bag of the run
+            maps back to) and the zoom take every frame. 1 (default): every frame.
         match_every: with a matcher, every ``match_every``-th depth frame (the 0th, k-th, ...) is
             registered; the frames between are placed with the last ``map -> odom``, i.e. by odometry
             from the last match. 1 (default): every frame.
@@ -356,8 +357,10 @@ class Perception:
                 main.append((self.zoom, poses[self.pose], False))
                 names.append("zoom")
         evaluate = seq % self.evaluation_every == 0  # the evaluation maps take every k-th frame
-        others = [(m, poses[k], False) for k, m in self.pose_maps.items() if m is not self.map and evaluate]
-        names += [k for k, m in self.pose_maps.items() if m is not self.map and evaluate]
+        # the odometry map takes every frame: it is what a recorded bag of the run maps back to
+        fed = [k for k, m in self.pose_maps.items() if m is not self.map and (evaluate or k == "odometry")]
+        others = [(self.pose_maps[k], poses[k], False) for k in fed]
+        names += fed
         if not evaluate:
             placed = []
         names += [ly.name for ly in self.layers if evaluate]
