@@ -243,7 +243,7 @@ class SimSonarArray(Device):
         self._check_open()
         t0 = time.perf_counter()
         # the link pose already includes the servo's turn, so the sonar model gets servo angle 0
-        ranges = self.chair.sonars[self.mount].measure(self.chair.robot.link_transform(self.mount), 0.0)
+        ranges = self.chair.sonars[self.mount].finish(self.chair.sonar_raw(self.mount))
         self.chair.timing["sonar"] += time.perf_counter() - t0
         return SonarArrayReading(
             stamp_ns=self.chair.world.now_ns(), ranges_m=ranges, servo_angle_deg=self.servo_deg()

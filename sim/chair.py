@@ -123,6 +123,10 @@ class SimChair:
                 )
             if sonars:
                 self.sonars = _make_sonars(self, np.random.default_rng(sonar_seed), noise)
+            from sim.sonar import SonarGroup
+
+            self.sonar_group = SonarGroup(self.sonars)
+            self._restarts = 0  # with the physics step, names the instant the sonar group's casts hold
             if laser:
                 from sim.laser import LaserSim
 
@@ -156,6 +160,16 @@ class SimChair:
         Scripted people never move while a depth frame is being captured in the background: those
         captures are waited for first (so a threaded run sees what a serial one sees).
         """
+        self._advance(n, None, None)
+
+    def step_collecting_contacts(self, n: int, before: Any = None) -> set[str]:
+        """:meth:`step` ``n`` times, calling ``before()`` ahead of each step; the names of the scene
+        objects the chair touched after any of the steps (:meth:`contacts`)."""
+        hits: set[str] = set()
+        self._advance(n, before, hits)
+        return hits
+
+    def _advance(self, n: int, before: Any, hits: set[str] | None) -> None:
         if n <= 0:
             return
         if self.bodies.moving and self.captures_in_flight:
@@ -163,13 +177,31 @@ class SimChair:
                 fut.result()
             self.captures_in_flight.clear()
         t0 = time.perf_counter()
+        world, moving = self.world, self.bodies.moving
         for _ in range(n):
-            if self.bodies.moving:
+            if before is not None:
+                before()
+            if moving:
                 pose = self.robot.pose2d()
-                self.bodies.update(self.world.client, self.world.time,
-                                   (self._footprint, (pose.x, pose.y, pose.theta)))  # fmt: skip
-            self.world.step(1)
+                self.bodies.update(world.client, world.time, (self._footprint, (pose.x, pose.y, pose.theta)))
+            world.step(1)
+            if hits is not None:
+                hits |= self.contacts()
         self.timing["physics"] += time.perf_counter() - t0
+
+    def sonar_raw(self, mount: str) -> np.ndarray:
+        """Raw first echoes (3,) (m, unquantised, NaN = none) of the sonar array on ``mount`` now.
+
+        The first array read at a physics step casts every array's beams in one batched call
+        (:class:`sim.sonar.SonarGroup`); the others read theirs from it.
+        """
+        robot = self.robot
+        return self.sonar_group.raw(
+            mount,
+            robot.link_transform(mount),
+            (self.world.steps, self._restarts),
+            lambda: {m: robot.link_transform(m) for m in self.sonars if m != mount},
+        )
 
     def kinect_pose(self) -> np.ndarray:
         """World <- kinect_link (ground truth, from the physics)."""
@@ -244,6 +276,7 @@ class SimChair:
                     ex.add(new)
         self._ghost_people()
         self.world.steps = 0
+        self._restarts += 1
         if self.bodies.moving:
             self.bodies.reset()
             self.bodies.update(self.world.client, 0.0)

@@ -177,6 +177,7 @@ class LaserSim(Device):
         self.frame_id = frame_id
         a = model.angles()
         self._dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # sensor frame
+        self._rays = np.empty((len(a), 6), dtype=np.float32)  # Embree's (origin, direction) rows, reused
 
     # ---- casting ----------------------------------------------------------------------------
 
@@ -189,8 +190,18 @@ class LaserSim(Device):
         rmax = self.model.range_max
         if self.caster == "embree":
             assert self.mirror is not None
+            if not (np.isfinite(origin).all() and np.isfinite(dirs).all()):
+                from sim.raycast import MeshMirrorError
+
+                raise MeshMirrorError("ray origins and directions must be finite")
             self.mirror.sync()
-            return self.mirror.cast(origin, dirs, max_range=rmax, normals=False).distance
+            rays = self._rays
+            rays[:, :3] = origin
+            rays[:, 3:] = dirs
+            t_hit, gid, _ = self.mirror.cast_raw(rays, normals=False)  # one beam, no per-ray checks
+            dist = t_hit.astype(np.float64)
+            dist[(gid == self.mirror.invalid_id) | ~(dist <= rmax)] = np.inf
+            return dist
         import pybullet as p
 
         ends = origin + dirs * rmax

@@ -388,7 +388,8 @@ class MeshMirror:
             poses = self._link_poses(body, [lg.link for lg in lgs])
             for lg in lgs:
                 t = poses[lg.link]
-                if lg.world_vertices is None or not np.array_equal(t, lg.pose):
+                # a body at rest gets its cached transform back (the same object): no comparison
+                if lg.world_vertices is None or (t is not lg.pose and not np.array_equal(t, lg.pose)):
                     lg.pose = t
                     v = np.concatenate([pt.vertices for pt in lg.parts])
                     lg.world_vertices = np.ascontiguousarray(v @ t[:3, :3].T + t[:3, 3], dtype=np.float32)

@@ -203,6 +203,15 @@ class _Beam:
             if rng is None:
                 raise SonarSimError("sonar noise is on but no numpy Generator was given")
             r = r + rng.standard_normal(r.shape) * noise_std_m
+        if r.size <= 8:  # an array's three readings: plain floats beat a handful of ufunc calls
+            res, lo, hi = m.resolution_m, m.min_range_m, m.max_range_m
+            out = [math.nan] * r.size
+            for k, v in enumerate(r.ravel().tolist()):
+                if math.isfinite(v):
+                    q = round(v / res) * res  # half to even, like np.round
+                    if lo <= q <= hi:
+                        out[k] = q
+            return np.array(out, dtype=float).reshape(r.shape)
         r = np.round(r / m.resolution_m) * m.resolution_m
         with np.errstate(invalid="ignore"):
             return np.where((r >= m.min_range_m) & (r <= m.max_range_m), r, np.nan)
@@ -317,7 +326,13 @@ class SonarArraySim:
         self, array_pose: Any, servo_angle_deg: float = 0.0, *, rng: np.random.Generator | None = None
     ) -> tuple[float, float, float]:
         """Ranges (m; NaN = no echo) of sonars 1, 2, 3."""
-        raw = self._beam.first_echo(self.mirror, self.sonar_poses(array_pose, servo_angle_deg))
+        return self.finish(
+            self._beam.first_echo(self.mirror, self.sonar_poses(array_pose, servo_angle_deg)), rng
+        )
+
+    def finish(self, raw: FloatArray, rng: np.random.Generator | None = None) -> tuple[float, float, float]:
+        """Ranges (m; NaN = no echo) of sonars 1, 2, 3 from their raw first echoes (m, NaN = none):
+        this array's noise (from ``rng``, else its own stream), cm rounding and range limits."""
         r = self._beam.finish(raw, self.noise_std_m, rng or self.rng)
         return (float(r[0]), float(r[1]), float(r[2]))
 
@@ -333,3 +348,65 @@ class SonarArraySim:
         return SonarArrayReading(
             int(stamp_ns), self.measure(array_pose, servo_angle_deg, rng=rng), float(servo_angle_deg)
         )
+
+
+class SonarGroup:
+    """Sonar arrays that fire together, cast in one batched call per physics step.
+
+    The arrays of a chair are read one after the other at the same simulated instant; the first
+    read casts the beams of every array of the group in one Embree call and keeps the others' raw
+    echoes for the rest of that step. Each ray's hit does not depend on the other rays of a call, so
+    the readings are the ones separate casts give, bit for bit. A kept echo is used only for the same
+    ``stamp`` and the same array pose; anything else (the chair restarted, a servo reset) casts again.
+
+    Args:
+        arrays: ``{name: SonarArraySim}`` sharing one mirror and one beam (model, ray spacing,
+            incidence limit).
+
+    Raises:
+        SonarSimError: the arrays do not share a mirror and a beam.
+    """
+
+    def __init__(self, arrays: dict[str, SonarArraySim]) -> None:
+        self.arrays = dict(arrays)
+        first = next(iter(self.arrays.values()), None)
+        for arr in self.arrays.values():
+            assert first is not None
+            same = (
+                arr.mirror is first.mirror
+                and arr.model == first.model
+                and arr._beam.cos_incidence == first._beam.cos_incidence
+                and np.array_equal(arr._beam.dirs, first._beam.dirs)
+            )
+            if not same:
+                raise SonarSimError(f"sonar array {arr.name!r} does not share the group's mirror and beam")
+        self._first = first
+        self._stamp: Any = None
+        self._poses: dict[str, FloatArray] = {}
+        self._raw: dict[str, FloatArray] = {}
+        self.casts = 0  # batched casts made (one per physics step when every array is read)
+
+    def raw(self, name: str, pose: Any, stamp: Any, poses: Any) -> FloatArray:
+        """Raw first echoes (3,) of array ``name`` at world ``pose`` (servo turn included).
+
+        Args:
+            name: the array.
+            pose: its world pose now (4x4 or (pos, quat_xyzw)).
+            stamp: the simulated instant (equal stamps: nothing has moved in between).
+            poses: callable giving ``{name: world pose}`` of every array of the group now; called
+                when the instant's batch is cast.
+        """
+        t = pose_matrix(pose)
+        kept = self._raw.get(name)
+        if kept is not None and stamp == self._stamp and np.array_equal(self._poses[name], t):
+            return kept
+        assert self._first is not None
+        now = {k: pose_matrix(v) for k, v in poses().items() if k in self.arrays}
+        now[name] = t
+        names = list(now)
+        stack = [s for k in names for s in self.arrays[k].sonar_poses(now[k], 0.0)]
+        raw = self._first._beam.first_echo(self._first.mirror, stack)
+        self._stamp, self._poses = stamp, now
+        self._raw = {k: raw[3 * i : 3 * i + 3] for i, k in enumerate(names)}
+        self.casts += 1
+        return self._raw[name]

@@ -109,10 +109,8 @@ class EpisodeClock:
         """Step the physics until ``t_ns`` (rounded up to a whole step), one step at a time."""
         w = self.chair.world
         target = -(-int(t_ns) * w.physics_hz // 1_000_000_000)
-        while w.steps < target:
-            self.motors.apply_due()
-            self.chair.step(1)
-            self.contacts |= self.chair.contacts()
+        if w.steps < target:
+            self.contacts |= self.chair.step_collecting_contacts(target - w.steps, self.motors.apply_due)
 
 
 class EpisodeSonarArray(SimSonarArray):
@@ -129,7 +127,7 @@ class EpisodeSonarArray(SimSonarArray):
         self._check_open()
         arr = self.chair.sonars[self.mount]
         arr.noise_std_m = self.nominal_std_m * self.noise.scale
-        ranges = arr.measure(self.chair.robot.link_transform(self.mount), 0.0, rng=self.noise.rng)
+        ranges = arr.finish(self.chair.sonar_raw(self.mount), rng=self.noise.rng)
         return SonarArrayReading(
             stamp_ns=self.chair.world.now_ns(), ranges_m=ranges, servo_angle_deg=self.servo_deg()
         )

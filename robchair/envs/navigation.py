@@ -403,9 +403,12 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         rt.start()
         # one cycle standing still: the runtime senses the start and the first observation shows it
         self._cycle(Command(0.0, 0.0))
-        pose = self._pose()
-        self._prev_distance = self._true_distance()
-        return self._observation(pose), self._info(pose, False, False, None)
+        # read once: the physics stands still until the next cycle (raises SimulationDivergedError on a
+        # non-finite pose)
+        gt = self.chair.ground_truth_pose()
+        pose = self._pose(gt)
+        self._prev_distance = self._true_distance(gt)
+        return self._observation(pose), self._info(gt, pose, False, False, None)
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         """One runtime cycle with the action's twist (one agent period of physics), then reward and info.
@@ -425,13 +428,16 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         cycle, contacts = self._cycle(Command(v, w))
         collided = bool(contacts)
         self._steps += 1
-        pose = self._pose()
-        distance = self._true_distance()
+        # read once: the physics stands still until the next cycle (raises SimulationDivergedError on a
+        # non-finite pose)
+        gt = self.chair.ground_truth_pose()
+        pose = self._pose(gt)
+        distance = self._true_distance(gt)
         reached = distance <= self.goal_tolerance
         terms = reward_terms(self._prev_distance, distance, collided, reached, self.weights)
         self._prev_distance = distance
         obs = self._observation(pose)
-        info = self._info(pose, collided, reached, terms)
+        info = self._info(gt, pose, collided, reached, terms)
         info["safety"] = shield_report(cycle)
         info["command"] = (cycle.command.v, cycle.command.w)
         info["command_applied"] = (cycle.decision.v, cycle.decision.w)
@@ -480,17 +486,15 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
 
     # ---- state -------------------------------------------------------------------------------
 
-    def _pose(self) -> Pose2D:
+    def _pose(self, gt: Pose2D) -> Pose2D:
         """The pose the chair believes now (ground truth or the runtime's odometry, per ``pose_source``)."""
-        gt = self.chair.ground_truth_pose()  # raises SimulationDivergedError on a non-finite pose
         self._path.append((gt.x, gt.y))
         if self.pose_source == "ground_truth":
             return gt
         # bring the runtime's odometry up to the encoders now (the next cycle's update adds nothing)
         return self.runtime.odometry.update(*self._backend.motors.read_state().encoder_counts)
 
-    def _true_distance(self) -> float:
-        gt = self.chair.ground_truth_pose()
+    def _true_distance(self, gt: Pose2D) -> float:
         return math.hypot(self.goal[0] - gt.x, self.goal[1] - gt.y)
 
     def own_occupancy(self) -> tuple[GridSpec, npt.NDArray[np.bool_]]:
@@ -513,9 +517,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         return self.obs_builder.observation(self._occ, self._map, pose, self.goal, rpm, codes=self._codes)
 
     def _info(
-        self, pose: Pose2D, collided: bool, reached: bool, terms: dict[str, float] | None
+        self, gt: Pose2D, pose: Pose2D, collided: bool, reached: bool, terms: dict[str, float] | None
     ) -> dict[str, Any]:
-        gt = self.chair.ground_truth_pose()
         info: dict[str, Any] = {
             "distance": self._prev_distance,
             "collision": collided,

@@ -3,6 +3,7 @@ frame, egocentric patches of a world grid, depth noise of a decimated Kinect, wh
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -32,11 +33,21 @@ def patch_cell_centres(
     """Robot-frame (x, y) of every patch cell centre: row ``i`` runs forward, column ``j`` to the left.
 
     Row 0 starts ``behind`` metres behind base_link; the columns are centred on the robot's x axis.
+    The arrays are read-only (one pair per patch geometry, made once: every step crops a patch).
     """
+    return _cell_centres((int(shape[0]), int(shape[1])), float(cell), float(behind))
+
+
+@functools.lru_cache(maxsize=16)
+def _cell_centres(
+    shape: tuple[int, int], cell: float, behind: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     h, w = shape
     fx = -behind + (np.arange(h) + 0.5) * cell
     ly = (np.arange(w) + 0.5 - w / 2) * cell
     x, y = np.meshgrid(fx, ly, indexing="ij")
+    x.flags.writeable = False
+    y.flags.writeable = False
     return x, y
 
 
@@ -91,7 +102,7 @@ def egocentric_patch(
 
 
 def decimated_depth_noise(
-    points: Any, model: Any, rng: np.random.Generator, scale: float = 1.0
+    points: Any, model: Any, rng: np.random.Generator, scale: float = 1.0, *, compiled: bool = True
 ) -> npt.NDArray[np.float64]:
     """Axial depth noise and quantisation for a clean organized cloud from a reduced-resolution Kinect.
 
@@ -108,6 +119,8 @@ def decimated_depth_noise(
         model: The :class:`sim.kinect.KinectModel` (noise model and quantisation).
         rng: Generator; draws one standard normal per pixel.
         scale: Factor on the axial standard deviation (domain randomisation).
+        compiled: one compiled pass (:mod:`sim._decimated_kernels`, default); False runs the same
+            formulas through the documented numpy functions (the reference the tests compare with).
     """
     from sim.kinect import (
         fankhauser2015_axial_sigma_m,
@@ -118,6 +131,14 @@ def decimated_depth_noise(
 
     p = np.asarray(points, dtype=np.float64)
     z = p[..., 0]
+    if compiled and p.ndim == 3 and p.shape[-1] == 3:
+        from sim._decimated_kernels import axial_noise
+        from sim.kinect_params import NOISE_CODES, QUANT_CODES
+
+        draws = scale * rng.standard_normal(z.shape)
+        return axial_noise(  # type: ignore[no-any-return]
+            np.ascontiguousarray(p), draws, NOISE_CODES[model.noise_model], QUANT_CODES[model.quantization]
+        )
     normals = organized_normals(p)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_t = np.abs(np.einsum("...k,...k->...", normals, p)) / np.linalg.norm(p, axis=-1)

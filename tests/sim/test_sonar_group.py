@@ -1,0 +1,88 @@
+"""One batched cast per physics step for all the chair's sonar arrays (sim.sonar.SonarGroup)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pybullet")
+pytest.importorskip("open3d")
+
+
+@pytest.fixture(scope="module")
+def chair():
+    from robchair.platform.paths import SCENES
+    from sim.chair import SimChair
+    from sim.scene import load_scene
+
+    c = SimChair(scene=load_scene(SCENES / "office.toml"), sensor=None, sonars=True, raycast_threads=1)
+    yield c
+    c.close()
+
+
+def _separate(chair, mount):
+    """The exact path: this array's beams cast on their own (SonarArraySim's own first echo)."""
+    arr = chair.sonars[mount]
+    return arr._beam.first_echo(arr.mirror, arr.sonar_poses(chair.robot.link_transform(mount), 0.0))
+
+
+def test_batched_sonar_echoes_equal_each_arrays_own_cast_bit_for_bit(chair):
+    """Each ray's hit does not depend on the other rays of an Embree call, so the group's batch gives
+    every array the raw echoes its own cast gives, NaN (no echo) included, over poses and servo turns."""
+    from sim.chair import SONAR_MOUNTS
+
+    rng = np.random.default_rng(4)
+    seen = 0
+    for _ in range(12):
+        x, y = rng.uniform(-4.0, 4.0, 2)
+        chair.teleport((float(x), float(y), float(rng.uniform(-math.pi, math.pi))))
+        for m in SONAR_MOUNTS:
+            chair.robot.set_servo_deg(m, float(rng.uniform(-40.0, 40.0)))
+        chair.step(20)  # the servos turn toward their targets
+        casts = chair.sonar_group.casts
+        got = {m: chair.sonar_raw(m).copy() for m in SONAR_MOUNTS}
+        assert chair.sonar_group.casts == casts + 1  # one cast served both arrays
+        for m in SONAR_MOUNTS:
+            ref = _separate(chair, m)
+            np.testing.assert_array_equal(got[m], ref)
+            seen += int(np.isfinite(ref).sum())
+    assert seen > 30  # the poses saw walls, not only silence
+
+
+def test_a_new_physics_step_or_a_restart_casts_again(chair):
+    """The kept echoes serve only the instant they were cast at: after a physics step, or a restart
+    that puts the clock back at the same step count, the next read casts anew."""
+    from sim.chair import SONAR_MOUNTS
+
+    chair.teleport((0.0, 0.0, 0.0))
+    chair.step(2)
+    m0, m1 = SONAR_MOUNTS
+    chair.sonar_raw(m0)
+    casts = chair.sonar_group.casts
+    chair.sonar_raw(m1)
+    assert chair.sonar_group.casts == casts
+    chair.step(1)
+    chair.sonar_raw(m1)
+    assert chair.sonar_group.casts == casts + 1
+    steps = chair.world.steps
+    chair.restart((1.0, -0.5, 0.3))
+    chair.step(steps)  # the same step count as the kept batch, another place
+    got = chair.sonar_raw(m1)
+    assert chair.sonar_group.casts == casts + 2
+    np.testing.assert_array_equal(got, _separate(chair, m1))
+
+
+def test_an_arrays_three_readings_round_to_whole_centimetres_within_the_srf08_range():
+    """SRF08 (SPEC table): 3 cm to 6 m, reported in whole cm; NaN is no echo. Hand values: 0.4449 m
+    reads 44 cm, 1.005 m rounds to 100 cm (1.005 is stored just below, as 1.00499...), 6.004 m reads
+    6.00 m, 6.006 m rounds to 6.01 m beyond the range (no reading), 0.02 m is under the minimum."""
+    from sim.sonar import SONAR_MODELS, SonarArraySim, _Beam
+
+    arr = SonarArraySim.__new__(SonarArraySim)  # only the beam's model and the noise matter here
+    arr._beam = _Beam(SONAR_MODELS["srf08"], 5.0, 40.0)
+    arr.noise_std_m, arr.rng = 0.0, np.random.default_rng(0)
+    got = [arr.finish(np.array(r)) for r in ([0.4449, 1.005, 6.004], [6.006, 0.02, np.nan])]
+    assert got[0] == pytest.approx((0.44, 1.00, 6.00), abs=1e-12)
+    assert all(math.isnan(v) for v in got[1])
