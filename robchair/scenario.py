@@ -197,9 +197,9 @@ def run_scenario(
             unknown, moving people cleared) or ``"thesis"`` (accumulate only); ``map.kind`` in the metrics.
         observers: more observers of the loop, called after the run's own (e.g. the live view).
         evaluation_every, match_every: the evaluation maps (the ground-truth pose map and extra
-            layers; the odometry map takes every frame) take every k-th depth frame, the matching registers every k-th frame
-            (:class:`robchair.perception.Perception`; default :data:`EVALUATION_EVERY`,
-            :data:`MATCH_EVERY`; 1: every frame).
+            layers; the odometry map takes every frame) take every k-th depth frame, the matching
+            registers every k-th frame (:class:`robchair.perception.Perception`; default
+            :data:`EVALUATION_EVERY`, :data:`MATCH_EVERY`; 1: every frame).
 
     Raises:
         ScenarioError: the scenario is invalid (nothing is written).

@@ -265,8 +265,8 @@ def _measure_all(
     head = f"{'configuration':28s} " + " ".join(f"{c:>{max(7, len(c))}s}" for c in cols)
     print(
         f"robchair bench sim: {args.scenario}, {args.map} map, {args.duration:g} sim s per run, "
-        f"median of {args.repeats}; matching every {MATCH_EVERY} Kinect frames, the ground-truth pose map every "
-        f"{EVALUATION_EVERY} (robchair sim's defaults)"
+        f"median of {args.repeats}; matching every {MATCH_EVERY} Kinect frames, the ground-truth pose map "
+        f"every {EVALUATION_EVERY} (robchair sim's defaults)"
     )
     print(head)
     print("-" * len(head))
