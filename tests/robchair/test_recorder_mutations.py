@@ -133,10 +133,11 @@ T0_NS = 5_250_000_000
 START_POSE = (1.5, -0.5, 2.0)
 
 
-@pytest.fixture(scope="module")
-def start_bag(tmp_path_factory) -> Path:
+@pytest.fixture
+def start_bag(tmp_path) -> Path:
     """The bag of a run that stops right after its start (``episode_start`` then ``episode_end``), written
-    by the project's recorder from a runtime-like object with the spec's mounts."""
+    by the project's recorder from a runtime-like object with the spec's mounts (one per test, a tenth of
+    a second: a test that reads it is a test that ran the recorder)."""
     from types import SimpleNamespace
 
     spec = load_spec()
@@ -152,7 +153,7 @@ def start_bag(tmp_path_factory) -> Path:
         sonar_names=(),
         odometry=SimpleNamespace(pose=SimpleNamespace(x=START_POSE[0], y=START_POSE[1], theta=START_POSE[2])),
     )
-    path = tmp_path_factory.mktemp("start") / "bag"
+    path = tmp_path / "bag"
     recorder = RunRecorder(path)
     recorder.episode_start(runtime)
     result: Any = SimpleNamespace(extra={})  # the part of a RunResult the recorder fills
