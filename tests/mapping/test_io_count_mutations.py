@@ -331,3 +331,17 @@ def test_a_ply_read_without_faces_has_an_empty_integer_face_array(tmp_path) -> N
     assert mesh.faces.shape == (0, 3)
     assert mesh.faces.dtype == np.int64
     assert mesh.vertices.tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+
+
+def test_an_ascii_pcd_field_of_two_values_beside_a_64_bit_label_keeps_both_values(tmp_path) -> None:
+    """PCD v0.7: COUNT is the number of values a field holds per point; here x, y, z one float32 each,
+    ``uv`` two float32 and ``label`` one uint64 (SIZE 8, TYPE U, read exactly, not through float64): the
+    points' uv are (1.5, 2.5) and (3.5, 4.5), their labels 7 and 9."""
+    path = tmp_path / "uv.pcd"
+    path.write_bytes(
+        b"VERSION 0.7\nFIELDS x y z uv label\nSIZE 4 4 4 4 8\nTYPE F F F F U\nCOUNT 1 1 1 2 1\nWIDTH 2\n"
+        b"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n0 0 0 1.5 2.5 7\n1 1 1 3.5 4.5 9\n"
+    )
+    data = read_pcd_cloud(path).data
+    assert data["uv"].tolist() == [[1.5, 2.5], [3.5, 4.5]]
+    assert data["label"].tolist() == [7, 9]
