@@ -133,11 +133,10 @@ T0_NS = 5_250_000_000
 START_POSE = (1.5, -0.5, 2.0)
 
 
-@pytest.fixture
-def start_bag(tmp_path) -> Path:
+def _record_start(path: Path, **odometry: Any) -> Path:
     """The bag of a run that stops right after its start (``episode_start`` then ``episode_end``), written
-    by the project's recorder from a runtime-like object with the spec's mounts (one per test, a tenth of
-    a second: a test that reads it is a test that ran the recorder)."""
+    by the project's recorder from a runtime-like object with the spec's mounts; ``odometry`` (none, or
+    ``odometry=...``) is set on it as given."""
     from types import SimpleNamespace
 
     spec = load_spec()
@@ -151,14 +150,23 @@ def start_bag(tmp_path) -> Path:
             laser_scanner=object(), depth_camera=SimpleNamespace(frame_id="kinect_link"), sonar_arrays=()
         ),
         sonar_names=(),
-        odometry=SimpleNamespace(pose=SimpleNamespace(x=START_POSE[0], y=START_POSE[1], theta=START_POSE[2])),
+        **odometry,
     )
-    path = tmp_path / "bag"
     recorder = RunRecorder(path)
     recorder.episode_start(runtime)
     result: Any = SimpleNamespace(extra={})  # the part of a RunResult the recorder fills
     recorder.episode_end(runtime, result)
     return path
+
+
+@pytest.fixture
+def start_bag(tmp_path) -> Path:
+    """The start bag with the odometry at START_POSE (one per test, a tenth of a second: a test that
+    reads it is a test that ran the recorder)."""
+    from types import SimpleNamespace
+
+    pose = SimpleNamespace(x=START_POSE[0], y=START_POSE[1], theta=START_POSE[2])
+    return _record_start(tmp_path / "bag", odometry=SimpleNamespace(pose=pose))
 
 
 def test_the_laser_and_kinect_mounts_of_the_spec_are_on_tf_static_at_the_start_with_their_full_rotation(
@@ -204,3 +212,16 @@ def test_the_start_pose_of_the_odometry_is_the_first_tf_at_the_start_of_the_run(
     assert map_q == pytest.approx((0.0, 0.0, 0.0, 1.0), abs=1e-12)
     assert xyz == pytest.approx((1.5, -0.5, 0.0), abs=1e-12)
     assert q == pytest.approx((0.0, 0.0, math.sin(1.0), math.cos(1.0)), abs=1e-12)
+
+
+@pytest.mark.parametrize("odometry", ["none", "no pose"])
+def test_a_loop_without_an_odometry_pose_is_recorded_without_a_start_tree(tmp_path, odometry) -> None:
+    """Only the drive loop's Runtime has an odometry (a LoopView need not): without one, or without its
+    pose, there is no start pose to write, so /tf holds nothing at the start, and /tf_static still holds
+    the two mounts of assets/robchair.toml (laser_link, kinect_link)."""
+    from types import SimpleNamespace
+
+    extra = {} if odometry == "none" else {"odometry": SimpleNamespace()}
+    bag = _record_start(tmp_path / "bag", **extra)
+    assert _transforms(bag, "/tf") == []
+    assert sorted(c for _, _, c, _, _ in _transforms(bag, "/tf_static")) == ["kinect_link", "laser_link"]
