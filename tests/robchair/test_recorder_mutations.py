@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -124,3 +125,103 @@ def test_the_tf_rotation_is_the_unit_quaternion_of_the_transform(matrix, quat) -
     m = np.eye(4)
     m[:3, :3] = matrix
     assert _quat(m) == pytest.approx(quat, abs=1e-12)
+
+
+# The start of a run, hand made: a laser and a Kinect mounted as in assets/robchair.toml, no sonar array,
+# the odometry at a start pose away from the origin and turned (x, y in m, theta in rad).
+T0_NS = 5_250_000_000
+START_POSE = (1.5, -0.5, 2.0)
+
+
+def _record_start(path: Path, **odometry: Any) -> Path:
+    """The bag of a run that stops right after its start (``episode_start`` then ``episode_end``), written
+    by the project's recorder from a runtime-like object with the spec's mounts; ``odometry`` (none, or
+    ``odometry=...``) is set on it as given."""
+    from types import SimpleNamespace
+
+    spec = load_spec()
+    runtime = SimpleNamespace(
+        spec=spec,
+        t0_ns=T0_NS,
+        perception=SimpleNamespace(
+            map=None, t_base_sensor=lambda frame_id: spec.mounts[frame_id].transform()
+        ),
+        backend=SimpleNamespace(
+            laser_scanner=object(), depth_camera=SimpleNamespace(frame_id="kinect_link"), sonar_arrays=()
+        ),
+        sonar_names=(),
+        **odometry,
+    )
+    recorder = RunRecorder(path)
+    recorder.episode_start(runtime)
+    result: Any = SimpleNamespace(extra={})  # the part of a RunResult the recorder fills
+    recorder.episode_end(runtime, result)
+    return path
+
+
+@pytest.fixture
+def start_bag(tmp_path) -> Path:
+    """The start bag with the odometry at START_POSE (one per test, a tenth of a second: a test that
+    reads it is a test that ran the recorder)."""
+    from types import SimpleNamespace
+
+    pose = SimpleNamespace(x=START_POSE[0], y=START_POSE[1], theta=START_POSE[2])
+    return _record_start(tmp_path / "bag", odometry=SimpleNamespace(pose=pose))
+
+
+def test_the_laser_and_kinect_mounts_of_the_spec_are_on_tf_static_at_the_start_with_their_full_rotation(
+    start_bag,
+) -> None:
+    """assets/robchair.toml: [mounts.laser_link] xyz = [0.60, 0.0, 0.30], rpy = 0 (identity rotation);
+    [mounts.kinect_link] xyz = [-0.20, 0.0, 1.58], rpy = [0.0, 0.2618, 0.0], a pitch of 0.2618 rad about
+    y: the quaternion (x, y, z, w) = (0, sin(0.1309), 0, cos(0.1309)) (REP-103, axis sin(a / 2),
+    cos(a / 2); scipy's Rotation.from_euler("xyz") gives the same), every component checked. Both are
+    static: on /tf_static once, stamped at the run's start, and not on /tf."""
+    from scipy.spatial.transform import Rotation
+
+    pitch = 0.2618
+    kinect_q = (0.0, math.sin(pitch / 2), 0.0, math.cos(pitch / 2))
+    assert tuple(Rotation.from_euler("xyz", [0.0, pitch, 0.0]).as_quat()) == pytest.approx(
+        kinect_q, abs=1e-15
+    )
+    statics = _transforms(start_bag, "/tf_static")
+    assert sorted((p, c) for _, p, c, _, _ in statics) == [
+        ("base_link", "kinect_link"),
+        ("base_link", "laser_link"),
+    ]
+    got = {c: (stamp, xyz, q) for stamp, _, c, xyz, q in statics}
+    assert got["laser_link"][0] == got["kinect_link"][0] == T0_NS
+    assert got["laser_link"][1] == pytest.approx((0.60, 0.0, 0.30), abs=1e-12)
+    assert got["laser_link"][2] == pytest.approx((0.0, 0.0, 0.0, 1.0), abs=1e-12)
+    assert got["kinect_link"][1] == pytest.approx((-0.20, 0.0, 1.58), abs=1e-12)
+    assert got["kinect_link"][2] == pytest.approx(kinect_q, abs=1e-12)
+    assert not {c for _, _, c, _, _ in _transforms(start_bag, "/tf")} & {"laser_link", "kinect_link"}
+
+
+def test_the_start_pose_of_the_odometry_is_the_first_tf_at_the_start_of_the_run(start_bag) -> None:
+    """REP-105: map -> odom -> base_link. At the run's start (t0, before any cycle) map -> odom is the
+    identity and odom -> base_link is the odometry's start pose: translation (1.5, -0.5, 0) m and a yaw of
+    2.0 rad about z, the quaternion (0, 0, sin(1.0), cos(1.0)) = (0, 0, 0.8415, 0.5403)."""
+    tf = _transforms(start_bag, "/tf")
+    assert [(stamp, p, c) for stamp, p, c, _, _ in tf] == [
+        (T0_NS, "map", "odom"),
+        (T0_NS, "odom", "base_link"),
+    ]
+    (_, _, _, map_xyz, map_q), (_, _, _, xyz, q) = tf
+    assert map_xyz == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    assert map_q == pytest.approx((0.0, 0.0, 0.0, 1.0), abs=1e-12)
+    assert xyz == pytest.approx((1.5, -0.5, 0.0), abs=1e-12)
+    assert q == pytest.approx((0.0, 0.0, math.sin(1.0), math.cos(1.0)), abs=1e-12)
+
+
+@pytest.mark.parametrize("odometry", ["none", "no pose"])
+def test_a_loop_without_an_odometry_pose_is_recorded_without_a_start_tree(tmp_path, odometry) -> None:
+    """Only the drive loop's Runtime has an odometry (a LoopView need not): without one, or without its
+    pose, there is no start pose to write, so /tf holds nothing at the start, and /tf_static still holds
+    the two mounts of assets/robchair.toml (laser_link, kinect_link)."""
+    from types import SimpleNamespace
+
+    extra = {} if odometry == "none" else {"odometry": SimpleNamespace()}
+    bag = _record_start(tmp_path / "bag", **extra)
+    assert _transforms(bag, "/tf") == []
+    assert sorted(c for _, _, c, _, _ in _transforms(bag, "/tf_static")) == ["kinect_link", "laser_link"]
