@@ -209,10 +209,21 @@ def test_env_checker_accepts_the_environment():
 
 
 def test_registered_ids_use_lazy_entry_points_and_a_time_limit():
+    """Every id names its class as a "module:Class" string (nothing imported at registration), a
+    navigation env or a subclass of it, and ends episodes after 300 agent steps."""
+    import importlib
+
+    from robchair.envs.navigation import RobChairNavigationEnv
+
     for env_id in sim.envs.ENV_IDS:
         spec = gymnasium.spec(env_id)
-        assert spec.entry_point == "robchair.envs.navigation:RobChairNavigationEnv"
+        assert isinstance(spec.entry_point, str), env_id
+        module, name = spec.entry_point.split(":")
+        assert module.startswith("robchair.envs."), env_id
+        assert issubclass(getattr(importlib.import_module(module), name), RobChairNavigationEnv), env_id
         assert spec.max_episode_steps == 300
+    light = gymnasium.spec("RobChair/Navigation-v1")
+    assert light.entry_point == "robchair.envs.navigation:RobChairNavigationEnv"
 
 
 def test_same_seed_gives_the_same_episode_bit_for_bit(env):
