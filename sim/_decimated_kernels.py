@@ -18,18 +18,8 @@ import numba
 import numpy as np
 
 from mapping._deps import announce_compilation
-from sim.kinect_params import (
-    KINECT1_BASELINE_M,
-    KINECT1_FOCAL_PX,
-    KINECT1_SUBPIXEL,
-    NGUYEN2012,
-    QUANT_DISPARITY,
-    QUANT_MM,
-    THETA_MAX,
-)
-
-HALF_PI = math.pi / 2
-K_DISPARITY = KINECT1_FOCAL_PX * KINECT1_BASELINE_M * KINECT1_SUBPIXEL
+from sim._kinect_kernels import HALF_PI, K_DISPARITY
+from sim.kinect_params import NGUYEN2012, QUANT_DISPARITY, QUANT_MM, THETA_MAX
 
 
 # error_model="numpy": a zero normal (three collinear neighbours) gives NaN, as numpy does, not an error
