@@ -148,7 +148,9 @@ class RoboteqEmulator(EmulatedCommandSet, PtyServer):
         self._telemetry_due = 0.0
         self._telemetry_period = TELEMETRY_PERIOD_S
         # observation
-        # (motor time, command line) of everything received; bounded for long interactive sessions
+        # (arrival time on the emulator's clock in ns, command line) of everything received; bounded for
+        # long interactive sessions. Arrival, not motor time: the motors advance in 1 ms ticks, so a line
+        # read just after an event outside would otherwise carry a stamp from before it
         self.received: collections.deque[tuple[int, str]] = collections.deque(maxlen=100_000)
         self.stops: list[StopEvent] = []
         self.watchdog_trips = 0
@@ -308,7 +310,7 @@ class RoboteqEmulator(EmulatedCommandSet, PtyServer):
     def _handle_line(self, line: str) -> None:
         if not line.strip():
             return
-        self.received.append((self._t_ns, line.strip()))
+        self.received.append((self.clock.now_ns(), line.strip()))
         if line.strip().startswith("#"):
             if line.strip()[1:].strip().upper() == "C":
                 self._telemetry = []  # "# C": stop the automatic sending; no reply

@@ -441,3 +441,14 @@ def test_replies_split_into_any_chunks_are_reassembled_with_or_without_echo(chun
     assert drv.n_retries == 0
     drv.close()
     assert port.written[-2:] == [b"!S 1 0\r", b"!S 2 0\r"]  # close() stops the motors
+
+
+def test_a_received_line_is_stamped_with_its_arrival_not_the_last_motor_tick(drv, emu, clock) -> None:
+    """The emulator's record says when a line arrived on its clock. The motors advance in 1 ms ticks:
+    a line that arrives 0.6 ms after a tick must not carry that tick's stamp (a stop that followed a
+    signal within a millisecond was once stamped before it, and taken for a missing stop)."""
+    clock.advance(0.0106)  # 10.6 ms: the motors stand at the 10 ms tick
+    t_before = clock.now_ns()
+    drv.set_speeds_rpm(0.0, 0.0)
+    stamps = [t for t, line in list(emu.received) if line in ("!S 1 0", "!S 2 0")]
+    assert stamps[-2:] == [t_before, t_before]

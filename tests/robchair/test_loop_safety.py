@@ -34,7 +34,7 @@ def emulated(**cfg):
 
 
 def _speed_commands(emu) -> list[tuple[int, int]]:
-    """(motor time ns, RPM) of every ``!S`` the emulated Roboteq received."""
+    """(arrival time ns, RPM) of every ``!S`` the emulated Roboteq received."""
     out = []
     for t, line in list(emu.received):
         m = re.fullmatch(r"!S (\d) (-?\d+)", line)
