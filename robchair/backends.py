@@ -85,8 +85,13 @@ class ManagedBackend(Backend):
 
     on_close: list[Callable[[], None]] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict)
+    _closed: bool = field(default=False, init=False, repr=False)
 
     def close(self) -> None:
+        """Stop the motors, close the devices, then what it owns; a second call does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             super().close()
         finally:

@@ -12,6 +12,11 @@ SIGINT, SIGTERM and SIGHUP (where their action is still the default) raise
 :class:`robchair.platform.errors.StopSignal` in the command: the drive loop stops the motors (zero speeds,
 then the emergency stop), staging folders are removed, then one line is printed and the exit code is
 ``128 + signo`` (130, 143, 129). A repeated signal is ignored while that happens.
+
+A signal that arrives while this thread compiles or loads a numba kernel (numba's compiler is Python
+code driving LLVM; an exception raised in the middle of it leaves LLVM objects half-owned, which was
+seen as a lost signal, a "no compiled object yet" error, or a double free at exit) first stops the
+running drive loops' motors from the handler, then is raised once the compiler lock is released.
 """
 
 from __future__ import annotations
@@ -110,8 +115,15 @@ def stop_signals_raise() -> Iterator[None]:
         yield
         return
     numbers = [getattr(signal, n) for n in STOP_SIGNALS if hasattr(signal, n)]
+    deferred: list[int] = []
 
     def handler(signo: int, _frame: object) -> None:
+        if _compiling_here():
+            if not deferred:
+                deferred.append(signo)
+                _halt_running_loops(StopSignal(signo))
+                _raise_after_compiling(deferred)
+            return
         for s in numbers:
             signal.signal(s, signal.SIG_IGN)
         raise StopSignal(signo)
@@ -125,6 +137,38 @@ def stop_signals_raise() -> Iterator[None]:
     finally:
         for s, old in previous.items():
             signal.signal(s, old)
+
+
+def _compiling_here() -> bool:
+    """True while this thread holds numba's compiler lock (compiling or loading a cached kernel)."""
+    lock_module = sys.modules.get("numba.core.compiler_lock")
+    return bool(lock_module is not None and lock_module.global_compiler_lock.is_locked())
+
+
+def _halt_running_loops(cause: BaseException) -> None:
+    """Zero speeds and the emergency stop on the process's running drive loops (if any were made)."""
+    runtime = sys.modules.get("robchair.runtime")
+    if runtime is not None:
+        runtime.halt_running_loops(cause)
+
+
+def _raise_after_compiling(deferred: list[int]) -> None:
+    """Deliver ``deferred[0]`` again once this thread has released numba's compiler lock."""
+    from numba.core import event
+
+    main = threading.current_thread()
+
+    class _Released(event.Listener):  # type: ignore[misc]
+        def on_start(self, _event: object) -> None:
+            pass
+
+        def on_end(self, _event: object) -> None:
+            if threading.current_thread() is main and not _compiling_here():
+                event.unregister("numba:compiler_lock", self)
+                signo = deferred.pop()
+                signal.raise_signal(signo)
+
+    event.register("numba:compiler_lock", _Released())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

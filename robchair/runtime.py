@@ -41,6 +41,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -69,6 +70,22 @@ from robchair.sources import Command, CommandSource, Observation
 __all__ = ["LoopAborted", "Runtime"]
 
 log = logging.getLogger(__name__)
+
+#: The started, not yet stopped runtimes of this process (for :func:`halt_running_loops`).
+_RUNNING: weakref.WeakSet[Runtime] = weakref.WeakSet()
+
+
+def halt_running_loops(cause: BaseException) -> None:
+    """Zero speeds, then the emergency stop, on every started and not yet stopped runtime.
+
+    For a stop signal that cannot be raised where it arrived (:func:`robchair.cli.stop_signals_raise`
+    defers one that arrives while numba compiles): the motors stop now, the exception comes later and
+    finds the loop halted. Call it only from the thread that runs the loops, outside their driver calls.
+    """
+    for runtime in list(_RUNNING):
+        if runtime._started and not runtime._stopped:
+            runtime._halt(cause)
+
 
 DEPTH_CAMERA = "depth_camera"
 WATCHDOG_PERIODS_MIN = 1.5
@@ -151,6 +168,7 @@ class Runtime:
         self._started = False
         self._stopped = False
         self._halted = False  # zero speeds and the emergency stop were sent after an exception
+        self._halt_ok = False  # ... and both were acknowledged
         self._wall0 = 0.0
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -160,6 +178,7 @@ class Runtime:
         if self._started:
             raise RobChairError("runtime already started")
         self._started = True
+        _RUNNING.add(self)
         self._guard("motors", self._start)
 
     def _start(self) -> None:
@@ -205,6 +224,7 @@ class Runtime:
         if self._stopped:
             return self.result
         self._stopped = True
+        _RUNNING.discard(self)
         res = self.result
         try:
             if self._fault is None and self._started:
@@ -261,6 +281,8 @@ class Runtime:
             self.result.error = f"{type(exc).__name__}: {exc}"
             if self._started and not self._halted:  # raised between cycles: stop the motors first
                 self._halt(exc)
+            elif isinstance(exc, StopSignal):  # halted already (by the signal handler, see cli.py)
+                exc.motors_stopped = self._halt_ok
             raise
         finally:
             self.stop()
@@ -286,6 +308,7 @@ class Runtime:
         """Zero speeds, then the emergency stop, after ``cause`` ended the run (a StopSignal learns
         whether both were sent)."""
         self._halted = True
+        self._halt_ok = False
         motors, ok = self.backend.motors, True
         try:
             motors.set_speeds_rpm(0.0, 0.0)
@@ -297,6 +320,7 @@ class Runtime:
         except Exception as exc:
             ok = False
             log.error("emergency stop could not be confirmed: %s", exc)
+        self._halt_ok = ok
         if isinstance(cause, StopSignal):
             cause.motors_stopped = ok
 

@@ -212,32 +212,31 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
         ConfigTable(backend_cfg, backend_table.source, backend_table.where),
         loop_rate_hz=runtime_config.rate_hz,
     )
-    if args.source == "route" and route is None:
-        backend.close()
-        raise ConfigError("--source route: no route; give --route FILE or a [route] table")
-    try:
+    try:  # the backend is built (an emulator may already run): close it however what follows ends
+        if args.source == "route" and route is None:
+            raise ConfigError("--source route: no route; give --route FILE or a [route] table")
         source = command_source(backend, route, spec, safety.limits, args.assist, runtime_config.rate_hz)
-    except ConfigError:
+        observers = []
+        chair = getattr(backend, "chair", None)
+        if chair is not None:  # the simulated chair: evaluate against the physics and the scene
+            from robchair.observers.evaluation import GroundTruthEvaluation
+
+            observers.append(GroundTruthEvaluation(chair, chair.scene, ground_truth_map=False))
+        with overwrite_allowed(args.overwrite):
+            result = run_to_dir(
+                backend,
+                source,
+                args.duration,
+                args.out,
+                spec=spec,
+                config=runtime_config,
+                safety=safety,
+                start_pose=start_pose,
+                safety_enabled=not args.no_safety,
+                observers=observers + live,
+            )
+    except BaseException:
         backend.close()
         raise
-    observers = []
-    chair = getattr(backend, "chair", None)
-    if chair is not None:  # the simulated chair: evaluate against the physics and the scene
-        from robchair.observers.evaluation import GroundTruthEvaluation
-
-        observers.append(GroundTruthEvaluation(chair, chair.scene, ground_truth_map=False))
-    with overwrite_allowed(args.overwrite):
-        result = run_to_dir(
-            backend,
-            source,
-            args.duration,
-            args.out,
-            spec=spec,
-            config=runtime_config,
-            safety=safety,
-            start_pose=start_pose,
-            safety_enabled=not args.no_safety,
-            observers=observers + live,
-        )
     print(json.dumps(result.metrics(), indent=2, default=str))
     return 0 if result.driver_fault is None else 1

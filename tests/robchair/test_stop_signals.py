@@ -137,8 +137,12 @@ def test_a_stop_signal_on_sim_prints_one_line_and_leaves_no_staging_folder(
 def _ours(err: str) -> list[str]:
     """stderr without pybullet's import banner and the one-time note while numba compiles the kernels
     (printed before the loop starts, only when the kernel cache is cold)."""
-    banners = ("pybullet build time:", "compiling mapping kernels (first run only")
-    return [line for line in err.splitlines() if not line.startswith(banners)]
+    return [
+        line
+        for line in err.splitlines()
+        if not line.startswith("pybullet build time:")
+        and not (line.startswith("compiling ") and "(first run only" in line)
+    ]
 
 
 def _command(name: str, inputs: Path, out: Path) -> list[str]:
@@ -238,3 +242,102 @@ def test_a_stop_signal_the_parent_ignores_stays_ignored_and_the_others_raise() -
     finally:
         for s, h in before.items():
             signal.signal(s, h)
+
+
+def test_a_stop_signal_while_numba_compiles_stops_the_motors_at_once_and_raises_after_the_compile() -> None:
+    """SIGTERM arrives while the drive loop's thread compiles a kernel (a cold cache after an install).
+
+    numba's compiler is Python driving LLVM: raised in the middle of it, the stop once came out as a
+    lost signal (swallowed in an LLVM callback: the run drove on and exited 0), a "no compiled object
+    yet" error, or a double free at exit. Here the handler stops the motors at once (zero speeds and
+    ``!EX`` on the controller before the compile ends), and the StopSignal comes once it has ended, with
+    the kernel compiled, and says the motors were stopped.
+    """
+    import numba
+    from numba.core import event
+
+    from robchair.cli import stop_signals_raise
+    from robchair.platform.errors import StopSignal
+
+    @numba.njit(cache=False)
+    def kernel(x):  # a kernel no run has compiled: its first call compiles it in the loop
+        return x + 1.0
+
+    from robchair.backends import get_backend
+    from robchair.platform.spec import load_spec
+    from robchair.run_output import run_to_dir
+    from robchair.sources import PolicySource
+
+    backend = get_backend("emulated", {"timeout_s": 0.1, "sonars": False})
+    emu = backend.extras["roboteq_emulator"]
+    seen: dict[str, object] = {}
+
+    class SignalAtCompileStart(event.Listener):  # type: ignore[misc]
+        def on_start(self, _event: object) -> None:
+            os.kill(os.getpid(), signal.SIGTERM)  # delivered now, inside the compile
+
+        def on_end(self, _event: object) -> None:  # the compile is over: were the motors stopped?
+            seen["estop_before_compile_ended"] = emu.estop
+            seen["setpoints_before_compile_ended"] = emu.setpoints_rpm
+
+    def policy(obs) -> tuple[float, float]:
+        if obs.pose.x > 0.2:
+            kernel(obs.pose.x)
+            seen["policy_went_on"] = True
+        return 0.6, 0.0
+
+    listener = SignalAtCompileStart()
+    event.register("numba:compile", listener)
+    try:
+        with pytest.raises(StopSignal) as stopped, stop_signals_raise():
+            run_to_dir(backend, PolicySource(policy), 6.0, None, spec=load_spec(), observers=[])
+    finally:
+        event.unregister("numba:compile", listener)
+    assert stopped.value.signo == signal.SIGTERM
+    assert seen["estop_before_compile_ended"] is True
+    assert seen["setpoints_before_compile_ended"] == (0.0, 0.0)
+    assert "policy_went_on" not in seen  # raised where the kernel was called, once it was compiled
+    assert len(kernel.overloads) == 1
+    assert stopped.value.motors_stopped
+    assert emu.estop and emu.setpoints_rpm == (0.0, 0.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("delay_s", [0.5, 1.5, 3.0, 5.0])
+def test_sigterm_while_a_cold_cache_compiles_the_kernels_stops_run_with_143(tmp_path: Path, delay_s) -> None:
+    """The first run after an install compiles its kernels with the motors enabled: a SIGTERM sent
+    ``delay_s`` after it says so on stderr (while it compiles) ends it by the signal (exit 143, "motors stopped"), not with a lost signal, an
+    error from a half-built kernel, or a crash at exit."""
+    import threading
+
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text("[emulated]\nsonars = false\n[runtime]\nrate_hz = 10.0\n", encoding="utf-8")
+    work = tmp_path / "w"
+    work.mkdir()
+    args = [sys.executable, "-m", "robchair.cli", "run", "--backend", "emulated", "--config", str(cfg),
+            "--duration", "60", "--out", str(work / "out"), "--route",
+            str(ROOT / "examples/routes/short_turn.toml")]  # fmt: skip
+    env = {**_env(), "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}  # a cold cache
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env,
+                            cwd=work, preexec_fn=_default_stop_signals)  # fmt: skip
+    assert proc.stderr is not None
+    lines: list[str] = []
+    compiling = threading.Event()
+
+    def read() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.append(line.rstrip("\n"))
+            if "compiling mapping kernels" in line:
+                compiling.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    assert compiling.wait(240.0), lines
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=240)
+    reader.join(timeout=10)
+    assert proc.returncode == 128 + signal.SIGTERM, lines
+    assert _ours("\n".join(lines)) == ["robchair run: stopped by SIGTERM; motors stopped"], lines
+    assert list(work.iterdir()) == []
