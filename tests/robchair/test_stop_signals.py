@@ -288,11 +288,15 @@ def test_a_stop_signal_while_numba_compiles_stops_the_motors_at_once_and_raises_
 
     listener = SignalAtCompileStart()
     event.register("numba:compile", listener)
+    # SIGTERM at its default, as in a fresh command (a library this test process loaded earlier, e.g.
+    # Ray, may have installed its own handler, which the command rightly leaves alone)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         with pytest.raises(StopSignal) as stopped, stop_signals_raise():
             run_to_dir(backend, PolicySource(policy), 6.0, None, spec=load_spec(), observers=[])
     finally:
         event.unregister("numba:compile", listener)
+        signal.signal(signal.SIGTERM, previous)
     assert stopped.value.signo == signal.SIGTERM
     assert seen["estop_before_compile_ended"] is True
     assert seen["setpoints_before_compile_ended"] == (0.0, 0.0)
@@ -306,8 +310,8 @@ def test_a_stop_signal_while_numba_compiles_stops_the_motors_at_once_and_raises_
 @pytest.mark.parametrize("delay_s", [0.5, 1.5, 3.0, 5.0])
 def test_sigterm_while_a_cold_cache_compiles_the_kernels_stops_run_with_143(tmp_path: Path, delay_s) -> None:
     """The first run after an install compiles its kernels with the motors enabled: a SIGTERM sent
-    ``delay_s`` after it says so on stderr (while it compiles) ends it by the signal (exit 143, "motors stopped"), not with a lost signal, an
-    error from a half-built kernel, or a crash at exit."""
+    ``delay_s`` after it says so on stderr (while it compiles) ends it by the signal (exit 143,
+    "motors stopped"), not with a lost signal, an error from a half-built kernel, or a crash at exit."""
     import threading
 
     cfg = tmp_path / "cfg.toml"

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 pytest.importorskip("pybullet")
-pytest.importorskip("open3d")
+# open3d needs the libusb of `libusb-package` preloaded (mapping._deps); a bare import fails without it
+from mapping._deps import import_open3d
+
+import_open3d()
 
 
 @pytest.fixture(scope="module")
