@@ -141,6 +141,200 @@ def _table_offset(p, table):  # type: ignore[no-untyped-def]  # pragma: no cover
     return i - j0
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _acos01_unrolled(x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """:func:`_acos01` written out (the same operations in the same order), so loops calling it vectorise."""
+    poly = _ACOS[7] * x + _ACOS[6]
+    poly = poly * x + _ACOS[5]
+    poly = poly * x + _ACOS[4]
+    poly = poly * x + _ACOS[3]
+    poly = poly * x + _ACOS[2]
+    poly = poly * x + _ACOS[1]
+    poly = poly * x + _ACOS[0]
+    return math.sqrt(1.0 - x) * poly
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _lateral_source(word, u, v, w, h, lat_table, lat_buckets, sigma_l):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The pixel (su, sv) whose depth pixel (u, v) shows under lateral noise, from its 64-bit ``word``.
+
+    ``sigma_l`` is used only without a CDF table (the Kinect v1's per-pixel ``sigma_L``); see :func:`finish`.
+    """
+    ku = word & np.uint64(0xFFFFFFFF)
+    kv = word >> np.uint64(32)
+    if lat_table.shape[0] > 0:
+        ou = lat_buckets[ku >> np.uint64(16)]
+        ov = lat_buckets[kv >> np.uint64(16)]
+        su = u + (_table_offset(_uniform32(ku), lat_table) if ou == 127 else ou)
+        sv = v + (_table_offset(_uniform32(kv), lat_table) if ov == 127 else ov)
+    else:
+        su = u + int(np.rint(_normal_quantile(_uniform32(ku)) * sigma_l))
+        sv = v + int(np.rint(_normal_quantile(_uniform32(kv)) * sigma_l))
+    return min(max(su, 0), w - 1), min(max(sv, 0), h - 1)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _facing_cos(n0, n1, n2, a, b):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """|cos| of the angle between the normal (n0, n1, n2) and the ray (1, a, b) (NaN: normal unknown)."""
+    c = abs(n0 + n1 * a + n2 * b)
+    return c / math.sqrt(1.0 + a * a + b * b)
+
+
+# error_model="numpy": no zero-division checks, so LLVM vectorises the loop (the values are the same)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _axial_pass(zs, cs, bits, model, quant, out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Axial noise and quantisation of every pixel, flat: ``out[k]`` from source depth ``zs[k]`` (NaN:
+    no return, stays NaN), facing cosine ``cs[k]`` (NaN: unknown normal, angle 0) and the 64-bit word
+    ``bits[k]`` (its top 53 bits: the uniform of the axial draw).
+
+    Branch-free so that it runs on SIMD lanes: the normal quantile is Acklam's central branch here;
+    :func:`_axial_tails` redoes the pixels whose uniform falls in a tail. The operations are those of
+    :func:`_angle_ratio`, the noise models and :func:`_normal_quantile`, in the same order.
+    """
+    nguyen = model == NGUYEN2012
+    for k in range(zs.shape[0]):
+        c = cs[k]
+        x = min(c, 1.0)
+        th = min(_acos01_unrolled(x), THETA_MAX) if c > COS_THETA_MAX else THETA_MAX
+        th = th if c == c else 0.0
+        q = th / (HALF_PI - th)
+        a = q * q
+        z = zs[k]
+        if nguyen:
+            sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
+        else:
+            sz = 1e-3 * (1.5 - 0.5 * z + 0.3 * z * z + 0.1 * (z * math.sqrt(z)) * a)
+        p = (float(bits[k] >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+        pc = p - 0.5
+        r = pc * pc
+        g = (
+            (((((_A[0] * r + _A[1]) * r + _A[2]) * r + _A[3]) * r + _A[4]) * r + _A[5])
+            * pc
+            / (((((_B[0] * r + _B[1]) * r + _B[2]) * r + _B[3]) * r + _B[4]) * r + 1.0)
+        )
+        out[k] = _quantize(z + g * sz, quant)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _quantize(z, quant):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    if quant == QUANT_MM:
+        return np.rint(z * 1000.0) / 1000.0
+    if quant == QUANT_DISPARITY:
+        steps = np.rint(K_DISPARITY / z) if z != 0.0 else 0.0
+        return K_DISPARITY / steps if steps > 0 else np.nan
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def _axial_tails(zs, cs, bits, model, quant, out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """:func:`_axial_pass` for the pixels whose axial uniform lies in a tail of Acklam's quantile
+    (about 5 %): the full :func:`_normal_quantile` (a log and a square root) there."""
+    nguyen = model == NGUYEN2012
+    # 53-bit integers whose uniform is surely central (a margin of 2 for the rounding of + 0.5);
+    # the exact test follows, on the uniform itself
+    lo = np.uint64(int(_P_LOW * 9007199254740992.0) + 2)
+    hi = np.uint64(int((1.0 - _P_LOW) * 9007199254740992.0) - 2)
+    for k in range(zs.shape[0]):
+        m = bits[k] >> np.uint64(11)
+        if lo < m < hi:
+            continue
+        z = zs[k]
+        if not z == z:
+            continue
+        p = (float(m) + 0.5) * (1.0 / 9007199254740992.0)
+        if _P_LOW <= p <= 1.0 - _P_LOW:
+            continue
+        c = cs[k]
+        if not c == c:
+            th = 0.0
+        elif c <= COS_THETA_MAX:
+            th = THETA_MAX
+        else:
+            th = min(_acos01(min(c, 1.0)), THETA_MAX)
+        q = th / (HALF_PI - th)
+        a = q * q
+        if nguyen:
+            sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
+        else:
+            sz = 1e-3 * (1.5 - 0.5 * z + 0.3 * z * z + 0.1 * (z * math.sqrt(z)) * a)
+        out[k] = _quantize(z + _normal_quantile(p) * sz, quant)
+
+
+@numba.njit(cache=True, nogil=True)
+def _emit(zn, src, body, link, ax, by, zmin, zmax, labels):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Range cut and the organized outputs of :func:`finish` from the flat noisy depth ``zn``."""
+    h, w = by.shape[0], ax.shape[0]
+    lh, lw = (h, w) if labels else (1, 1)
+    z_out = np.empty((lh, lw))
+    src_out = np.empty((lh, lw), dtype=np.int64)
+    pts = np.empty((h, w, 3), dtype=np.float32)
+    body_out = np.empty((lh, lw), dtype=np.int64)
+    link_out = np.empty((lh, lw), dtype=np.int64)
+    for v in range(h):
+        for u in range(w):
+            k = v * w + u
+            z = zn[k]
+            ok = z >= zmin and z <= zmax
+            if ok:
+                pts[v, u, 0] = z
+                pts[v, u, 1] = z * ax[u]
+                pts[v, u, 2] = z * by[v]
+            else:
+                pts[v, u, 0] = pts[v, u, 1] = pts[v, u, 2] = np.nan
+            if labels:
+                s = src[k]
+                src_out[v, u] = s
+                sv, su = s // w, s % w
+                z_out[v, u] = z if ok else np.nan
+                body_out[v, u] = body[sv, su] if ok else -1
+                link_out[v, u] = link[sv, su] if ok else -1
+    return z_out, src_out, pts, body_out, link_out
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_image(depth, normals, ax, by, bits, lat_table, lat_buckets, noise, nguyen, labels, zs, cs, src):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The lateral gather of :func:`finish`: per pixel (flat index k) the depth ``zs[k]`` and facing
+    cosine ``cs[k]`` at its lateral source pixel, and (``labels``) that pixel's flat index ``src[k]``.
+
+    The table loop is written out by hand: with the quantile branch of :func:`_lateral_source` in the
+    same loop (a call to log), it runs several times slower.
+    """
+    h, w = depth.shape
+    if noise and lat_table.shape[0] > 0:
+        for v in range(h):
+            for u in range(w):
+                word = bits[0, v, u]
+                ku = word & np.uint64(0xFFFFFFFF)
+                kv = word >> np.uint64(32)
+                ou = lat_buckets[ku >> np.uint64(16)]
+                ov = lat_buckets[kv >> np.uint64(16)]
+                su = u + (_table_offset(_uniform32(ku), lat_table) if ou == 127 else ou)
+                sv = v + (_table_offset(_uniform32(kv), lat_table) if ov == 127 else ov)
+                su = min(max(su, 0), w - 1)
+                sv = min(max(sv, 0), h - 1)
+                k = v * w + u
+                zs[k] = depth[sv, su]
+                a, b = ax[su], by[sv]
+                c = abs(normals[sv, su, 0] + normals[sv, su, 1] * a + normals[sv, su, 2] * b)
+                cs[k] = c / math.sqrt(1.0 + a * a + b * b)
+                if labels:
+                    src[k] = sv * w + su
+        return
+    for v in range(h):
+        for u in range(w):
+            k = v * w + u
+            su, sv = u, v
+            if noise:
+                # (the Kinect v1's sigma_L depends on the angle at this pixel)
+                sl = 0.8 + 0.035 * _angle_ratio(normals, ax, by, u, v) if nguyen else 1.6
+                su, sv = _lateral_source(bits[0, v, u], u, v, w, h, lat_table, lat_buckets, sl)
+                a, b = ax[su], by[sv]
+                cs[k] = _facing_cos(normals[sv, su, 0], normals[sv, su, 1], normals[sv, su, 2], a, b)
+            zs[k] = depth[sv, su]
+            if labels:
+                src[k] = sv * w + su
+
+
 @numba.njit(cache=True, nogil=True)
 def finish(
     depth,
@@ -159,7 +353,7 @@ def finish(
     zmax,
     labels=True,
 ):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Noise, quantisation and range cut in one pass; the organized cloud and labels of the result.
+    """Noise, quantisation and range cut; the organized cloud and labels of the result.
 
     Pixel (u, v) looks along the camera-frame ray ``(1, ax[u], by[v])`` (:meth:`sim.kinect.Intrinsics.rays`);
     a point is ``z`` times its ray.
@@ -175,76 +369,30 @@ def finish(
     few buckets a CDF step falls in (then the table is searched). An empty table means per-pixel
     ``sigma_L`` (the Kinect v1 model) through the quantile.
 
+    Three passes: the lateral gather (each pixel's source depth and facing cosine), the axial noise
+    over the flat image on SIMD lanes (:func:`_axial_pass`, :func:`_axial_tails`), the range cut and
+    outputs (:func:`_emit`).
+
     Returns:
         ``(z, src, points, body, link)``: depth (NaN invalid), flat index of the pixel each value came
         from, float32 points ``z * ray``, and the (body, link) labels of the source pixel (-1 invalid);
         with ``labels=False`` only the points are filled (the others are 1x1 placeholders).
     """
     h, w = depth.shape
-    # labels=False (a plain frame): depth, source index and labels are not wanted; skip their writes
-    lh, lw = (h, w) if labels else (1, 1)
-    z_out = np.empty((lh, lw))
-    src = np.empty((lh, lw), dtype=np.int64)
-    pts = np.empty((h, w, 3), dtype=np.float32)
-    body_out = np.empty((lh, lw), dtype=np.int64)
-    link_out = np.empty((lh, lw), dtype=np.int64)
+    n = h * w
+    zs = np.empty(n)
+    cs = np.empty(n)
+    src = np.empty(n if labels else 1, dtype=np.int64)
     nguyen = model == NGUYEN2012
-    for v in range(h):
-        for u in range(w):
-            if noise:
-                word = bits[0, v, u]
-                ku = word & np.uint64(0xFFFFFFFF)
-                kv = word >> np.uint64(32)
-                pu = _uniform32(ku)
-                pv = _uniform32(kv)
-                if lat_table.shape[0] > 0:
-                    ou = lat_buckets[ku >> np.uint64(16)]
-                    ov = lat_buckets[kv >> np.uint64(16)]
-                    su = u + (_table_offset(pu, lat_table) if ou == 127 else ou)
-                    sv = v + (_table_offset(pv, lat_table) if ov == 127 else ov)
-                else:
-                    # (the Kinect v1's sigma_L depends on the angle at this pixel)
-                    sl = 0.8 + 0.035 * _angle_ratio(normals, ax, by, u, v) if nguyen else 1.6
-                    su = u + int(np.rint(_normal_quantile(pu) * sl))
-                    sv = v + int(np.rint(_normal_quantile(pv) * sl))
-                su = min(max(su, 0), w - 1)
-                sv = min(max(sv, 0), h - 1)
-                z = depth[sv, su]
-                if z == z:  # a return at the source pixel (NaN: none, nothing to perturb)
-                    q = _angle_ratio(normals, ax, by, su, sv)
-                    a = q * q
-                    if nguyen:
-                        sz = 0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / math.sqrt(z) * a
-                    else:
-                        sz = 1e-3 * (1.5 - 0.5 * z + 0.3 * z * z + 0.1 * (z * math.sqrt(z)) * a)
-                    pz = (float(bits[1, v, u] >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
-                    z = z + _normal_quantile(pz) * sz
-                    if quant == QUANT_MM:
-                        z = np.rint(z * 1000.0) / 1000.0
-                    elif quant == QUANT_DISPARITY:
-                        steps = np.rint(K_DISPARITY / z) if z != 0.0 else 0.0
-                        z = K_DISPARITY / steps if steps > 0 else np.nan
-            else:
-                sv, su = v, u
-                z = depth[v, u]
-            s = sv * w + su
-            if labels:
-                src[v, u] = s
-            if z >= zmin and z <= zmax:
-                pts[v, u, 0] = z
-                pts[v, u, 1] = z * ax[u]
-                pts[v, u, 2] = z * by[v]
-                if labels:
-                    z_out[v, u] = z
-                    body_out[v, u] = body[sv, su]
-                    link_out[v, u] = link[sv, su]
-            else:
-                pts[v, u, 0] = pts[v, u, 1] = pts[v, u, 2] = np.nan
-                if labels:
-                    z_out[v, u] = np.nan
-                    body_out[v, u] = -1
-                    link_out[v, u] = -1
-    return z_out, src, pts, body_out, link_out
+    _gather_image(depth, normals, ax, by, bits, lat_table, lat_buckets, noise, nguyen, labels, zs, cs, src)
+    if noise:
+        zn = np.empty(n)
+        axial = bits[1].reshape(n)
+        _axial_pass(zs, cs, axial, model, quant, zn)
+        _axial_tails(zs, cs, axial, model, quant, zn)
+    else:
+        zn = zs
+    return _emit(zn, src, body, link, ax, by, zmin, zmax, labels)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -415,6 +563,95 @@ def _draw_rows(pc, faces, ax, by, far, row0, row1, zbuf, tri):  # type: ignore[n
 
 
 @numba.njit(cache=True, nogil=True)
+def _draw(verts, faces, rot, origin, ax, by, far):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """The vertices in the camera frame and the z-buffer of :func:`raster_depth`: ``(zbuf, tri, pc)``,
+    the (H, W) depth of the nearest hit (inf: none), the triangle hit (-1: none) and the (M, 3) vertices."""
+    h, w = by.shape[0], ax.shape[0]
+    m = verts.shape[0]
+    pc = np.empty((m, 3))
+    for k in range(m):
+        dx = verts[k, 0] - origin[0]
+        dy = verts[k, 1] - origin[1]
+        dz = verts[k, 2] - origin[2]
+        for j in range(3):
+            pc[k, j] = rot[0, j] * dx + rot[1, j] * dy + rot[2, j] * dz
+    zbuf = np.full((h, w), np.inf)
+    tri = np.full((h, w), -1, dtype=np.int64)
+    _draw_rows(pc, faces, ax, by, far, 0, h, zbuf, tri)
+    return zbuf, tri, pc
+
+
+@numba.njit(cache=True, nogil=True)
+def _triangle_normals(pc, faces):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """(T, 3) float32 unit normal of each triangle of camera-frame vertices ``pc`` (NaN: degenerate)."""
+    nt = faces.shape[0]
+    tn = np.empty((nt, 3), dtype=np.float32)
+    for f in range(nt):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        ux, uy, uz = pc[i1, 0] - pc[i0, 0], pc[i1, 1] - pc[i0, 1], pc[i1, 2] - pc[i0, 2]
+        wx, wy, wz = pc[i2, 0] - pc[i0, 0], pc[i2, 1] - pc[i0, 1], pc[i2, 2] - pc[i0, 2]
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            tn[f, 0], tn[f, 1], tn[f, 2] = nx / ln, ny / ln, nz / ln
+        else:
+            tn[f, 0] = tn[f, 1] = tn[f, 2] = np.nan
+    return tn
+
+
+@numba.njit(cache=True, nogil=True)
+def raster_capture(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    verts, faces, rot, origin, ax, by, far, bits, lat_table, lat_buckets, noise, model, quant, zmin, zmax
+):
+    """:func:`raster_depth` followed by :func:`finish` (``labels=False``) without the images between them.
+
+    The noisy organized cloud (H, W, 3) float32 of a capture, bit for bit the points of
+    ``finish(*raster_depth(...), ...)``, but the lateral gather reads each source pixel's depth from
+    the z-buffer and its normal from its triangle, so the depth, normal and label images are never
+    written. Only for a constant lateral ``sigma_L`` (a non-empty ``lat_table``: the Kinect v2 models)
+    or without noise; the arguments are those of the two kernels.
+    """
+    h, w = by.shape[0], ax.shape[0]
+    n = h * w
+    zbuf, tri, pc = _draw(verts, faces, rot, origin, ax, by, far)
+    zs = np.empty(n)
+    no_src = np.empty(1, dtype=np.int64)
+    no_labels = np.empty((1, 1), dtype=np.int64)
+    if not noise:
+        for v in range(h):
+            for u in range(w):
+                zs[v * w + u] = zbuf[v, u] if tri[v, u] >= 0 else np.nan
+        return _emit(zs, no_src, no_labels, no_labels, ax, by, zmin, zmax, False)[2]
+    tn = _triangle_normals(pc, faces)
+    cs = np.empty(n)
+    for v in range(h):
+        for u in range(w):
+            word = bits[0, v, u]
+            ku = word & np.uint64(0xFFFFFFFF)
+            kv = word >> np.uint64(32)
+            ou = lat_buckets[ku >> np.uint64(16)]
+            ov = lat_buckets[kv >> np.uint64(16)]
+            su = u + (_table_offset(_uniform32(ku), lat_table) if ou == 127 else ou)
+            sv = v + (_table_offset(_uniform32(kv), lat_table) if ov == 127 else ov)
+            su = min(max(su, 0), w - 1)
+            sv = min(max(sv, 0), h - 1)
+            k = v * w + u
+            f = tri[sv, su]
+            if f < 0:
+                zs[k] = cs[k] = np.nan
+                continue
+            zs[k] = zbuf[sv, su]
+            a, b = ax[su], by[sv]
+            c = abs(tn[f, 0] + tn[f, 1] * a + tn[f, 2] * b)
+            cs[k] = c / math.sqrt(1.0 + a * a + b * b)
+    zn = np.empty(n)
+    axial = bits[1].reshape(n)
+    _axial_pass(zs, cs, axial, model, quant, zn)
+    _axial_tails(zs, cs, axial, model, quant, zn)
+    return _emit(zn, no_src, no_labels, no_labels, ax, by, zmin, zmax, False)[2]
+
+
+@numba.njit(cache=True, nogil=True)
 def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals, labels=True):  # type: ignore[no-untyped-def]  # pragma: no cover
     """First hit of every pixel ray of a pinhole camera among triangles, by image-space culling.
 
@@ -443,29 +680,8 @@ def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals
         (H, W) body and link (-1: no hit).
     """
     h, w = by.shape[0], ax.shape[0]
-    m = verts.shape[0]
-    pc = np.empty((m, 3))
-    for k in range(m):
-        dx = verts[k, 0] - origin[0]
-        dy = verts[k, 1] - origin[1]
-        dz = verts[k, 2] - origin[2]
-        for j in range(3):
-            pc[k, j] = rot[0, j] * dx + rot[1, j] * dy + rot[2, j] * dz
-    zbuf = np.full((h, w), np.inf)
-    tri = np.full((h, w), -1, dtype=np.int64)
-    _draw_rows(pc, faces, ax, by, far, 0, h, zbuf, tri)
-    nt = faces.shape[0] if normals else 0
-    tn = np.empty((nt, 3), dtype=np.float32)  # unit normal of each triangle (camera frame)
-    for f in range(nt):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        ux, uy, uz = pc[i1, 0] - pc[i0, 0], pc[i1, 1] - pc[i0, 1], pc[i1, 2] - pc[i0, 2]
-        wx, wy, wz = pc[i2, 0] - pc[i0, 0], pc[i2, 1] - pc[i0, 1], pc[i2, 2] - pc[i0, 2]
-        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if ln > 0.0:
-            tn[f, 0], tn[f, 1], tn[f, 2] = nx / ln, ny / ln, nz / ln
-        else:
-            tn[f, 0] = tn[f, 1] = tn[f, 2] = np.nan
+    zbuf, tri, pc = _draw(verts, faces, rot, origin, ax, by, far)
+    tn = _triangle_normals(pc, faces if normals else faces[:0])
     depth = np.empty((h, w))
     nrm = np.empty((h, w, 3), dtype=np.float32)
     lh, lw = (h, w) if labels else (1, 1)

@@ -341,8 +341,17 @@ class KinectSim:
         m = self.model
         # HD / qHD registration needs each pixel's source index, which comes with the labels
         full = labels or m.registration is not None
-        img = self.render(cam_pose, labels=full)
-        h, w = img.depth.shape
+        # the raster caster's plain frame: one kernel from the triangles to the points (the same
+        # points as render + finish, without the depth, normal and label images between them)
+        fused = (
+            not full
+            and self.backend == "raycast"
+            and self.caster == "raster"
+            and (not self.noise or len(self._lateral_table) > 0)
+        )
+        t = pose_matrix(cam_pose) if fused else None
+        img = None if fused else self.render(cam_pose, labels=full)
+        h, w = (m.height, m.width) if img is None else img.depth.shape
         bits: Any
         if not self.noise:
             bits = np.zeros((2, 1, 1), dtype=np.uint64)
@@ -354,6 +363,10 @@ class KinectSim:
                 raise KinectError(
                     f"noise_bits of shape {bits.shape}, {bits.dtype}: expected (2, {h}, {w}) uint64"
                 )
+        if t is not None:
+            pts_raster = self._raster_points(t, bits)
+            return DepthFrame(stamp_ns=int(stamp_ns), frame_id=self.frame_id, points=pts_raster)
+        assert img is not None
         from sim._kinect_kernels import finish
 
         z, src, pts, body, link = finish(
@@ -382,6 +395,32 @@ class KinectSim:
             link = np.where(hd_src >= 0, flat_l[np.maximum(hd_src, 0)], -1)
         frame = DepthFrame(stamp_ns=int(stamp_ns), frame_id=self.frame_id, points=pts)
         return KinectCapture(frame, z, body, link) if labels else frame
+
+    def _raster_points(self, t: FloatArray, bits: npt.NDArray[np.uint64]) -> npt.NDArray[np.float32]:
+        """The plain frame's (h, w, 3) float32 points by :func:`sim._kinect_kernels.raster_capture`."""
+        from sim._kinect_kernels import raster_capture
+
+        mirror = self.mirror
+        assert mirror is not None
+        mirror.sync()
+        m = self.model
+        return raster_capture(  # type: ignore[no-any-return]
+            mirror.tri_vertices,
+            mirror.tri_faces,
+            np.ascontiguousarray(t[:3, :3]),
+            np.ascontiguousarray(t[:3, 3]),
+            self._ray_ax,
+            self._ray_by,
+            float(m.max_range_m * 1.5),
+            bits,
+            self._lateral_table,
+            self._lateral_buckets,
+            self.noise,
+            NOISE_CODES[m.noise_model],
+            QUANT_CODES[m.quantization],
+            m.min_range_m,
+            m.max_range_m,
+        )
 
     def capture(
         self,

@@ -203,3 +203,62 @@ def test_a_plain_capture_is_the_labelled_capture_s_frame(client, model):
     assert np.isfinite(plain).sum() > 10_000
     assert np.array_equal(plain, full.frame.points, equal_nan=True)
     assert np.array_equal(np.isfinite(full.frame.points[..., 0]), full.body >= 0)
+
+
+def _office_poses(chair):
+    """Camera poses along the office corridor route (the bench's scene): down the corridor, through
+    the doorway, turned toward the table, and looking back."""
+    t0 = chair.kinect_pose()
+    out = []
+    for dx, yaw in [(0.0, 0.0), (2.0, 0.3), (5.5, -0.4), (7.0, -0.8), (3.0, 2.5)]:
+        t = t0.copy()
+        t[0, 3] += dx
+        c, s = math.cos(yaw), math.sin(yaw)
+        t[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ t0[:3, :3]
+        out.append(t)
+    return out
+
+
+@pytest.fixture(scope="module")
+def office_chair():
+    from sim.chair import SimChair
+    from sim.scene import load_scenario
+
+    sc = load_scenario("office_corridor")
+    chair = SimChair(scene=sc.scene, start=sc.start, sensor="kinect2", sonars=False, seed=0)
+    yield chair
+    chair.close()
+
+
+@pytest.mark.parametrize("noise", [True, False])
+def test_the_fused_raster_frame_is_render_plus_finish_bit_for_bit_in_the_office(office_chair, noise):
+    # capture() runs sim._kinect_kernels.raster_capture (no images between raster and noise);
+    # capture_full() renders the images and runs finish: the points must be identical
+    c = office_chair.world.client
+    for t in _office_poses(office_chair):
+        plain = KinectSim(c, "kinect2", rng=5, noise=noise, mirror=office_chair.mirror).capture(t).points
+        full = KinectSim(c, "kinect2", rng=5, noise=noise, mirror=office_chair.mirror).capture_full(t)
+        assert np.isfinite(plain[..., 0]).mean() > 0.3
+        assert np.array_equal(plain, full.frame.points, equal_nan=True)
+
+
+def test_raster_caster_matches_embree_on_the_office_scene(office_chair):
+    # the raster caster tests every pixel's own ray against the triangles (no approximation):
+    # against Embree on the real scene, depth agrees to float32 rounding and only rays grazing an
+    # edge flip between hit and miss. Measured on these five poses: 99.9995-100 % of the common pixels
+    # within 1 mm (one pixel of 206k on a silhouette hits the triangle behind), 99.9th percentile
+    # ~1e-6 m, no hit/miss flip.
+    m = office_chair.mirror
+    m.sync()
+    intr = MODELS["kinect2"].intrinsics
+    rays = intr.rays()
+    for t in _office_poses(office_chair):
+        e = render_raycast(m, t, intr, 6.75, rays=rays, caster="embree")
+        r = render_raycast(m, t, intr, 6.75, rays=rays, caster="raster")
+        hit_e, hit_r = np.isfinite(e.depth), np.isfinite(r.depth)
+        both = hit_e & hit_r
+        assert both.sum() > 50_000
+        assert (hit_e != hit_r).mean() < 1e-4
+        d = np.abs(e.depth[both] - r.depth[both])
+        assert np.mean(d < 1e-3) > 0.9999
+        assert np.quantile(d, 0.999) < 1e-5
