@@ -68,9 +68,7 @@ _STREAMS = 4
 
 
 @numba.jit(**_JIT)
-def _slot_chunk(
-    pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf
-):  # type: ignore[no-untyped-def]
+def _slot_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf):  # type: ignore[no-untyped-def]
     """Table slot (``2 * entry``, or ``trash``) of each of the ``m`` points of the flat chunk ``pc``.
 
     Branch-free and in float64 only (the slot is an exact integer below 2**31 in float64), so that the
@@ -129,11 +127,11 @@ def _scatter_chunk(pc, m, xh, buf, mm):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def _bin_chunk(
-    pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
-):  # type: ignore[no-untyped-def]
+def _bin_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm):  # type: ignore[no-untyped-def]
     """Slots then scatter of one chunk; returns the counts of :func:`_slot_chunk`."""
-    counts = _slot_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf)
+    counts = _slot_chunk(
+        pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf
+    )
     _scatter_chunk(pc, m, xh, buf, mm)
     return counts
 
