@@ -71,29 +71,6 @@ def occupied_evidence(key, bottom, top, inv_r, half, lat_min, lat_max):  # type:
 
 
 @numba.jit(**_JIT)
-def _set_bits(bits, base, b0, b1):  # type: ignore[no-untyped-def]
-    """Set bins ``b0 .. b1`` (inclusive) of the bit row starting at word ``base``."""
-    w0 = b0 >> 6
-    w1 = b1 >> 6
-    if w0 == w1:
-        width = b1 - b0 + 1
-        if width == 64:
-            bits[base + w0] = _ALL
-        else:
-            bits[base + w0] |= ((np.uint64(1) << np.uint64(width)) - np.uint64(1)) << np.uint64(b0 & 63)
-        return
-    for w in range(w0, w1 + 1):
-        lo = b0 - (w << 6) if w == w0 else 0
-        hi = b1 - (w << 6) if w == w1 else 63
-        width = hi - lo + 1
-        if width == 64:
-            mask = _ALL
-        else:
-            mask = ((np.uint64(1) << np.uint64(width)) - np.uint64(1)) << np.uint64(lo)
-        bits[base + w] |= mask
-
-
-@numba.jit(**_JIT)
 def fan_bits(  # type: ignore[no-untyped-def]
     key, bottom, top, ny, cs, ou, ov, su, sv, sh, i0, j0, ni, nj, nw, inv_r, b0, m, nbins, bits
 ):
@@ -107,6 +84,7 @@ def fan_bits(  # type: ignore[no-untyped-def]
     are cells outside the table's box ``[i0, i0 + ni) x [j0, j0 + nj)``.
 
     The table has ``nw`` uint64 words per cell; bin ``k`` is lattice ``[b0 + k m, b0 + (k + 1) m)``.
+    Structures come sorted by key (those of one cell consecutive: their cell's segment is walked once).
 
     Returns:
         Number of (structure, cell) passages marked.
@@ -116,6 +94,14 @@ def fan_bits(  # type: ignore[no-untyped-def]
     li0 = np.int64(np.floor(su * ics))
     lj0 = np.int64(np.floor(sv * ics))
     fb0 = np.float64(b0)
+    # the fan's lines relative to the sensor's height, once per structure
+    rel_b = np.empty(n, np.float64)
+    rel_t = np.empty(n, np.float64)
+    for k in range(n):
+        rel_b[k] = bottom[k] - sh
+        rel_t[k] = top[k] - sh
+    last_bin = np.int64(nbins - 1)
+    zero = np.int64(0)
     passages = 0
     g0 = 0
     while g0 < n:
@@ -168,8 +154,8 @@ def fan_bits(  # type: ignore[no-untyped-def]
                 if gi >= 0 and gj >= 0 and gi < ni and gj < nj:
                     base = (gi * nj + gj) * nw
                     for k in range(g0, g1):
-                        bl = bottom[k] - sh
-                        tl = top[k] - sh
+                        bl = rel_b[k]
+                        tl = rel_t[k]
                         lo = sh + min(s_in * bl, s_out * bl)
                         hi = sh + max(s_in * tl, s_out * tl)
                         # heights of a fan lie within the table (>= b0): truncation is floor here
@@ -179,10 +165,22 @@ def fan_bits(  # type: ignore[no-untyped-def]
                         if m != 1:  # an integer division costs more than the rest of a passage
                             bb0 //= m
                             bb1 //= m
-                        bb0 = min(max(bb0, np.int64(0)), nbins - 1)
-                        bb1 = min(max(bb1, np.int64(0)), nbins - 1)
-                        _set_bits(bits, base, bb0, bb1)
-                        passages += 1
+                        bb0 = min(max(bb0, zero), last_bin)
+                        bb1 = min(max(bb1, zero), last_bin)
+                        # bins bb0 .. bb1 (inclusive): ones from bb0 up in its word, up to bb1 in its
+                        # word, whole words between (no branch on the width: 64 is not special)
+                        w0 = bb0 >> 6
+                        w1 = bb1 >> 6
+                        from_lo = _ALL << np.uint64(bb0 & 63)
+                        to_hi = _ALL >> np.uint64(63 - (bb1 & 63))
+                        if w0 == w1:
+                            bits[base + w0] |= from_lo & to_hi
+                        else:
+                            bits[base + w0] |= from_lo
+                            for w in range(w0 + 1, w1):
+                                bits[base + w] = _ALL
+                            bits[base + w1] |= to_hi
+                    passages += g1 - g0
             s_in = s_out
             # branch-free step (which axis comes next is unpredictable)
             fu = np.int64(tmu <= tmv)
@@ -194,28 +192,20 @@ def fan_bits(  # type: ignore[no-untyped-def]
     return passages
 
 
+# De Bruijn bit scan (Leiserson, Prokop and Randall, 1998): the lowest set bit times this constant has
+# a distinct top 6 bits for each of the 64 positions; the table maps them back to the position.
+_DE_BRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DE_BRUIJN_POS = np.zeros(64, np.int64)
+for _p in range(64):
+    _DE_BRUIJN_POS[((1 << _p) * int(_DE_BRUIJN) % (1 << 64)) >> 58] = _p
+del _p
+
+
 @numba.jit(**_JIT)
 def _ctz(x):  # type: ignore[no-untyped-def]
-    """Trailing zero bits of a non-zero uint64 (binary search: numba has no portable intrinsic)."""
-    n = 0
-    if (x & np.uint64(0xFFFFFFFF)) == np.uint64(0):
-        n += 32
-        x >>= np.uint64(32)
-    if (x & np.uint64(0xFFFF)) == np.uint64(0):
-        n += 16
-        x >>= np.uint64(16)
-    if (x & np.uint64(0xFF)) == np.uint64(0):
-        n += 8
-        x >>= np.uint64(8)
-    if (x & np.uint64(0xF)) == np.uint64(0):
-        n += 4
-        x >>= np.uint64(4)
-    if (x & np.uint64(0x3)) == np.uint64(0):
-        n += 2
-        x >>= np.uint64(2)
-    if (x & np.uint64(0x1)) == np.uint64(0):
-        n += 1
-    return n
+    """Trailing zero bits of a non-zero uint64 (a de Bruijn multiply: numba has no portable intrinsic)."""
+    low = x & (~x + np.uint64(1))
+    return _DE_BRUIJN_POS[(low * _DE_BRUIJN) >> np.uint64(58)]
 
 
 @numba.jit(**_JIT)
@@ -240,6 +230,33 @@ def _next_bit(bits, base, nw, b, zero):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
+def _row_set(bits, base, nw):  # type: ignore[no-untyped-def]
+    """True when any bin of the row of ``nw`` words at ``base`` is set."""
+    for w in range(nw):
+        if bits[base + w] != 0:
+            return True
+    return False
+
+
+@numba.jit(**_JIT)
+def _count_runs(bits, ni, nj, nw, nbins):  # type: ignore[no-untyped-def]
+    """Runs of set bins over the whole table (an upper bound of the runs left after joining gaps)."""
+    runs = 0
+    for c in range(ni * nj):
+        base = c * nw
+        if not _row_set(bits, base, nw):
+            continue
+        b = 0
+        while b < nbins:
+            r0 = _next_bit(bits, base, nw, b, False)
+            if r0 >= nbins:
+                break
+            b = _next_bit(bits, base, nw, r0, True)
+            runs += 1
+    return runs
+
+
+@numba.jit(**_JIT)
 def extract_free(  # type: ignore[no-untyped-def]
     bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
 ):
@@ -251,22 +268,19 @@ def extract_free(  # type: ignore[no-untyped-def]
     Returns:
         (key, lo, hi) sorted by key then lo; disjoint per cell and disjoint from the occupied ones.
     """
-    cap = 1024
+    n_occ = okey.shape[0]
+    # Each run gives at most one interval plus one more per occupied interval cut out of it: sized
+    # once, so the output arrays are never reallocated inside the loop.
+    cap = _count_runs(bits, ni, nj, nw, nbins) + n_occ
     fk = np.empty(cap, np.int64)
     flo = np.empty(cap, np.int32)
     fhi = np.empty(cap, np.int32)
     n = 0
     po = 0
-    n_occ = okey.shape[0]
     for gi in range(ni):
         for gj in range(nj):
             base = (gi * nj + gj) * nw
-            anyset = False
-            for w in range(nw):
-                if bits[base + w] != 0:
-                    anyset = True
-                    break
-            if not anyset:
+            if not _row_set(bits, base, nw):
                 continue
             key = (i0 + gi) * ny + (j0 + gj)
             while po < n_occ and okey[po] < key:
@@ -299,17 +313,6 @@ def extract_free(  # type: ignore[no-untyped-def]
                     if q < pe and olo[q] < hi:
                         seg_hi = max(cur, min(hi, np.int64(olo[q])))
                         if seg_hi > cur:
-                            if n == cap:
-                                cap *= 2
-                                fk2 = np.empty(cap, np.int64)
-                                fk2[:n] = fk[:n]
-                                fk = fk2
-                                fl2 = np.empty(cap, np.int32)
-                                fl2[:n] = flo[:n]
-                                flo = fl2
-                                fh2 = np.empty(cap, np.int32)
-                                fh2[:n] = fhi[:n]
-                                fhi = fh2
                             fk[n] = key
                             flo[n] = cur
                             fhi[n] = seg_hi
@@ -317,17 +320,6 @@ def extract_free(  # type: ignore[no-untyped-def]
                         cur = max(cur, np.int64(ohi[q]))
                         q += 1
                     else:
-                        if n == cap:
-                            cap *= 2
-                            fk2 = np.empty(cap, np.int64)
-                            fk2[:n] = fk[:n]
-                            fk = fk2
-                            fl2 = np.empty(cap, np.int32)
-                            fl2[:n] = flo[:n]
-                            flo = fl2
-                            fh2 = np.empty(cap, np.int32)
-                            fh2[:n] = fhi[:n]
-                            fhi = fh2
                         fk[n] = key
                         flo[n] = cur
                         fhi[n] = hi

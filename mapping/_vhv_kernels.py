@@ -58,26 +58,29 @@ def scan(pts, cu, cv, ch, step):  # type: ignore[no-untyped-def]
     return n_nonfinite, u_min, u_max, v_min, v_max, h_min, h_max
 
 
-# Points per chunk of the binning pass: its index buffer (int32) stays in the L1 cache.
+# Points per chunk of the binning pass: its slot buffer (int32) and the chunk's points stay in the L1/L2
+# cache between the two passes over them.
 _CHUNK = 4096
+# Interleaved streams of the scatter: consecutive points often share a (cell, bin) slot, and updating
+# it again before the previous store retired chains the updates through memory; walking four far-apart
+# parts of the chunk side by side keeps four independent chains in flight.
+_STREAMS = 4
 
 
 @numba.jit(**_JIT)
-def _index_chunk(
-    pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, nj, nb, trash, buf
-):  # type: ignore[no-untyped-def]
+def _slot_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf):  # type: ignore[no-untyped-def]
     """Table slot (``2 * entry``, or ``trash``) of each of the ``m`` points of the flat chunk ``pc``.
 
-    Branch-free, so that the compiler vectorises it (the columns ``xu, xv, xh`` are constants after
-    inlining). Same float64 operations as ``GridSpec.world_to_index``, so the cells are exact.
+    Branch-free and in float64 only (the slot is an exact integer below 2**31 in float64), so that the
+    compiler vectorises it (the columns ``xu, xv, xh`` are constants after inlining). Same float64
+    operations as ``GridSpec.world_to_index``, so the cells are exact.
 
     Returns:
-        (points off the grid with a non-finite coordinate, finite points off the grid, in-grid
-        points outside the box).
+        (points off the grid, points off the grid with a non-finite coordinate, points in the box).
     """
-    n_nonfinite = 0
-    n_outside = 0
-    n_over = 0
+    n_off = 0
+    n_off_nonfinite = 0
+    n_ok = 0
     for q in range(m):
         u = np.float64(pc[3 * q + xu])
         v = np.float64(pc[3 * q + xv])
@@ -93,12 +96,44 @@ def _index_chunk(
         # NaN fails every comparison: non-finite points are never in the grid nor in the box
         ingrid = (fi >= 0.0) & (fj >= 0.0) & (fi < fnx) & (fj < fny)
         ok = (di >= 0.0) & (dj >= 0.0) & (db >= 0.0) & (di < fni) & (dj < fnj) & (db < fnb)
-        n_nonfinite += int(~ingrid & ~finite)
-        n_outside += int(~ingrid & finite)
-        n_over += int(ingrid & ~ok)
-        idx = (np.int32(di) * nj + np.int32(dj)) * nb + np.int32(db)
-        buf[q] = (idx + idx) if ok else trash
-    return n_nonfinite, n_outside, n_over
+        n_off += np.int64(not ingrid)
+        n_off_nonfinite += np.int64(not (ingrid | finite))
+        n_ok += np.int64(ok)
+        slot = ((di * fnj + dj) * fnb + db) * 2.0
+        buf[q] = np.int32(slot if ok else trash)
+    return n_off, n_off_nonfinite, n_ok
+
+
+@numba.jit(**_JIT)
+def _scatter_chunk(pc, m, xh, buf, mm):  # type: ignore[no-untyped-def]
+    """``mm[slot] = min(mm[slot], h)``, ``mm[slot + 1] = max(mm[slot + 1], h)`` for the chunk's points.
+
+    Branch-free (which point is extreme in its bin is unpredictable) and in :data:`_STREAMS`
+    interleaved streams; the order of the updates does not matter, min and max are exact.
+    """
+    ms = m // _STREAMS
+    for q in range(ms):
+        for k in range(_STREAMS):
+            r = q + k * ms
+            i = np.uint32(buf[r])  # unsigned: no negative-index wraparound in the address
+            hv = pc[3 * r + xh]
+            mm[i] = min(mm[i], hv)
+            mm[i + np.uint32(1)] = max(mm[i + np.uint32(1)], hv)
+    for r in range(_STREAMS * ms, m):
+        i = np.uint32(buf[r])
+        hv = pc[3 * r + xh]
+        mm[i] = min(mm[i], hv)
+        mm[i + np.uint32(1)] = max(mm[i + np.uint32(1)], hv)
+
+
+@numba.jit(**_JIT)
+def _bin_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm):  # type: ignore[no-untyped-def]
+    """Slots then scatter of one chunk; returns the counts of :func:`_slot_chunk`."""
+    counts = _slot_chunk(
+        pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf
+    )
+    _scatter_chunk(pc, m, xh, buf, mm)
+    return counts
 
 
 @numba.jit(**_JIT)
@@ -109,21 +144,22 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     one cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 +
     nj) x [b0, b0 + nb)`` (grid indices, bin indices); the last two entries are scratch (points that
     are not binned write there, so that the scatter has no branch). ``2 * ni * nj * nb + 2`` must fit
-    an int32. ``pts`` is C-contiguous ``(N, 3)``. In-grid points whose cell or bin falls outside the
-    box — including those with a non-finite height — are not binned: their indices go to ``overflow``
-    (as many as fit, in increasing order) for the exact slow path, which also counts their non-finite
-    heights.
+    an int32, and the box must lie inside the grid. ``pts`` is C-contiguous ``(N, 3)``. In-grid points
+    whose cell or bin falls outside the box — including those with a non-finite height — are not
+    binned: their indices go to ``overflow`` (as many as fit, in increasing order) for the exact slow
+    path, which also counts their non-finite heights.
 
     Per chunk of points: a vectorised pass computes every point's slot, then a scalar pass updates
-    the table (the update's order does not matter: min and max are exact).
+    the table.
 
     Returns:
         (n_nonfinite_uv, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
+        ``n_nonfinite_uv`` counts the points off the grid with a non-finite coordinate.
     """
     n = pts.shape[0]
     p = pts.reshape(-1)
     cap = overflow.shape[0]
-    trash = np.int32(mm.shape[0] - 2)
+    trash = np.float64(mm.shape[0] - 2)
     fou = np.float64(ou)
     fov = np.float64(ov)
     # Box offsets as floats: floor() values minus these are exact whenever the result is inside the box
@@ -136,8 +172,6 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     fni = np.float64(ni)
     fnj = np.float64(nj)
     fnb = np.float64(nb)
-    nj32 = np.int32(nj)
-    nb32 = np.int32(nb)
     buf = np.empty(_CHUNK, np.int32)
     n_nonfinite = 0
     n_outside = 0
@@ -147,80 +181,20 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
         pc = p[3 * s : 3 * (s + m)]
         # literal columns for the common axes: contiguous loads the compiler can vectorise
         if ch == 2:
-            a, b, c = _index_chunk(
-                pc,
-                m,
-                0,
-                1,
-                2,
-                ics,
-                fou,
-                fov,
-                fnx,
-                fny,
-                fi0,
-                fj0,
-                fni,
-                fnj,
-                iw,
-                fb0,
-                fnb,
-                nj32,
-                nb32,
-                trash,
-                buf,
+            off, off_nf, n_ok = _bin_chunk(
+                pc, m, 0, 1, 2, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
             )
         elif ch == 0:
-            a, b, c = _index_chunk(
-                pc,
-                m,
-                1,
-                2,
-                0,
-                ics,
-                fou,
-                fov,
-                fnx,
-                fny,
-                fi0,
-                fj0,
-                fni,
-                fnj,
-                iw,
-                fb0,
-                fnb,
-                nj32,
-                nb32,
-                trash,
-                buf,
+            off, off_nf, n_ok = _bin_chunk(
+                pc, m, 1, 2, 0, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
             )
         else:
-            a, b, c = _index_chunk(
-                pc,
-                m,
-                cu,
-                cv,
-                ch,
-                ics,
-                fou,
-                fov,
-                fnx,
-                fny,
-                fi0,
-                fj0,
-                fni,
-                fnj,
-                iw,
-                fb0,
-                fnb,
-                nj32,
-                nb32,
-                trash,
-                buf,
+            off, off_nf, n_ok = _bin_chunk(
+                pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
             )
-        n_nonfinite += a
-        n_outside += b
-        if c:  # rare: in-grid points outside the guessed box (or with a non-finite height)
+        n_nonfinite += off_nf
+        n_outside += off - off_nf
+        if m - off - n_ok:  # rare: in-grid points outside the guessed box (or with a non-finite height)
             for q in range(m):
                 if buf[q] == trash:
                     fi = np.floor(np.float64(pc[3 * q + cu]) * ics) - fou
@@ -229,12 +203,6 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
                         if n_over < cap:
                             overflow[n_over] = s + q
                         n_over += 1
-        for q in range(m):
-            # Branch-free min/max: which point is extreme in its bin is unpredictable.
-            i = buf[q]
-            hv = pc[3 * q + ch]
-            mm[i] = min(mm[i], hv)
-            mm[i + 1] = max(mm[i + 1], hv)
     return n_nonfinite, n_outside, n_over
 
 

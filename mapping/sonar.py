@@ -533,11 +533,29 @@ def cone_points(range_m: float, theta_deg: float, alpha_deg: float, ppc: int = 4
     return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=-1)
 
 
+#: Clouds of :func:`fusion_points` already built, ``{(range, theta, alpha, ppc): points}`` (read-only).
+#: Readings come in whole centimetres and the zone intervals from tables indexed by them, so a run
+#: meets few distinct cones; each is built once by :func:`cone_points` (the same array it returns).
+_CONES: dict[tuple[float, float, float, int], FloatArray] = {}
+_CONES_MAX = 4096
+
+
 def fusion_points(result: FusionResult, ppc: int = 40) -> FloatArray:
-    """The point cloud of a fusion (array frame, metres): Fig. 5.7 for its interval, or (0, 3)."""
+    """The point cloud of a fusion (array frame, metres): Fig. 5.7 for its interval, or (0, 3).
+
+    The array is read-only and may be shared with other calls of the same cone (copy it to change it).
+    """
     if not result.has_obstacle or result.theta_deg <= 0.0:
         return np.empty((0, 3), dtype=np.float64)
-    return cone_points(result.distance_m, result.theta_deg, result.alpha_deg, ppc)
+    key = (float(result.distance_m), float(result.theta_deg), float(result.alpha_deg), int(ppc))
+    pts = _CONES.get(key)
+    if pts is None:
+        pts = cone_points(result.distance_m, result.theta_deg, result.alpha_deg, ppc)
+        pts.setflags(write=False)
+        if len(_CONES) >= _CONES_MAX:
+            _CONES.clear()
+        _CONES[key] = pts
+    return pts
 
 
 def array_points(

@@ -231,6 +231,7 @@ class Perception:
         self._sonar: dict[str, float | None] = {}
         self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
+        self._t_mount: dict[str, tuple[float, np.ndarray]] = {}  # per sonar array: (joint, T_base_array)
         self.map_ms: list[float] = []
         #: CPU-side seconds spent in each map's inserts (``{layer: s}``; "matching" for registration)
         self.layer_s: dict[str, float] = {}
@@ -504,11 +505,11 @@ class Perception:
         insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
         t0 = time.perf_counter()
         if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
-            t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
+            t = se3_planar(pose.x, pose.y, pose.theta) @ self._t_base_array(name, mount, joint)
             insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
             self.stats["sonar_points"] += len(pts)
         elif len(pts):
-            t = se3_planar(pose.x, pose.y, pose.theta) @ mount.transform(joint)
+            t = se3_planar(pose.x, pose.y, pose.theta) @ self._t_base_array(name, mount, joint)
             self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
         with self._lock:
@@ -520,6 +521,19 @@ class Perception:
         )
         self._servo[name] = cmd
         return float(cmd)
+
+    def _t_base_array(self, name: str, mount: Any, joint: float) -> np.ndarray:
+        """``T_base_array`` (4, 4) of sonar array ``name`` with its servo at ``joint`` rad (read-only).
+
+        ``mount.transform(joint)``, kept per array for its last servo angle: the servo turns in steps
+        and holds still between echoes, so most readings come at the angle of the one before."""
+        kept = self._t_mount.get(name)
+        if kept is not None and kept[0] == joint:
+            return kept[1]
+        t = mount.transform(joint)
+        t.setflags(write=False)
+        self._t_mount[name] = (joint, t)
+        return t
 
     def sonar_distance_m(self) -> float | None:
         """Nearest fused sonar obstacle ahead over the arrays' latest readings, from the front edge, m."""

@@ -138,6 +138,7 @@ class _Beam:
             raise SonarSimError(f"max_incidence_deg={max_incidence_deg}: expected 0 < angle < 90")
         self.model = model
         self.dirs, self.bearing_deg, self.elevation_deg = beam_rays(spacing_deg)
+        self._rays: npt.NDArray[np.float32] | None = None  # Embree's (origin, direction) rows, reused
         self.cos_incidence = math.cos(math.radians(max_incidence_deg))
         # the bisection behind the model is exact but slow per ray: tabulate it every 2 mm
         self._table_m = np.linspace(0.002, 1.0, 500)
@@ -162,8 +163,10 @@ class _Beam:
         if compiled and math.isfinite(float(stack.sum())):
             from sim._kinect_kernels import sonar_first_echo
 
-            rays = np.empty((len(dirs), 6), dtype=np.float32)
-            rays[:, :3] = np.repeat(stack[:, :3, 3], n, axis=0)
+            rays = self._rays
+            if rays is None or len(rays) != len(dirs):
+                rays = self._rays = np.empty((len(dirs), 6), dtype=np.float32)
+            rays.reshape(len(stack), n, 6)[:, :, :3] = stack[:, None, :3, 3]  # each sonar's origin
             rays[:, 3:] = dirs
             t_hit, gid, nrm = mirror.cast_raw(rays)
             return sonar_first_echo(  # type: ignore[no-any-return]

@@ -348,3 +348,14 @@ def test_a_fused_sonar_cloud_goes_through_the_vhv_core_like_any_cloud():
     s = m.structures()
     x, _ = m.spec.index_to_world(s.i, s.j)
     assert np.all(np.abs(x) <= 0.5 + 0.05)  # nothing placed beyond the measured range
+
+
+def test_fusion_points_of_a_cone_met_again_are_the_points_cone_points_builds():
+    res, pts = sonar.array_points((0.5, 0.51, 0.9), ppc=40)
+    again = sonar.fusion_points(res, ppc=40)
+    ref = sonar.cone_points(res.distance_m, res.theta_deg, res.alpha_deg, 40)
+    assert again is pts  # built once per distinct cone
+    assert np.array_equal(again, ref)
+    assert not again.flags.writeable  # shared: a caller cannot change what the next one gets
+    other = sonar.fusion_points(res, ppc=10)
+    assert np.array_equal(other, sonar.cone_points(res.distance_m, res.theta_deg, res.alpha_deg, 10))
