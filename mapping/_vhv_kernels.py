@@ -78,9 +78,9 @@ def _slot_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, 
     Returns:
         (points off the grid, points off the grid with a non-finite coordinate, points in the box).
     """
-    n_off = 0
-    n_off_nonfinite = 0
-    n_ok = 0
+    n_off = np.int64(0)
+    n_off_nonfinite = np.int64(0)
+    n_ok = np.int64(0)
     for q in range(m):
         u = np.float64(pc[3 * q + xu])
         v = np.float64(pc[3 * q + xv])

@@ -39,6 +39,7 @@ import numpy as np
 
 from robchair.assistance.doorway import Doorway
 from robchair.assistance.window import Footprint, arc_clearance, first_per_cell
+from robchair.perception_queries import Corridor
 
 APPROACH_DECEL = 0.4  # m/s^2: half the safety layer's braking deceleration (0.8 m/s^2, SafetyLimits)
 
@@ -75,7 +76,8 @@ class PassageParams:
         creep_gap_m: while passing, the forward speed is ``(gap - creep_gap_m) / 0.6`` within ``stop_gap_m``
             of a point in that corridor (the safety layer's stopping distance 0.15 + 0.3 v + v^2 / 1.6
             stays below the gap); the chair backs off when that falls under 0.02 m/s, m.
-        corridor_margin_m: the safety layer's lateral margin, m.
+        corridor_margin_m: the safety layer's lateral margin, m
+            (:meth:`robchair.perception_queries.Corridor.from_spec`).
     """
 
     approach_m: float = 1.0
@@ -192,10 +194,17 @@ class Passage:
         params: the passage's parameters.
         footprint: the chair's rectangle (the back-off's check).
         max_yaw_rate: the yaw-rate cap, rad/s.
+
+    The forward checks (``stop_gap_m``, ``creep_gap_m``) measure the gap ahead with the safety layer's
+    own corridor model (:class:`robchair.perception_queries.Corridor`, the chair's width plus
+    ``corridor_margin_m`` a side ahead of the front edge, the body itself beside it), so that a point
+    the safety layer stops for is one the passage creeps and backs off for.
     """
 
     def __init__(self, params: PassageParams, footprint: Footprint, max_yaw_rate: float) -> None:
         self.params, self.footprint, self.max_yaw_rate = params, footprint, max_yaw_rate
+        hw = footprint.half_width
+        self.corridor = Corridor(footprint.front_x, hw + params.corridor_margin_m, hw)
         self.phase = "approach"
         self.reversed_m = 0.0
         self._backed = 0.0
@@ -209,7 +218,9 @@ class Passage:
             d: the doorway in ``base_link``.
             v_person: the person's forward speed request, m/s (>= 0; it scales every forward phase).
             dt: the cycle, s (the back-off's distance).
-            ahead: the obstacle points (N, 2) in ``base_link`` now (the passage's forward check).
+            ahead: the obstacle points (N, 2) in ``base_link`` now (the passage's forward check: give
+                them unthinned, as the safety layer gets them; one point per cell can drop the one
+                on the corridor's edge that stops the chair).
             behind: points (M, 2) in ``base_link`` that a back-off must clear (None: no back-off).
             allow_reverse: False: no back-off (the approach turns in place toward the pose instead).
         """
@@ -253,17 +264,12 @@ class Passage:
 
     def _gap(self, pts: np.ndarray) -> float:
         """Free length (m) ahead of the front edge in the safety layer's corridor (+inf when clear)."""
-        fp, p = self.footprint, self.params
-        inside = (np.abs(pts[:, 1]) <= fp.half_width + p.corridor_margin_m) & (pts[:, 0] > fp.front_x)
-        return float(pts[inside, 0].min()) - fp.front_x if len(pts) and inside.any() else math.inf
+        d = self.corridor.distance_ahead(np.asarray(pts, dtype=float).reshape(-1, 2))
+        return math.inf if d is None else d
 
     def _blocked(self, pts: np.ndarray) -> bool:
         """Whether a point lies within ``stop_gap_m`` ahead of the front edge in the safety corridor."""
-        fp, p = self.footprint, self.params
-        if len(pts) == 0:
-            return False
-        inside = (np.abs(pts[:, 1]) <= fp.half_width + p.corridor_margin_m) & (pts[:, 0] > fp.front_x)
-        return bool(inside.any() and float(pts[inside, 0].min()) - fp.front_x < p.stop_gap_m)
+        return self._gap(pts) < self.params.stop_gap_m
 
     def _approach(self, d: Doorway, v_person: float, dt: float, ahead: np.ndarray,
                   behind: np.ndarray | None, allow_reverse: bool) -> tuple[float, float, str]:  # fmt: skip

@@ -15,9 +15,9 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
   included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it;
 - ``door``: ``assist``, and when a doorway (:func:`robchair.assistance.doorway.find_doorways`) lies
   where the person's command points, the chair follows the doorway's centre line at the person's
-  speed (at most ``door_speed``) and hands control back once its rear edge is through, or as soon as
-  the person steers away (doorway assistance of partially automated wheelchairs: Argall lab,
-  Northwestern, SPEC section 7).
+  speed (at most ``door_speed``) and hands control back once its rear edge is through, or once the
+  person has steered away for ``override_s`` (doorway assistance of partially automated wheelchairs:
+  Argall lab, Northwestern, SPEC section 7).
 
 The person always wins:
 
@@ -77,7 +77,8 @@ class AssistConfig:
         door_speed: forward speed cap while passing a doorway, m/s.
         door_engage_rad: the person's intended direction (current heading + w * 1 s) must be within
             this of the doorway's bearing for ``door`` to take it, rad.
-        door_release_rad: the person's intended direction this far from the doorway lets it go, rad.
+        door_release_rad: the person's intended direction this far from the doorway, held for
+            ``override_s``, lets it go, rad.
         door_lookahead_m: look-ahead of the pursuit of the doorway's centre line, m.
         door_through_m: the rear edge this far past the doorway's plane ends the passage, m.
         steer_share: a turn command below this share of the yaw-rate cap never lets a doorway go.
@@ -191,6 +192,7 @@ class AssistedSource:
         self._mode = check_mode(mode)
         self._conflict = 0
         self._reverse = 0  # cycles the person has pulled back beyond reverse_release
+        self._away = 0  # cycles the person has steered away from the doorway being passed
         self._door: Doorway | None = None  # the doorway being passed, in odom
         self._last_door: Doorway | None = None  # the last doorway engaged, in odom
         self.dt = 1.0 / rate_hz
@@ -208,7 +210,7 @@ class AssistedSource:
     @mode.setter
     def mode(self, mode: str) -> None:
         self._mode = check_mode(mode)
-        self._conflict, self._reverse, self._door = 0, 0, None
+        self._conflict, self._reverse, self._away, self._door = 0, 0, 0, None
 
     def bind(self, runtime: Any) -> None:
         """Take the obstacle points from the runtime's perception (unless given at construction)."""
@@ -251,10 +253,13 @@ class AssistedSource:
         assert self.obstacles is not None, "AssistedSource needs obstacles= or bind(runtime)"
         cfg = self.config
         far = max(cfg.crop_m, self.doorway.max_range_m + self.doorway.max_width_m)
-        seen = thin_points(np.asarray(self.obstacles(obs), dtype=float).reshape(-1, 2), far, cfg.cell_m)
+        raw = np.asarray(self.obstacles(obs), dtype=float).reshape(-1, 2)
+        seen = thin_points(raw, far, cfg.cell_m)
         near = seen[np.einsum("ij,ij->i", seen, seen) <= cfg.crop_m * cfg.crop_m]
+        # the passage's forward gap on every point near the front, as the safety layer measures it
+        front = raw[np.einsum("ij,ij->i", raw, raw) <= cfg.crop_m * cfg.crop_m]
         self._memory.add(near, obs.pose.x, obs.pose.y, obs.pose.theta)
-        v, w, action, reason, extra = self._assist(p, obs.pose, near, seen)
+        v, w, action, reason, extra = self._assist(p, obs.pose, near, seen, front)
         up = _unit(p.v, p.w, self.max_speed, self.max_yaw_rate)
         if "_door" in extra:
             # the passage's aim is the doorway (it may turn, wait or back off on the way): the person
@@ -271,7 +276,7 @@ class AssistedSource:
             action = "pass"
         return self._report(p, out, action, reason, **extra)
 
-    def _assist(self, p: Command, pose: Pose2D, pts: np.ndarray, seen: np.ndarray
+    def _assist(self, p: Command, pose: Pose2D, pts: np.ndarray, seen: np.ndarray, front: np.ndarray
                 ) -> tuple[float, float, str, str, dict[str, Any]]:  # fmt: skip
         cfg = self.config
         if self._mode == "shield":
@@ -293,11 +298,11 @@ class AssistedSource:
                 # the person's deflection toward the doorway sets the passage's pace
                 speed = self.max_speed * min(1.0, math.hypot(*_unit(p.v, p.w, self.max_speed,
                                                                      self.max_yaw_rate)))  # fmt: skip
-                v, w, phase = self._passage.twist(door, speed, self.dt, pts, behind)
+                v, w, phase = self._passage.twist(door, speed, self.dt, front, behind)
                 extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
                          "door_phase": phase, "_door": door}  # fmt: skip
                 return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
-            vg, wg, phase = self._passage.twist(door, p.v, self.dt, pts, behind)
+            vg, wg, phase = self._passage.twist(door, p.v, self.dt, front, behind)
             if vg <= 0.0 or self._guide_clear(vg, wg, pts):
                 # backing off (checked against the points seen behind), turning in place, or clear for
                 # the next half second: the passage's own twist reaches the approach pose and the line
@@ -335,8 +340,11 @@ class AssistedSource:
             if along - (self.footprint.half_depth - self.footprint.centre_x) > cfg.door_through_m:
                 self._door = None  # through: hand back
                 return None
-            if along < 0 and self._steers_away(d, p):
-                self._door = None  # the person steers away
+            # the person steers away, held for override_s: a tremor's swing of the stick past
+            # steer_share (half a period, 0.1 s at 5 Hz) does not drop the doorway mid-approach
+            self._away = self._away + 1 if along < 0 and self._steers_away(d, p) else 0
+            if self._away >= self.override_cycles:
+                self._door, self._away = None, 0
                 return None
             return d
         for d in find_doorways(pts, self.doorway):

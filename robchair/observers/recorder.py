@@ -25,9 +25,11 @@ depth camera)                          fused reading's cone points
 =====================================  ===============================  ==================================
 
 Depth clouds (:data:`BAG_CLOUDS`): ``voxel`` (the default) keeps every delivered frame, the ones the
-run's maps are built from, voxel-filtered at the map's cell size as robots record to keep bags small
-(:func:`mapping.grid.voxel_filter`: one measured point per voxel of ``base_link``'s lattice), so
-``robchair map`` on the bag rebuilds the run's map (about 5 MB per simulated second); ``decimated``
+run's maps are built from, thinned to keep bags small: the measured points that build the same VHV
+structures in the odometry map as the whole frame (:func:`mapping.thinning.structure_keeping_indices`,
+placed with that map's pose of the frame; a one-point-per-voxel filter changed the structures and cost
+the round trip of a 20 s run 6 points of IoU), so ``robchair map`` on the bag rebuilds the run's map;
+``decimated``
 keeps every ``cloud_every``-th frame, decimated ``cloud_stride`` x ``cloud_stride`` (what the live view
 sends); ``full`` keeps every frame
 whole (about 70 MB per simulated second from the Kinect 2 model, 4 GB a minute).
@@ -435,6 +437,10 @@ class RunTopics:
             from mapping.grid import voxel_filter
 
             voxel_filter(np.zeros((1, 3), np.float32), self.voxel_m)
+            from mapping.grid import GridSpec
+            from mapping.thinning import structure_keeping_indices
+
+            structure_keeping_indices(np.zeros((1, 3), np.float32), GridSpec(1.0, 2.0, 2.0), 0.05)
 
     def topics(self) -> dict[str, str]:
         """Topic -> message type of every topic the run has."""
@@ -487,17 +493,37 @@ class RunTopics:
                 s = self.cloud_stride
                 pts = np.asarray(frame.points)[::s, ::s]
                 if self.cloud_voxel:
-                    from mapping.grid import voxel_filter
-
-                    # voxels on base_link's lattice: their heights line up with the map's height band
-                    t_base = runtime.perception.t_base_sensor(frame.frame_id)
-                    points = (frame.stamp_ns, frame.frame_id, voxel_filter(pts, self.voxel_m, t_base))
+                    points = (frame.stamp_ns, frame.frame_id, self._thin(runtime, frame, pts))
                 else:
                     points = (frame.stamp_ns, frame.frame_id, np.array(pts))
             self._frames += 1
         t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
         return CycleSnapshot(cycle.stamp_ns, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w,
                              t_map_odom, tuple(runtime.last_sonars), scan, points)  # fmt: skip
+
+    def _thin(self, runtime: LoopView, frame: Any, pts: np.ndarray) -> np.ndarray:
+        """The frame's measured points that build the same VHV structures in the run's odometry map as
+        the whole frame (:func:`mapping.thinning.structure_keeping_indices`, placed with the pose that
+        map used); without that map or pose, one point per voxel of the map's cell size."""
+        from robchair.platform.frames import transform_points
+
+        perception = runtime.perception
+        t_base = perception.t_base_sensor(frame.frame_id)
+        pose = getattr(perception, "last_depth_pose", None)
+        m = getattr(perception, "pose_maps", {}).get("odometry")
+        spec = getattr(m, "spec", None)
+        flat = np.asarray(pts, dtype=np.float32).reshape(-1, 3)
+        if pose is None or spec is None:
+            from mapping.grid import voxel_filter
+
+            # voxels on base_link's lattice: their heights line up with the map's height band
+            return voxel_filter(flat, self.voxel_m, t_base)
+        from mapping.thinning import structure_keeping_indices
+
+        t = se3_planar(pose.x, pose.y, pose.theta) @ t_base
+        world = transform_points(t, flat, np.float32)  # as the odometry map receives the frame
+        tolerance = float(getattr(perception, "tolerance", self.voxel_m))
+        return np.ascontiguousarray(flat[structure_keeping_indices(world, spec, tolerance)])
 
     def write_cycle(self, out: RosMessages, snap: CycleSnapshot) -> None:
         """The cycle's ``/odom``, ``/tf``, sonar ranges, scan and cloud."""

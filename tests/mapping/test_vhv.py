@@ -496,3 +496,58 @@ def test_full_hd_frame_gives_the_same_map_on_every_path_and_in_halves() -> None:
     halves.insert(cloud[:540])
     halves.insert(cloud[540:])
     assert halves.structures().equals(ref.structures())
+
+
+def numpy_reference_structures(
+    points: np.ndarray, spec: GridSpec, tol: float
+) -> list[tuple[int, int, float, float]]:
+    """Independent vectorised reference: per cell, sort the distinct heights and split at gaps > tol."""
+    p = np.asarray(points).reshape(-1, 3).astype(np.float64)
+    cu, cv, ch = spec.columns
+    (ou, ov), (nx, ny) = spec.origin, spec.shape
+    ics = 1.0 / spec.cell_size
+    with np.errstate(invalid="ignore", over="ignore"):
+        fu, fv = np.floor(p[:, cu] * ics), np.floor(p[:, cv] * ics)
+        keep = np.isfinite(p).all(axis=1) & np.isfinite(fu) & np.isfinite(fv)
+        keep &= (fu - ou >= 0) & (fu - ou < nx) & (fv - ov >= 0) & (fv - ov < ny)
+    i = (fu[keep] - ou).astype(np.int64)
+    j = (fv[keep] - ov).astype(np.int64)
+    h = p[keep, ch]
+    key = i * ny + j
+    order = np.lexsort((h, key))
+    key, h = key[order], h[order]
+    distinct = np.ones(key.shape[0], bool)
+    distinct[1:] = (key[1:] != key[:-1]) | (h[1:] != h[:-1])
+    key, h = key[distinct], h[distinct]
+    start = np.ones(key.shape[0], bool)
+    start[1:] = (key[1:] != key[:-1]) | (h[1:] - h[:-1] > tol)
+    first = np.flatnonzero(start)
+    last = np.append(first[1:], key.shape[0]).astype(np.int64)[: first.shape[0]] - 1
+    return list(
+        zip((key[first] // ny).tolist(), (key[first] % ny).tolist(), h[first].tolist(), h[last].tolist())
+    )
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n=st.one_of(st.integers(0, 9), st.integers(4090, 4100), st.integers(8189, 8200), st.integers(0, 13000)),
+    seed=st.integers(0, 2**32 - 1),
+    bad=st.floats(0.0, 0.5),
+    dtype=st.sampled_from([np.float32, np.float64]),
+    tol=tolerances,
+    method=st.sampled_from(METHODS),
+)
+def test_binning_over_chunks_and_streams_equals_a_numpy_reference(
+    n: int, seed: int, bad: float, dtype: type, tol: float, method: str
+) -> None:
+    """Chunk and scatter-stream tails (sizes near multiples of 4096 and 4), NaN/inf coordinates,
+    off-grid points and heights far from the bulk (the overflow path), in float32 and float64."""
+    rng = np.random.default_rng(seed)
+    pts = np.column_stack([rng.uniform(-0.55, 0.55, n), rng.uniform(-0.55, 0.55, n), rng.normal(0.5, 0.3, n)])
+    pts[:, 2] = np.round(pts[:, 2] / 0.01) * 0.01  # gaps of exactly the tolerance and repeated heights
+    hit = rng.random((n, 3)) < bad / 3
+    pts[hit] = rng.choice(np.array([np.nan, np.inf, -np.inf, 50.0, -40.0, 0.5, -0.5]), int(hit.sum()))
+    pts = pts.astype(dtype)
+    m = VHVMap(SPEC, tolerance=tol)
+    m.insert(pts, method=method)
+    assert as_tuples(m.structures()) == numpy_reference_structures(pts, SPEC, tol)

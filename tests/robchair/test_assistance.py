@@ -196,3 +196,16 @@ def test_first_point_per_cell_gives_the_indices_of_numpys_row_unique() -> None:
         ref = np.unique(np.floor(p / 0.04).astype(np.int64), axis=0, return_index=True)[1]
         assert np.array_equal(first_per_cell(p, 0.04), ref)
     assert first_per_cell(np.zeros((0, 2)), 0.04).size == 0
+
+
+def test_door_passes_random_floor_8_with_the_tremor_user() -> None:
+    """Rebuilt from assist-eval episode 8 (random floors, tremor user, 0.821 m doorway), which stalled
+    in ``door`` at the jamb: the passage's forward gap was measured on points thinned to one per 4 cm
+    cell, which dropped the jamb point on the safety corridor's edge (0.370 m off the centre line) that
+    the safety layer stopped for; and a tremor swing of the stick dropped the doorway mid-approach. The
+    gap is now the safety layer's own corridor on every point, and a steer-away must be held for
+    override_s."""
+    from robchair.commands.assist_eval import episode_set
+
+    ep = episode_set(8, (0.8, 0.9), "random", ["door"], "tremor")["door"]
+    assert ep["success"] and ep["collisions"] == 0
