@@ -25,11 +25,9 @@ depth camera)                          fused reading's cone points
 =====================================  ===============================  ==================================
 
 Depth clouds (:data:`BAG_CLOUDS`): ``voxel`` (the default) keeps every delivered frame, the ones the
-run's maps are built from, thinned to keep bags small: the measured points that build the same VHV
-structures in the odometry map as the whole frame (:func:`mapping.thinning.structure_keeping_indices`,
-placed with that map's pose of the frame; a one-point-per-voxel filter changed the structures and cost
-the round trip of a 20 s run 6 points of IoU), so ``robchair map`` on the bag rebuilds the run's map;
-``decimated``
+run's maps are built from, voxel-filtered at the map's cell size as robots record to keep bags small
+(:func:`mapping.grid.voxel_filter`: one measured point per voxel of ``base_link``'s lattice), so
+``robchair map`` on the bag rebuilds the run's map (about 5 MB per simulated second); ``decimated``
 keeps every ``cloud_every``-th frame, decimated ``cloud_stride`` x ``cloud_stride`` (what the live view
 sends); ``full`` keeps every frame
 whole (about 70 MB per simulated second from the Kinect 2 model, 4 GB a minute).
