@@ -237,8 +237,6 @@ class Perception:
         self.layer_s: dict[str, float] = {}
         self.stats = dict.fromkeys(STAT_KEYS, 0)
         self.last_depth_stamp_ns: int | None = None
-        #: odometry pose of the last delivered depth frame (the one its odometry-map insert uses)
-        self.last_depth_pose: Pose2D | None = None
 
     def new_map(self) -> PointMap:
         """An empty map of this stage's kind on its grid (``map_kind``, ``tolerance``, evidence params)."""
@@ -310,7 +308,6 @@ class Perception:
         band = sub[(sub[:, 2] >= z0) & (sub[:, 2] <= z1)]
         self._depth = (self.corridor.distance_ahead(band[:, :2]), pose)
         self.last_depth_stamp_ns = frame.stamp_ns
-        self.last_depth_pose = pose  # the odometry pose the odometry map places this frame with
         placed = [(ly.map, tw @ t_base_sensor, False) for ly, tw in zip(self.layers, layer_poses)]
         self._take_snapshot()
         fut = self._submit(self._insert_frame, frame, t_world_base, t_base_sensor, placed, pose, self._seq)

@@ -435,10 +435,6 @@ class RunTopics:
             from mapping.grid import voxel_filter
 
             voxel_filter(np.zeros((1, 3), np.float32), self.voxel_m)
-            from mapping.grid import GridSpec
-            from mapping.thinning import structure_keeping_indices
-
-            structure_keeping_indices(np.zeros((1, 3), np.float32), GridSpec(1.0, 2.0, 2.0), 0.05)
 
     def topics(self) -> dict[str, str]:
         """Topic -> message type of every topic the run has."""
@@ -491,37 +487,17 @@ class RunTopics:
                 s = self.cloud_stride
                 pts = np.asarray(frame.points)[::s, ::s]
                 if self.cloud_voxel:
-                    points = (frame.stamp_ns, frame.frame_id, self._thin(runtime, frame, pts))
+                    from mapping.grid import voxel_filter
+
+                    # voxels on base_link's lattice: their heights line up with the map's height band
+                    t_base = runtime.perception.t_base_sensor(frame.frame_id)
+                    points = (frame.stamp_ns, frame.frame_id, voxel_filter(pts, self.voxel_m, t_base))
                 else:
                     points = (frame.stamp_ns, frame.frame_id, np.array(pts))
             self._frames += 1
         t_map_odom = getattr(runtime.perception, "t_map_odom", np.eye(4))
         return CycleSnapshot(cycle.stamp_ns, (p.x, p.y, p.theta), cycle.decision.v, cycle.decision.w,
                              t_map_odom, tuple(runtime.last_sonars), scan, points)  # fmt: skip
-
-    def _thin(self, runtime: LoopView, frame: Any, pts: np.ndarray) -> np.ndarray:
-        """The frame's measured points that build the same VHV structures in the run's odometry map as
-        the whole frame (:func:`mapping.thinning.structure_keeping_indices`, placed with the pose that
-        map used); without that map or pose, one point per voxel of the map's cell size."""
-        from robchair.platform.frames import transform_points
-
-        perception = runtime.perception
-        t_base = perception.t_base_sensor(frame.frame_id)
-        pose = getattr(perception, "last_depth_pose", None)
-        m = getattr(perception, "pose_maps", {}).get("odometry")
-        spec = getattr(m, "spec", None)
-        flat = np.asarray(pts, dtype=np.float32).reshape(-1, 3)
-        if pose is None or spec is None:
-            from mapping.grid import voxel_filter
-
-            # voxels on base_link's lattice: their heights line up with the map's height band
-            return voxel_filter(flat, self.voxel_m, t_base)
-        from mapping.thinning import structure_keeping_indices
-
-        t = se3_planar(pose.x, pose.y, pose.theta) @ t_base
-        world = transform_points(t, flat, np.float32)  # as the odometry map receives the frame
-        tolerance = float(getattr(perception, "tolerance", self.voxel_m))
-        return np.ascontiguousarray(flat[structure_keeping_indices(world, spec, tolerance)])
 
     def write_cycle(self, out: RosMessages, snap: CycleSnapshot) -> None:
         """The cycle's ``/odom``, ``/tf``, sonar ranges, scan and cloud."""
