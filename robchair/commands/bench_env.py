@@ -13,14 +13,14 @@ Configurations, all measured in the same run with the same seed and the same ran
   :class:`gymnasium.vector.AsyncVectorEnv` of two worker processes; steps/s counts the agent steps of
   both workers, and the last column gives the speed-up over one env of the same id.
 
-Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup and
-one warm-up episode excluded; episodes that end are reset inside the timed loop, as a training loop
-would), its real-time factor (steps/s divided by the agent rate) and its ratio to the physics-only
-baseline. Every step of an environment is one cycle of the chair's runtime (sensors, perception, safety
-layer, motors). Wall-clock numbers depend on the machine's load (the JSON records the load average), so
-the single-process rows also give the median CPU time per agent step (the process's user + system time,
-every thread counted) and ``1-core steps/s`` = 1000 / CPU ms: the rate on one dedicated core, which a
-loaded machine's wall clock cannot show.
+Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup, one
+warm-up episode and the drawing of the seeded random actions excluded; episodes that end are reset inside
+the timed loop, as a training loop would), its real-time factor (steps/s divided by the agent rate) and
+its ratio to the physics-only baseline. Every step of an environment is one cycle of the chair's runtime
+(sensors, perception, safety layer, motors). Wall-clock numbers depend on the machine's load (the JSON
+records the load average), so the single-process rows also give the median CPU time per agent step (the
+process's user + system time, every thread counted) and ``1-core steps/s`` = 1000 / CPU ms: the rate on
+one dedicated core, which a loaded machine's wall clock cannot show.
 """
 
 from __future__ import annotations
@@ -86,11 +86,11 @@ def _physics_only(steps: int, seed: int) -> tuple[float, float]:
 
     chair = SimChair(scene=_office(), sensor=None, sonars=False, seed=seed)
     try:
-        rng = np.random.default_rng(seed)
         drive = chair.robot.drive
+        # the random twists are drawn before the timed loop, as the environments' actions are
+        twists = np.random.default_rng(seed).uniform(-1, 1, (steps, 2)).tolist()
         t0, c0 = time.perf_counter(), time.process_time()
-        for _ in range(steps):
-            v, w = rng.uniform(-1, 1, 2)
+        for v, w in twists:
             chair.robot.set_motor_rpm(
                 *drive.motor_rpm(*drive.limit(v * drive.max_speed, w * drive.max_yaw_rate))
             )
@@ -111,11 +111,11 @@ def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
     """Wall and CPU seconds for ``steps`` agent steps of ``env`` with seeded random actions, and the
     number of steps in which the safety layer stopped the chair (``info["safety"]``)."""
     env.reset(seed=seed)
-    env.action_space.seed(seed)
+    actions = _actions(env.action_space, steps, seed)
     stops = 0
     t0, c0 = time.perf_counter(), time.process_time()
-    for _ in range(steps):
-        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+    for action in actions:
+        _, _, terminated, truncated, info = env.step(action)
         reason = (info.get("safety") or {}).get("reason")
         stops += bool(reason) and not str(reason).startswith("limited")
         if terminated or truncated:
@@ -123,14 +123,45 @@ def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
     return time.perf_counter() - t0, time.process_time() - c0, stops
 
 
-def _vec_run(envs: Any, steps: int, seed: int) -> float:
-    """Seconds for ``steps`` vector steps (every worker one agent step each; finished ones autoreset)."""
+def _vec_run(envs: Any, steps: int, seed: int) -> tuple[float, float, list[float] | None]:
+    """``steps`` vector steps (every worker one agent step each; finished ones autoreset): wall seconds,
+    the parent's CPU seconds, and each worker's CPU seconds (None where ``/proc`` cannot tell)."""
     envs.reset(seed=seed)
-    envs.action_space.seed(seed)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        envs.step(envs.action_space.sample())
-    return time.perf_counter() - t0
+    actions = _actions(envs.action_space, steps, seed)
+    pids = [proc.pid for proc in getattr(envs, "processes", ())]
+    w0 = _cpu_of(pids)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for action in actions:
+        envs.step(action)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    w1 = _cpu_of(pids)
+    workers = [b - a for a, b in zip(w0, w1, strict=True)] if w0 is not None and w1 is not None else None
+    return wall, cpu, workers
+
+
+def _cpu_of(pids: list[int]) -> list[float] | None:
+    """User + system CPU seconds of each process (Linux ``/proc/<pid>/stat``, clock-tick resolution);
+    None without ``/proc`` or a pid."""
+    if not pids:
+        return None
+    try:
+        tick = os.sysconf("SC_CLK_TCK")
+        out = []
+        for pid in pids:
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            out.append((int(fields[11]) + int(fields[12])) / tick)  # utime, stime (fields 14, 15)
+        return out
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
+def _actions(space: Any, steps: int, seed: int) -> list[Any]:
+    """``steps`` seeded samples of ``space``, drawn before a timed loop: Gymnasium's ``Box.sample``
+    costs about 0.1 ms a call (3 % of a light env step), which is the sampler's time, not the
+    environment's; the physics-only baseline draws its twists before its loop too."""
+    space.seed(seed)
+    return [space.sample() for _ in range(steps)]
 
 
 @contextlib.contextmanager
@@ -148,6 +179,7 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
 
     workers = int(config.get("workers", 1))
     cpu: list[float] | None = None
+    vec_cpu: dict[str, Any] | None = None
     safety_stops: int | None = None
     if config.get("physics_only"):
         _physics_only(5, seed)  # warm-up
@@ -164,10 +196,18 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
             )
         try:
             _vec_run(envs, 5, seed)  # warm-up in every worker
-            secs = [_vec_run(envs, steps, seed + k) for k in range(repeats)]
+            vec_runs = [_vec_run(envs, steps, seed + k) for k in range(repeats)]
         finally:
             envs.close()
-        secs = [sec / workers for sec in secs]  # seconds per agent step of all workers together
+        secs = [r[0] / workers for r in vec_runs]  # seconds per agent step of all workers together
+        # where a vector step's time goes: the parent's serial work (actions out, results in, infos
+        # merged) and each worker's CPU per agent step (its env step plus pickling and the pipe)
+        vec_cpu = {
+            "wall_ms_per_vector_step": [1e3 * r[0] / steps for r in vec_runs],
+            "parent_cpu_ms_per_vector_step": [1e3 * r[1] / steps for r in vec_runs],
+            "worker_cpu_ms_per_step": [None if r[2] is None else [1e3 * c / steps for c in r[2]]
+                                       for r in vec_runs],
+        }  # fmt: skip
     else:
         import gymnasium
 
@@ -190,10 +230,19 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
         out["median_cpu_ms_per_step"] = statistics.median(ms)
     if safety_stops is not None:
         out["safety_stop_steps"] = safety_stops
+    if vec_cpu is not None:
+        out.update(vec_cpu)
+        out["median_parent_cpu_ms_per_vector_step"] = statistics.median(
+            vec_cpu["parent_cpu_ms_per_vector_step"]
+        )
+        per_worker = [c for run in vec_cpu["worker_cpu_ms_per_step"] if run is not None for c in run]
+        out["median_worker_cpu_ms_per_step"] = statistics.median(per_worker) if per_worker else None
     return out
 
 
 def _run(args: argparse.Namespace) -> int:
+    import statistics
+
     from robchair.envs.navigation import AGENT_HZ
     from robchair.platform.errors import RobChairError
 
@@ -234,6 +283,13 @@ def _run(args: argparse.Namespace) -> int:
             r["one_core_steps_per_s"] = 1e3 / cms if cms > 0 else None
             line += f" {cms:12.2f} {1e3 / cms if cms > 0 else float('nan'):15.1f}"
         print(line)
+    for r in rows:
+        if "median_parent_cpu_ms_per_vector_step" in r:
+            wk = r.get("median_worker_cpu_ms_per_step")
+            wall = statistics.median(r["wall_ms_per_vector_step"])
+            each = f"{wk:.2f} ms CPU per agent step" if wk is not None else "(CPU not measured)"
+            print(f"{r['config']}: per vector step {wall:.2f} ms wall, parent "
+                  f"{r['median_parent_cpu_ms_per_vector_step']:.2f} ms CPU, each worker {each}")  # fmt: skip
     print_targets(rows)
     stops = {r["config"]: r["safety_stop_steps"] for r in rows if r.get("safety_stop_steps")}
     if stops:

@@ -604,3 +604,25 @@ def test_bench_env_measures_the_v1_ids_without_gymnasiums_upgrade_warning() -> N
         res = bench_env.measure(light, steps=1, repeats=1, seed=0)
     assert res["median_steps_per_s"] > 0
     assert not [w for w in caught if "out of date" in str(w.message)]
+
+
+def test_bench_env_reads_a_process_cpu_time_from_proc() -> None:
+    """The async rows' per-worker CPU comes from /proc/<pid>/stat: for this process it follows the
+    CPU it burns (within the clock tick), and a missing pid gives None, not a number."""
+    import os
+    import sys
+    import time
+
+    from robchair.commands import bench_env
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("/proc is Linux's")
+    (before,) = bench_env._cpu_of([os.getpid()]) or [None]
+    c0 = time.process_time()
+    while time.process_time() - c0 < 0.3:
+        pass
+    (after,) = bench_env._cpu_of([os.getpid()]) or [None]
+    assert before is not None and after is not None
+    assert after - before == pytest.approx(0.3, abs=0.05)
+    assert bench_env._cpu_of([]) is None
+    assert bench_env._cpu_of([2**22 + 12345]) is None
