@@ -126,6 +126,7 @@ class SimChair:
             from sim.sonar import SonarGroup
 
             self.sonar_group = SonarGroup(self.sonars)
+            self._sonar_mounts = list(self.sonars)
             self._restarts = 0  # with the physics step, names the instant the sonar group's casts hold
             if laser:
                 from sim.laser import LaserSim
@@ -195,13 +196,8 @@ class SimChair:
         The first array read at a physics step casts every array's beams in one batched call
         (:class:`sim.sonar.SonarGroup`); the others read theirs from it.
         """
-        robot = self.robot
-        return self.sonar_group.raw(
-            mount,
-            robot.link_transform(mount),
-            (self.world.steps, self._restarts),
-            lambda: {m: robot.link_transform(m) for m in self.sonars if m != mount},
-        )
+        now = self.robot.link_transforms(self._sonar_mounts)  # every array's mount in one query
+        return self.sonar_group.raw(mount, now[mount], (self.world.steps, self._restarts), lambda: now)
 
     def kinect_pose(self) -> np.ndarray:
         """World <- kinect_link (ground truth, from the physics)."""

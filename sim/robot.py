@@ -322,6 +322,20 @@ class SimRobot:
         pos, orn = self.link_pose(name)
         return frames.se3_from_quat(pos, orn)
 
+    def link_transforms(self, names: list[str]) -> dict[str, np.ndarray]:
+        """``{name: 4x4 world <- link}`` of URDF links (not ``base_link``) from one PyBullet query: the
+        values :meth:`link_transform` gives one by one, bit for bit."""
+        import pybullet as p
+
+        missing = [n for n in names if n not in self.links]
+        if missing:
+            raise SimError(f"robot has no link {missing[0]!r} (links: {', '.join(sorted(self.links))})")
+        states = p.getLinkStates(
+            self.body, [self.links[n] for n in names], computeForwardKinematics=True,
+            physicsClientId=self.client,
+        )  # fmt: skip
+        return {n: frames.se3_from_quat(st[4], st[5]) for n, st in zip(names, states, strict=True)}
+
     # -- servos --------------------------------------------------------------------------------------
     def set_servo_deg(self, mount: str, angle_deg: float) -> None:
         """Command a sonar-array servo (clipped to its joint limits)."""

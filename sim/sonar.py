@@ -162,12 +162,12 @@ class _Beam:
         mirror.sync()
         if compiled and math.isfinite(float(stack.sum())):
             from sim._kinect_kernels import sonar_first_echo
+            from sim._sonar_kernels import fill_rays
 
             rays = self._rays
             if rays is None or len(rays) != len(dirs):
                 rays = self._rays = np.empty((len(dirs), 6), dtype=np.float32)
-            rays.reshape(len(stack), n, 6)[:, :, :3] = stack[:, None, :3, 3]  # each sonar's origin
-            rays[:, 3:] = dirs
+            fill_rays(stack, dirs, rays)  # each sonar's origin, then the directions, as float32
             t_hit, gid, nrm = mirror.cast_raw(rays)
             return sonar_first_echo(  # type: ignore[no-any-return]
                 t_hit,
@@ -322,7 +322,10 @@ class SonarArraySim:
 
     def sonar_poses(self, array_pose: Any, servo_angle_deg: float) -> list[FloatArray]:
         """World poses of sonars 1, 2, 3."""
-        base = pose_matrix(array_pose) @ frames.se3_planar(0.0, 0.0, math.radians(servo_angle_deg))
+        base = pose_matrix(array_pose)
+        # a turn of 0 is the identity (the product gives base, up to the sign of a zero)
+        if servo_angle_deg != 0.0:
+            base = base @ frames.se3_planar(0.0, 0.0, math.radians(servo_angle_deg))
         return [base @ local for local in self._local]
 
     def measure(

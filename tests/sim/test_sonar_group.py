@@ -89,3 +89,43 @@ def test_an_arrays_three_readings_round_to_whole_centimetres_within_the_srf08_ra
     got = [arr.finish(np.array(r)) for r in ([0.4449, 1.005, 6.004], [6.006, 0.02, np.nan])]
     assert got[0] == pytest.approx((0.44, 1.00, 6.00), abs=1e-12)
     assert all(math.isnan(v) for v in got[1])
+
+
+def test_the_compiled_ray_rows_are_numpys_bit_for_bit():
+    """sim._sonar_kernels.fill_rays writes each sonar's origin and the directions as float32, the rows
+    numpy's broadcasting assignments give (the previous fill), over random poses and directions."""
+    from sim._sonar_kernels import fill_rays
+
+    rng = np.random.default_rng(7)
+    for k, n in ((1, 5), (6, 1102), (3, 17)):
+        stack = np.tile(np.eye(4), (k, 1, 1))
+        stack[:, :3, :] = rng.normal(0.0, 3.0, (k, 3, 4))
+        dirs = rng.normal(0.0, 1.0, (k * n, 3))
+        ref = np.empty((k * n, 6), dtype=np.float32)
+        ref.reshape(k, n, 6)[:, :, :3] = stack[:, None, :3, 3]
+        ref[:, 3:] = dirs
+        got = np.full((k * n, 6), np.nan, dtype=np.float32)
+        fill_rays(stack, dirs, got)
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    with pytest.raises(ValueError, match="fill_rays: stack"):
+        fill_rays(np.zeros((2, 4, 4)), np.zeros((5, 3)), np.zeros((5, 6), np.float32))  # 5 rays, 2 sonars
+    with pytest.raises(ValueError, match="float32"):
+        fill_rays(np.zeros((1, 4, 4)), np.zeros((4, 3)), np.zeros((4, 6)))
+
+
+def test_all_sonar_mounts_in_one_query_equal_each_links_own_query(chair):
+    """SimRobot.link_transforms (one getLinkStates call, used by SimChair.sonar_raw) gives every mount
+    the transform link_transform gives it alone, bit for bit, with the servos turned."""
+    from sim.chair import SONAR_MOUNTS
+    from sim.errors import SimError
+
+    chair.teleport((0.5, -0.3, 0.7))
+    for m, deg in zip(SONAR_MOUNTS, (25.0, -35.0), strict=False):
+        chair.robot.set_servo_deg(m, deg)
+    chair.step(30)
+    got = chair.robot.link_transforms(list(SONAR_MOUNTS))
+    assert list(got) == list(SONAR_MOUNTS)
+    for m in SONAR_MOUNTS:
+        np.testing.assert_array_equal(got[m], chair.robot.link_transform(m))
+    with pytest.raises(SimError, match="no link 'nowhere'"):
+        chair.robot.link_transforms(["nowhere"])
