@@ -34,6 +34,10 @@ CLOUD_TYPES = (POINTCLOUD2, POINTCLOUD)
 TF_TOPICS = ("/tf", "/tf_static")
 TFMESSAGE = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
+#: A point-cloud topic ``T + NO_RETURN_SUFFIX`` next to a cloud topic ``T`` carries, per cloud of ``T``
+#: (same header stamp), the ends of the rays of the pixels without a return at the sensor's maximum
+#: range, in the same frame (``robchair.observers.recorder``): free space along them, no hit.
+NO_RETURN_SUFFIX = "/no_return"
 
 
 def is_ros2_bag(path: Path) -> bool:
@@ -164,13 +168,17 @@ def bag_topics(path: Path | str) -> dict[str, str]:
 
 
 def select_topic(path: Path | str, topics: dict[str, str], topic: str | None) -> str:
-    """The PointCloud2 topic to read: ``topic`` if given (and present), else the only one.
+    """The PointCloud2 topic to read: ``topic`` if given (and present), else the only one (a
+    ``<T>/no_return`` companion of a cloud topic ``T`` is not a choice of its own).
 
     Raises:
         BagTopicError: The topic is absent or not PointCloud2, or there is no / more than one
             PointCloud2 topic to choose from; the message lists the bag's topics.
     """
     clouds = sorted(t for t, ty in topics.items() if ty in CLOUD_TYPES)
+    clouds = [
+        t for t in clouds if not (t.endswith(NO_RETURN_SUFFIX) and t[: -len(NO_RETURN_SUFFIX)] in clouds)
+    ]
     listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
     if topic is not None:
         if topic not in topics:
@@ -199,13 +207,21 @@ class BagClouds:
         path: The bag.
         topic: The topic read.
         n_frames: Number of messages on the topic (for progress bars).
+        no_return_topic: The topic's ``<topic>/no_return`` companion when the bag has one: each
+            frame then carries the companion message of its stamp as ``no_return``.
     """
 
     path: Path
     topic: str
     n_frames: int
+    no_return_topic: str | None = None
 
     def __iter__(self) -> Iterator[CloudFrame]:
+        rays: dict[int, np.ndarray] = {}
+        if self.no_return_topic is not None:  # small messages: all of them first, by stamp
+            rays = {
+                f.stamp_ns: f.points.reshape(-1, 3) for f in BagClouds(self.path, self.no_return_topic, 0)
+            }
         decompress = _decompressor(self.path)
         reader, ros2 = _open_reader(self.path)
         store = _typestore(ros2)
@@ -233,6 +249,7 @@ class BagClouds:
                         stamp_ns=stamp if stamp > 0 else int(bag_stamp),
                         frame_id=frame_id,
                         source=f"{self.path}:{self.topic}",
+                        no_return=rays.get(stamp if stamp > 0 else int(bag_stamp)),
                     )
             except PointCloudFormatError as exc:
                 raise PointCloudFormatError(f"{self.path}: topic {self.topic}: {exc}") from None
@@ -276,7 +293,8 @@ def open_bag_clouds(path: Path | str, topic: str | None = None) -> BagClouds:
         n = sum(int(c.msgcount) for c in reader.connections if c.topic == chosen)
     finally:
         reader.close()
-    return BagClouds(path, chosen, n)
+    companion = chosen + NO_RETURN_SUFFIX
+    return BagClouds(path, chosen, n, companion if topics.get(companion) in CLOUD_TYPES else None)
 
 
 def _stamp_ns(stamp: Any) -> int:
