@@ -240,6 +240,7 @@ def test_a_sim_bag_mapped_back_gives_the_runs_odometry_map(sim_run_full_clouds, 
     assert iou >= 0.95, iou
 
 
+@pytest.mark.timeout(1200)  # the first user of the 8 s run makes it: minutes of wall time on a loaded machine
 def test_the_default_sim_bag_mapped_back_gives_the_runs_odometry_map(sim_run_8s, tmp_path, capsys):
     """The same bar (IoU >= 0.95) for the default bag of an 8 s run, which keeps every frame the map is
     built from, thinned to the points that build the same structures, and its no-return rays: one cloud per
@@ -253,6 +254,7 @@ def test_the_default_sim_bag_mapped_back_gives_the_runs_odometry_map(sim_run_8s,
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # about 20 s simulated: minutes of wall time on a loaded machine
 def test_the_default_bag_of_a_20_s_sim_run_mapped_back_gives_the_runs_odometry_map(
     sim_run_20s, tmp_path, capsys
 ):
@@ -261,6 +263,7 @@ def test_the_default_bag_of_a_20_s_sim_run_mapped_back_gives_the_runs_odometry_m
     assert iou >= 0.95, iou
 
 
+@pytest.mark.timeout(1200)
 def test_the_default_bag_carries_the_no_return_rays_the_map_clears_free_space_along(sim_run_8s, tmp_path):
     """/kinect/points/no_return: per cloud of /kinect/points (same stamp, same frame) the ray ends of the
     pixels without a return at the camera's range, depth (camera x) = that range; `robchair map` takes
