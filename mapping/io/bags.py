@@ -12,6 +12,7 @@ zstd frame magic are refused with what to do (open the bag folder with its ``met
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import struct
 import sys
@@ -217,18 +218,20 @@ class BagClouds:
     no_return_topic: str | None = None
 
     def __iter__(self) -> Iterator[CloudFrame]:
-        rays: dict[int, np.ndarray] = {}
-        if self.no_return_topic is not None:  # small messages: all of them first, by stamp
-            rays = {
-                f.stamp_ns: f.points.reshape(-1, 3) for f in BagClouds(self.path, self.no_return_topic, 0)
-            }
+        """The frames in the bag's order, in one read of the bag: a frame waits for the companion message
+        of its stamp (written with it) until a message of a later receive time comes."""
         decompress = _decompressor(self.path)
         reader, ros2 = _open_reader(self.path)
         store = _typestore(ros2)
+        topics = (self.topic, self.no_return_topic)
         try:
-            conns = [c for c in reader.connections if c.topic == self.topic]
+            conns = [c for c in reader.connections if c.topic in topics]
+            pending: list[tuple[int, CloudFrame]] = []  # (receive time, frame) waiting for its rays
+            rays: dict[int, np.ndarray] = {}  # rays that came before their frame
             try:
                 for conn, bag_stamp, raw in reader.messages(connections=conns):
+                    while pending and pending[0][0] < int(bag_stamp):
+                        yield pending.pop(0)[1]
                     if decompress is not None:
                         raw = self._decompress(decompress, raw)
                     elif bytes(raw[:4]) == ZSTD_MAGIC:
@@ -244,13 +247,26 @@ class BagClouds:
                         points = decode(msg, organized=int(msg.height) > 1)
                         stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                         frame_id = str(msg.header.frame_id)
-                    yield CloudFrame(
-                        points=points,
-                        stamp_ns=stamp if stamp > 0 else int(bag_stamp),
-                        frame_id=frame_id,
-                        source=f"{self.path}:{self.topic}",
-                        no_return=rays.get(stamp if stamp > 0 else int(bag_stamp)),
-                    )
+                    stamp = stamp if stamp > 0 else int(bag_stamp)
+                    if conn.topic != self.topic:  # the companion of a frame
+                        k = next((n for n, (_, f) in enumerate(pending) if f.stamp_ns == stamp), None)
+                        if k is None:
+                            rays[stamp] = points.reshape(-1, 3)
+                        else:
+                            yield from (f for _, f in pending[:k])
+                            frame = pending[k][1]
+                            del pending[: k + 1]
+                            yield dataclasses.replace(frame, no_return=points.reshape(-1, 3))
+                        continue
+                    source = f"{self.path}:{self.topic}"
+                    frame = CloudFrame(points, stamp, frame_id, source, no_return=rays.pop(stamp, None))
+                    if frame.no_return is not None or self.no_return_topic is None:
+                        yield from (f for _, f in pending)
+                        pending.clear()
+                        yield frame
+                    else:
+                        pending.append((int(bag_stamp), frame))
+                yield from (f for _, f in pending)
             except PointCloudFormatError as exc:
                 raise PointCloudFormatError(f"{self.path}: topic {self.topic}: {exc}") from None
             except (OSError, MemoryError):
