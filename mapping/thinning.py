@@ -57,19 +57,18 @@ def _slot(keys, key, shift):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def _grown(keys, lo, hi, lo_h, hi_h, shift):  # type: ignore[no-untyped-def]
+def _grown(keys, idx, hts, shift):  # type: ignore[no-untyped-def]
     """The table rehashed into twice its size (``shift`` is the old one's)."""
     n = 2 * keys.shape[0]
     k2 = np.full(n, _EMPTY, np.int64)
-    lo2 = np.empty(n, np.int64)
-    hi2 = np.empty(n, np.int64)
-    loh2 = np.empty(n, np.float32)
-    hih2 = np.empty(n, np.float32)
+    idx2 = np.empty((n, 2), np.int64)
+    hts2 = np.empty((n, 2), np.float32)
     for s in range(keys.shape[0]):
         if keys[s] != _EMPTY:
             d = _slot(k2, keys[s], shift - 1)
-            k2[d], lo2[d], hi2[d], loh2[d], hih2[d] = keys[s], lo[s], hi[s], lo_h[s], hi_h[s]
-    return k2, lo2, hi2, loh2, hih2
+            k2[d] = keys[s]
+            idx2[d, 0], idx2[d, 1], hts2[d, 0], hts2[d, 1] = idx[s, 0], idx[s, 1], hts[s, 0], hts[s, 1]
+    return k2, idx2, hts2
 
 
 @numba.jit(**_JIT)
@@ -89,14 +88,13 @@ def slice_extremes(p, r, t, inv_cell, inv_slice, keep):  # type: ignore[no-untyp
         How many points were marked, or -1 when a cell or slice index does not fit the key packing
         (``[-2**20, 2**20)`` each: 52 km at 5 cm).
 
-    Points are placed as the map receives them: ``R p + t`` in float64, rounded to float32.
+    Points are placed as the map receives them: ``R p + t`` in float64, rounded to float32. The table
+    keeps per slot the key, the (lowest, highest) point indices and their heights, each pair side by side.
     """
     n = p.shape[0]
     keys = np.full(4096, _EMPTY, np.int64)
-    lo = np.empty(4096, np.int64)
-    hi = np.empty(4096, np.int64)
-    lo_h = np.empty(4096, np.float32)
-    hi_h = np.empty(4096, np.float32)
+    idx = np.empty((4096, 2), np.int64)
+    hts = np.empty((4096, 2), np.float32)
     shift = 64 - 12
     used = 0
     last = np.int64(_EMPTY)
@@ -122,21 +120,24 @@ def slice_extremes(p, r, t, inv_cell, inv_slice, keep):  # type: ignore[no-untyp
             last = key
             s = _slot(keys, key, shift)
             if keys[s] == _EMPTY:
-                keys[s], lo[s], hi[s], lo_h[s], hi_h[s] = key, i, i, h, h
+                keys[s] = key
+                idx[s, 0] = idx[s, 1] = i
+                hts[s, 0] = hts[s, 1] = h
                 used += 1
                 if 2 * used > keys.shape[0]:
-                    keys, lo, hi, lo_h, hi_h = _grown(keys, lo, hi, lo_h, hi_h, shift)
+                    keys, idx, hts = _grown(keys, idx, hts, shift)
                     shift -= 1
                     s = _slot(keys, key, shift)
                 continue
-        if h < lo_h[s]:
-            lo[s], lo_h[s] = i, h
-        elif h > hi_h[s]:
-            hi[s], hi_h[s] = i, h
+        if h < hts[s, 0]:
+            idx[s, 0], hts[s, 0] = i, h
+        elif h > hts[s, 1]:
+            idx[s, 1], hts[s, 1] = i, h
     m = 0
     for s in range(keys.shape[0]):
         if keys[s] != _EMPTY:
-            for i in (lo[s], hi[s]):
+            for k in range(2):
+                i = idx[s, k]
                 if not keep[i]:
                     keep[i] = True
                     m += 1
