@@ -70,8 +70,9 @@ from robchair.platform.frames import (
 )
 
 STORAGES = ("mcap", "sqlite3")
-#: Depth clouds kept in the bag: name -> (every how many delivered frames, pixel stride, voxel-filtered at
-#: the map's cell size).
+#: Depth clouds kept in the bag: name -> (every how many delivered frames, pixel stride, thinned to the
+#: points that build the odometry map's structures, with the no-return rays). "voxel" keeps its name (the
+#: `robchair sim --bag-clouds` choice users know) for what replaced the voxel filter.
 BAG_CLOUDS = {"voxel": (1, 1, True), "decimated": (3, 4, False), "full": (1, 1, False)}
 DEFAULT_BAG_CLOUDS = "voxel"
 DEFAULT_VOXEL_M = 0.05  # when the run's map has no grid to take the cell size from
