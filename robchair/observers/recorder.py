@@ -540,19 +540,36 @@ class RunTopics:
                              t_map_odom, tuple(runtime.last_sonars), scan, points, no_return)  # fmt: skip
 
     def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
-        """The odometry pose written at ``stamp_ns`` (a frame is captured at a cycle's start, the stamp of
-        that cycle's ``odom`` -> ``base_link``); None when no cycle of the history has that stamp."""
-        pose = self._poses.get(int(stamp_ns))
-        if pose is None and self._start is not None and int(stamp_ns) <= self._tree_from_ns:
+        """The odometry pose the bag's TF gives at ``stamp_ns``: the pose written at that stamp (a frame
+        is captured at a cycle's start, the stamp of that cycle's ``odom`` -> ``base_link``), else the
+        interpolation between the two written around it (linear, the yaw along the shorter arc, as
+        ``robchair map`` interpolates TF); the start pose before the first cycle; None when the stamp
+        lies outside the poses kept."""
+        stamp = int(stamp_ns)
+        pose = self._poses.get(stamp)
+        if pose is not None:
+            return pose
+        if self._start is not None and stamp <= self._tree_from_ns:
             m = self._start[1][2]
             return float(m[0, 3]), float(m[1, 3]), math.atan2(float(m[1, 0]), float(m[0, 0]))
-        return pose
+        before = after = None
+        for t, p in self._poses.items():  # in time order
+            if t < stamp:
+                before = (t, p)
+            elif after is None:
+                after = (t, p)
+        if before is None or after is None:
+            return None
+        (t0, p0), (t1, p1) = before, after
+        a = (stamp - t0) / (t1 - t0)
+        dyaw = math.remainder(p1[2] - p0[2], math.tau)
+        return p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1]), p0[2] + a * dyaw
 
     def _thin(self, runtime: LoopView, frame: Any, pts: np.ndarray) -> np.ndarray:
         """The frame's measured points that build the same VHV structures in the run's odometry map as
         the whole frame, placed with the pose that map and the bag's TF give it
         (:func:`mapping.thinning.structure_keeping_indices`); one point per voxel of the map's cell size
-        on ``base_link``'s lattice when the frame's stamp has no written pose."""
+        on ``base_link``'s lattice when the frame's stamp lies outside the poses kept."""
         t_base = runtime.perception.t_base_sensor(frame.frame_id)
         flat = np.asarray(pts).reshape(-1, 3)
         pose = self._pose_at(frame.stamp_ns)
