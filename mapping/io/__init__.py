@@ -51,6 +51,8 @@ class CloudSource:
         kind: ``pcd``, ``ply``, a ``.bin`` layout (``kitti``, ``nuscenes``, ``xyz``, ``xyzrgb``),
             ``npy``, ``ros1-bag`` or ``ros2-bag``.
         topic: The bag topic read (None for files).
+        no_return_topic: The bag's ``<topic>/no_return`` companion read with it (None: none), whose
+            messages come as each frame's ``no_return``.
     """
 
     path: Path
@@ -58,6 +60,7 @@ class CloudSource:
     kind: str
     topic: str | None
     _frames: Iterable[CloudFrame]
+    no_return_topic: str | None = None
 
     def __iter__(self) -> Iterator[CloudFrame]:
         return iter(self._frames)
@@ -103,7 +106,7 @@ def open_clouds(path: Path | str, topic: str | None = None, *, bin_layout: str |
     if path.suffix == ".bag" or bags.is_ros2_bag(path):
         src = bags.open_bag_clouds(path, topic)
         kind = "ros2-bag" if bags.is_ros2_bag(path) else "ros1-bag"
-        return CloudSource(path, src.n_frames, kind, src.topic, src)
+        return CloudSource(path, src.n_frames, kind, src.topic, src, src.no_return_topic)
     if path.name.endswith(".bag.active"):
         raise PointCloudFormatError(
             f"{path}: a ROS 1 bag whose recording never finished (no index); reindex it with "

@@ -12,6 +12,7 @@ zstd frame magic are refused with what to do (open the bag folder with its ``met
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import struct
 import sys
@@ -34,6 +35,10 @@ CLOUD_TYPES = (POINTCLOUD2, POINTCLOUD)
 TF_TOPICS = ("/tf", "/tf_static")
 TFMESSAGE = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
+#: A point-cloud topic ``T + NO_RETURN_SUFFIX`` next to a cloud topic ``T`` carries, per cloud of ``T``
+#: (same header stamp), the ends of the rays of the pixels without a return at the sensor's maximum
+#: range, in the same frame (``robchair.observers.recorder``): free space along them, no hit.
+NO_RETURN_SUFFIX = "/no_return"
 
 
 def is_ros2_bag(path: Path) -> bool:
@@ -164,13 +169,17 @@ def bag_topics(path: Path | str) -> dict[str, str]:
 
 
 def select_topic(path: Path | str, topics: dict[str, str], topic: str | None) -> str:
-    """The PointCloud2 topic to read: ``topic`` if given (and present), else the only one.
+    """The PointCloud2 topic to read: ``topic`` if given (and present), else the only one (a
+    ``<T>/no_return`` companion of a cloud topic ``T`` is not a choice of its own).
 
     Raises:
         BagTopicError: The topic is absent or not PointCloud2, or there is no / more than one
             PointCloud2 topic to choose from; the message lists the bag's topics.
     """
     clouds = sorted(t for t, ty in topics.items() if ty in CLOUD_TYPES)
+    clouds = [
+        t for t in clouds if not (t.endswith(NO_RETURN_SUFFIX) and t[: -len(NO_RETURN_SUFFIX)] in clouds)
+    ]
     listing = ", ".join(f"{t} ({ty})" for t, ty in sorted(topics.items())) or "none"
     if topic is not None:
         if topic not in topics:
@@ -199,20 +208,30 @@ class BagClouds:
         path: The bag.
         topic: The topic read.
         n_frames: Number of messages on the topic (for progress bars).
+        no_return_topic: The topic's ``<topic>/no_return`` companion when the bag has one: each
+            frame then carries the companion message of its stamp as ``no_return``.
     """
 
     path: Path
     topic: str
     n_frames: int
+    no_return_topic: str | None = None
 
     def __iter__(self) -> Iterator[CloudFrame]:
+        """The frames in the bag's order, in one read of the bag: a frame waits for the companion message
+        of its stamp (written with it) until a message of a later receive time comes."""
         decompress = _decompressor(self.path)
         reader, ros2 = _open_reader(self.path)
         store = _typestore(ros2)
+        topics = (self.topic, self.no_return_topic)
         try:
-            conns = [c for c in reader.connections if c.topic == self.topic]
+            conns = [c for c in reader.connections if c.topic in topics]
+            pending: list[tuple[int, CloudFrame]] = []  # (receive time, frame) waiting for its rays
+            rays: dict[int, np.ndarray] = {}  # rays that came before their frame
             try:
                 for conn, bag_stamp, raw in reader.messages(connections=conns):
+                    while pending and pending[0][0] < int(bag_stamp):
+                        yield pending.pop(0)[1]
                     if decompress is not None:
                         raw = self._decompress(decompress, raw)
                     elif bytes(raw[:4]) == ZSTD_MAGIC:
@@ -228,12 +247,26 @@ class BagClouds:
                         points = decode(msg, organized=int(msg.height) > 1)
                         stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                         frame_id = str(msg.header.frame_id)
-                    yield CloudFrame(
-                        points=points,
-                        stamp_ns=stamp if stamp > 0 else int(bag_stamp),
-                        frame_id=frame_id,
-                        source=f"{self.path}:{self.topic}",
-                    )
+                    stamp = stamp if stamp > 0 else int(bag_stamp)
+                    if conn.topic != self.topic:  # the companion of a frame
+                        k = next((n for n, (_, f) in enumerate(pending) if f.stamp_ns == stamp), None)
+                        if k is None:
+                            rays[stamp] = points.reshape(-1, 3)
+                        else:
+                            yield from (f for _, f in pending[:k])
+                            frame = pending[k][1]
+                            del pending[: k + 1]
+                            yield dataclasses.replace(frame, no_return=points.reshape(-1, 3))
+                        continue
+                    source = f"{self.path}:{self.topic}"
+                    frame = CloudFrame(points, stamp, frame_id, source, no_return=rays.pop(stamp, None))
+                    if frame.no_return is not None or self.no_return_topic is None:
+                        yield from (f for _, f in pending)
+                        pending.clear()
+                        yield frame
+                    else:
+                        pending.append((int(bag_stamp), frame))
+                yield from (f for _, f in pending)
             except PointCloudFormatError as exc:
                 raise PointCloudFormatError(f"{self.path}: topic {self.topic}: {exc}") from None
             except (OSError, MemoryError):
@@ -276,7 +309,8 @@ def open_bag_clouds(path: Path | str, topic: str | None = None) -> BagClouds:
         n = sum(int(c.msgcount) for c in reader.connections if c.topic == chosen)
     finally:
         reader.close()
-    return BagClouds(path, chosen, n)
+    companion = chosen + NO_RETURN_SUFFIX
+    return BagClouds(path, chosen, n, companion if topics.get(companion) in CLOUD_TYPES else None)
 
 
 def _stamp_ns(stamp: Any) -> int:

@@ -18,6 +18,9 @@ class CloudFrame:
         source: Human-readable origin, e.g. ``scan.pcd`` or ``run.bag:/camera/points``.
         sensor_origin: Sensor position in the points' frame when the format stores one (a PCD
             VIEWPOINT other than the default), else None.
+        no_return: (M, 3) ends of the rays of the frame's pixels without a return, at the sensor's
+            maximum range, in the points' frame (a bag's ``<topic>/no_return`` message of the same
+            stamp: :data:`mapping.io.bags.NO_RETURN_SUFFIX`), else None.
     """
 
     points: np.ndarray
@@ -25,3 +28,4 @@ class CloudFrame:
     frame_id: str
     source: str
     sensor_origin: tuple[float, float, float] | None = None
+    no_return: np.ndarray | None = None

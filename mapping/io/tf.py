@@ -3,7 +3,8 @@
 Each edge is ``parent -> child`` with the transform ``T_parent_child`` (REP-103: x forward, metres,
 rotations as unit quaternions x y z w), as ``tf2`` stores it. A static edge holds one transform for
 all time; a dynamic edge holds a time series, interpolated between samples like ``tf2``'s buffer:
-translation linearly, rotation by spherical linear interpolation (:class:`scipy.spatial.transform.Slerp`).
+translation linearly, rotation by spherical linear interpolation of the unit quaternions along the
+shorter arc (Shoemake, SIGGRAPH 1985; what ``tf2`` and :class:`scipy.spatial.transform.Slerp` do).
 A lookup at a stamp outside a dynamic edge's samples is refused when it is farther than a tolerance
 from the nearest sample, and takes that sample when within it.
 
@@ -13,11 +14,11 @@ target frame and back down, so any two frames of one tree connect.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from mapping.errors import MappingError
 
@@ -43,8 +44,7 @@ class _Edge:
     static: bool = False
     _t: np.ndarray | None = None
     _xyz: np.ndarray | None = None
-    _slerp: Slerp | None = None
-    _rot: Rotation | None = None
+    _q: np.ndarray | None = None  # (n, 4) unit quaternions x y z w
 
     def freeze(self) -> None:
         t = np.asarray(self.stamps, dtype=np.int64)
@@ -54,15 +54,19 @@ class _Edge:
         idx = order[keep]
         self._t = t[keep]
         self._xyz = np.asarray(self.translations, dtype=np.float64)[idx]
-        rot = Rotation.from_quat(np.asarray(self.quats, dtype=np.float64)[idx])
-        self._rot = rot
-        self._slerp = Slerp(self._t.astype(np.float64), rot) if self._t.size > 1 else None
+        q = np.asarray(self.quats, dtype=np.float64).reshape(-1, 4)[idx]
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
+        if not (np.isfinite(q).all() and (norm > 0).all()):
+            raise MappingError(
+                f"a transform from {self.parent!r}: its rotation is not a finite non-zero quaternion"
+            )
+        self._q = q / norm
 
     def at(self, stamp_ns: int, tolerance_ns: int, child: str) -> np.ndarray:
-        assert self._t is not None and self._xyz is not None and self._rot is not None
+        assert self._t is not None and self._xyz is not None and self._q is not None
         out = np.eye(4)
         if self.static:
-            out[:3, :3], out[:3, 3] = self._rot[-1].as_matrix(), self._xyz[-1]
+            out[:3, :3], out[:3, 3] = _matrix(self._q[-1]), self._xyz[-1]
             return out
         t0, t1 = int(self._t[0]), int(self._t[-1])
         gap = max(t0 - stamp_ns, stamp_ns - t1, 0)
@@ -73,14 +77,39 @@ class _Edge:
                 gap,
             )
         s = min(max(stamp_ns, t0), t1)
-        if self._slerp is None:
-            out[:3, :3], out[:3, 3] = self._rot[0].as_matrix(), self._xyz[0]
+        if self._t.size == 1:
+            out[:3, :3], out[:3, 3] = _matrix(self._q[0]), self._xyz[0]
             return out
         i = int(np.clip(np.searchsorted(self._t, s, side="right") - 1, 0, self._t.size - 2))
         a = (s - int(self._t[i])) / float(int(self._t[i + 1]) - int(self._t[i]))
-        out[:3, :3] = self._slerp([float(s)]).as_matrix()[0]
+        out[:3, :3] = _matrix(_slerp(self._q[i], self._q[i + 1], a))
         out[:3, 3] = (1.0 - a) * self._xyz[i] + a * self._xyz[i + 1]
         return out
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
+    """The unit quaternion a fraction ``a`` (0..1) of the way from ``q0`` to ``q1`` along the shorter arc."""
+    d = float(q0 @ q1)
+    if d < 0.0:  # q and -q are one rotation: take the nearer of the two
+        q1, d = -q1, -d
+    if d > 1.0 - 1e-12:
+        q = q0 + a * (q1 - q0)
+        return np.asarray(q / np.linalg.norm(q))
+    theta = math.acos(d)
+    s = math.sin(theta)
+    return np.asarray((math.sin((1.0 - a) * theta) / s) * q0 + (math.sin(a * theta) / s) * q1)
+
+
+def _matrix(q: np.ndarray) -> np.ndarray:
+    """The (3, 3) rotation of a unit quaternion x y z w."""
+    x, y, z, w = (float(v) for v in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 class TfBuffer:

@@ -8,7 +8,8 @@ second of wall time (the target: at least 10x real time):
 
 * **build**: reading the bag, placing every cloud through TF and inserting it into the map (the
   command's ``read_and_build`` seconds in summary.json): what "builds its map" means here;
-* **inserts**: the map's inserts alone (summary.json ``build_ms``);
+* **inserts**: the map's inserts alone (summary.json ``build_ms``: the clouds and their no-return rays),
+  and their share of the build and of the whole command (what is left to the rest of the command);
 * **whole command**: the process from start to exit (interpreter, imports, building, every output).
 * **build, CPU time**: the build's CPU seconds (summary.json ``read_and_build_cpu``), which a machine
   shared with other work inflates less than the wall time.
@@ -125,5 +126,10 @@ def _run(args: argparse.Namespace) -> int:
         result["x_real_time"][key] = x
         result["verdict"][key] = verdict(x >= TARGET_X)
         print(f"{label:40s} {m[key]:8.2f} {x:12.1f}  {verdict(x >= TARGET_X)}")
+    share = {"of_build": m["inserts"] / max(m["read_and_build"], 1e-9),
+             "of_whole_command": m["inserts"] / max(m["whole"], 1e-9)}  # fmt: skip
+    result["inserts_share"] = share
+    print(f"inserts' share: {100 * share['of_build']:.0f} % of the build, "
+          f"{100 * share['of_whole_command']:.0f} % of the whole command with pictures")  # fmt: skip
     write_results(out, "map", result, load0, load1)
     return 0

@@ -349,6 +349,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
     warmed: set[str] = set()
     dropped_close = 0
     band = map_tf.BandCheck(band_m, spec.columns[2])
+    no_return = map_tf.NoReturn(spec.columns[2], getattr(source, "no_return_topic", None))
     pairs: Any = frames
     if pairs is None:
         pairs = ((f, o, None, 0, None) for f, o in _placed_frames(iter(source), placement, sensor_origin))
@@ -363,6 +364,8 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         kw = {"stamp": frame.stamp_ns * 1e-9} if stamped and frame.stamp_ns >= 1e9 * m.now else {}
         stats = m.insert(points, sensor_origin=origin, **kw)
         build_ms += stats.build_ms
+        if frame.no_return is not None and len(frame.no_return):
+            build_ms += no_return.insert(m, frame.no_return, origin, kw)
         sensor_origin_used = origin if placement is None else None  # a moving sensor has no one origin
         frame_id = frame.frame_id or frame_id
         stamp_ns = max(stamp_ns, int(frame.stamp_ns))
@@ -378,6 +381,7 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         "frame_id": frame_id or "map",
         "stamp_ns": stamp_ns,
         "band_check": band,
+        "no_return": no_return,
     }
 
 
@@ -454,6 +458,7 @@ def _map_all(args: argparse.Namespace, sources: list[Any], placements: list[Any]
                 extra={
                     "band_check": r["band_check"].summary(r["label"], args.axis),
                     "tf": placement.summary() if placement is not None else map_tf.no_tf_summary(source),
+                    "no_return": r["no_return"].summary(),
                     # reading, placing and inserting every frame (the map built), and the inserts alone
                     # and the CPU time of the first (all threads of the process)
                     "timing_s": {

@@ -111,11 +111,15 @@ class Placement:
         pts = np.asarray(frame.points).reshape(-1, 3)
         dt = pts.dtype if pts.dtype.kind == "f" else np.float64
         placed = pts @ t[:3, :3].T.astype(dt) + t[:3, 3].astype(dt)
+        far = frame.no_return
+        if far is not None:
+            far = far @ t[:3, :3].T.astype(far.dtype) + t[:3, 3].astype(far.dtype)
         origin = (
             t[:3, 3] if sensor_origin is None else t[:3, :3] @ np.asarray(sensor_origin, float) + t[:3, 3]
         )
         self.placed += 1
-        return dataclasses.replace(frame, points=placed, frame_id=self.fixed_frame), tuple(map(float, origin))
+        placed_frame = dataclasses.replace(frame, points=placed, frame_id=self.fixed_frame, no_return=far)
+        return placed_frame, tuple(map(float, origin))
 
     def summary(self) -> dict[str, Any]:
         """The ``tf`` entry of summary.json."""
@@ -218,6 +222,49 @@ class BandCheck:
             "height_range_m": [self.low, self.high] if self.finite else None,
             "warning": self.warning(label, axis),
         }
+
+
+@dataclasses.dataclass
+class NoReturn:
+    """Free space along the no-return rays a bag carries next to its clouds (``<topic>/no_return``,
+    :data:`mapping.io.bags.NO_RETURN_SUFFIX`), inserted as a run's odometry map inserts them: after the
+    frame's cloud, at its stamp, only the rays whose end lies at least
+    ``robchair.perception.NO_RETURN_MIN_HEIGHT_M`` high (a lower ray would have met the floor within
+    the range: its return was lost on something, not in free air).
+
+    Attributes:
+        column: Column of the kept axis in the fixed frame.
+        topic: The companion topic read (None: the input has none).
+    """
+
+    column: int
+    topic: str | None
+    clouds: int = 0
+    rays: int = 0
+    rays_inserted: int = 0
+    unused: int = 0  # clouds with rays a map without free space (--map-kind thesis) could not take
+
+    def insert(self, m: Any, ends: Any, origin: Any, kw: dict[str, Any]) -> float:
+        """Insert one frame's ray ends (fixed frame, (M, 3)) into ``m``; returns the build ms."""
+        from robchair.perception import NO_RETURN_MIN_HEIGHT_M
+
+        self.clouds += 1
+        self.rays += int(ends.shape[0])
+        insert_free = getattr(m, "insert_free", None)
+        if insert_free is None or origin is None:
+            self.unused += 1
+            return 0.0
+        high = ends[ends[:, self.column] >= NO_RETURN_MIN_HEIGHT_M]
+        self.rays_inserted += int(high.shape[0])
+        stats = insert_free(high, sensor_origin=origin, **kw)
+        return float(getattr(stats, "build_ms", 0.0))
+
+    def summary(self) -> dict[str, Any] | None:
+        """The ``no_return`` entry of summary.json (None without a companion topic)."""
+        if self.topic is None:
+            return None
+        return {"topic": self.topic, "clouds": self.clouds, "rays": self.rays,
+                "rays_inserted": self.rays_inserted, "clouds_not_used": self.unused}  # fmt: skip
 
 
 def no_tf_note(source: Any) -> str | None:

@@ -266,3 +266,36 @@ def test_truncated_old_pointcloud_message_is_refused():
     cut = bytes(raw)[: 4 + 8 + 4 + 4 + 4 + 12 * 3 + 4]  # CDR header, stamp, "cam", count, 3 points + 4 bytes
     with pytest.raises(PointCloudFormatError, match="declares 5 points but holds 3"):
         decode_pointcloud1(cut, ros2=True)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_cloud_topic_s_no_return_companion_comes_with_each_frame_of_its_stamp(tmp_path, storage):
+    """``<topic>/no_return`` is not a topic of its own to choose; each frame carries the companion message
+    of its stamp (written before or after it, or not at all), in one read of the bag, in the bag's order."""
+    from mapping.io.bags import to_ros_pointcloud2, write_bag
+    from mapping.pointcloud2 import encode
+
+    def msg(points, stamp_ns):
+        return to_ros_pointcloud2(encode(np.asarray(points, np.float32), frame_id="cam", stamp_ns=stamp_ns))
+
+    frames = {k: np.full((3 + k, 3), float(k), np.float32) for k in range(5)}
+    rays = {0: [[4.5, 0.0, 1.0]], 2: [[4.5, 1.0, 2.0], [4.5, 2.0, 3.0]], 3: [[4.5, 3.0, 3.0]]}
+    messages = []
+    for k in range(5):
+        t = (k + 1) * 10**8
+        cloud = ("/kinect/points", PC2, t, msg(frames[k], t))
+        ray = [("/kinect/points/no_return", PC2, t, msg(rays[k], t))] if k in rays else []
+        messages += [*ray, cloud] if k == 3 else [cloud, *ray]  # frame 3's rays come first
+    bag = write_bag(tmp_path / "bag", messages, storage=storage)
+    src = open_clouds(bag)
+    assert src.topic == "/kinect/points" and src.no_return_topic == "/kinect/points/no_return"
+    got = list(src)
+    assert [f.stamp_ns for f in got] == [(k + 1) * 10**8 for k in range(5)]
+    for k, f in enumerate(got):
+        np.testing.assert_array_equal(f.points, frames[k])
+        if k in rays:
+            np.testing.assert_array_equal(f.no_return, np.asarray(rays[k], np.float32))
+        else:
+            assert f.no_return is None
+    # the companion can still be read as a topic of its own
+    assert len(list(open_clouds(bag, topic="/kinect/points/no_return"))) == len(rays)

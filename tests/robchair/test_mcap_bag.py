@@ -27,6 +27,7 @@ TOPIC_TYPES = (
     (r"/tf_static", "tf2_msgs/msg/TFMessage"),
     (r"/sonar/[a-z0-9_]+/[123]|/sonar/[a-z0-9_]+_[123]", "sensor_msgs/msg/Range"),
     (r"/kinect/points", "sensor_msgs/msg/PointCloud2"),
+    (r"/kinect/points/no_return", "sensor_msgs/msg/PointCloud2"),
     (r"/scan", "sensor_msgs/msg/LaserScan"),
     (r"/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
 )
