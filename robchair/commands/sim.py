@@ -54,8 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--bag-clouds",
         choices=("voxel", "decimated", "full"),
         default="voxel",
-        help="depth clouds in the bag: voxel (every frame the map is built from, voxel-filtered at the "
-        "map's cell size: `robchair map --map-kind probabilistic` on it rebuilds the run's map; "
+        help="depth clouds in the bag: voxel (every frame the map is built from, thinned to the points "
+        "that build the same VHV structures in the odometry map, with the no-return rays on "
+        "/kinect/points/no_return: `robchair map --map-kind probabilistic` on it rebuilds the run's map; "
         "default), decimated (every 3rd frame, every 4th pixel each way) or full (every frame whole, "
         "about 70 MB per simulated second)",
     )
