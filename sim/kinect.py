@@ -407,6 +407,7 @@ class KinectSim:
         return raster_capture(  # type: ignore[no-any-return]
             mirror.tri_vertices,
             mirror.tri_faces,
+            mirror.tri_geometry,
             np.ascontiguousarray(t[:3, :3]),
             np.ascontiguousarray(t[:3, 3]),
             self._ray_ax,
