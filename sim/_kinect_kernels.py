@@ -1,5 +1,8 @@
 """Compiled (numba, cached on disk) per-pixel kernels of :mod:`sim.kinect`: noise and HD splatting.
 
+The raster (the first hit of every pixel) lives in :mod:`sim._raster_kernels`; :func:`raster_capture`
+runs it and the noise in one call.
+
 Kept in their own module so that importing :mod:`sim.kinect` does not import numba, and defined at
 module level (not as closures) so numba can cache them between runs. The noise formulas are the same
 as the documented pure functions in :mod:`sim.kinect` (the tests compare the two).
@@ -14,6 +17,7 @@ import numba
 import numpy as np
 
 from mapping._deps import announce_compilation
+from sim._raster_kernels import draw, triangle_normals
 from sim.kinect_params import (
     KINECT1_BASELINE_M,
     KINECT1_FOCAL_PX,
@@ -261,6 +265,23 @@ def _axial_tails(zs, cs, bits, model, quant, out):  # type: ignore[no-untyped-de
 
 
 @numba.njit(cache=True, nogil=True)
+def _points(zn, ax, by, zmin, zmax):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """The (H, W, 3) float32 points of :func:`_emit` alone (its ``labels=False`` output), branch-free
+    so that each row runs on SIMD lanes: ``z * (1, ax[u], by[v])`` within [zmin, zmax], else NaN."""
+    h, w = by.shape[0], ax.shape[0]
+    pts = np.empty((h, w, 3), dtype=np.float32)
+    for v in range(h):
+        b = by[v]
+        for u in range(w):
+            z = zn[v * w + u]
+            ok = (z >= zmin) & (z <= zmax)
+            pts[v, u, 0] = z if ok else np.nan
+            pts[v, u, 1] = z * ax[u] if ok else np.nan
+            pts[v, u, 2] = z * b if ok else np.nan
+    return pts
+
+
+@numba.njit(cache=True, nogil=True)
 def _emit(zn, src, body, link, ax, by, zmin, zmax, labels):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Range cut and the organized outputs of :func:`finish` from the flat noisy depth ``zn``."""
     h, w = by.shape[0], ax.shape[0]
@@ -470,142 +491,25 @@ def hits_to_image(t_hit, gid, nrm, invalid_id, keys, rot, max_range, h, w, norma
 
 
 @numba.njit(cache=True, nogil=True)
-def _draw_rows(pc, faces, ax, by, far, row0, row1, zbuf, tri):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """The triangle loop of :func:`raster_depth`, drawing into the image rows [row0, row1)."""
-    h, w = by.shape[0], ax.shape[0]
-    # pixel index of a ray component: ax decreases with u, by with v (uniform steps)
-    a0, da = ax[0], ax[1] - ax[0] if w > 1 else -1.0
-    b0, db = by[0], by[1] - by[0] if h > 1 else -1.0
-    eps = 1e-9
-    cx = np.empty(4)
-    cy = np.empty(4)
-    cz = np.empty(4)
-    for f in range(faces.shape[0]):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        x0, y0, z0 = pc[i0, 0], pc[i0, 1], pc[i0, 2]
-        x1, y1, z1 = pc[i1, 0], pc[i1, 1], pc[i1, 2]
-        x2, y2, z2 = pc[i2, 0], pc[i2, 1], pc[i2, 2]
-        if x0 <= eps and x1 <= eps and x2 <= eps:
-            continue  # wholly behind the camera
-        if x0 > far and x1 > far and x2 > far:
-            continue  # every point of it is deeper than the range
-        # clip against x = eps (Sutherland-Hodgman, one plane) to bound the projection
-        nc = 0
-        for e in range(3):
-            if e == 0:
-                px, py, pz, qx, qy, qz = x0, y0, z0, x1, y1, z1
-            elif e == 1:
-                px, py, pz, qx, qy, qz = x1, y1, z1, x2, y2, z2
-            else:
-                px, py, pz, qx, qy, qz = x2, y2, z2, x0, y0, z0
-            if px > eps:
-                cx[nc], cy[nc], cz[nc] = px, py, pz
-                nc += 1
-            if (px > eps) != (qx > eps):
-                s = (eps - px) / (qx - px)
-                cx[nc], cy[nc], cz[nc] = eps, py + s * (qy - py), pz + s * (qz - pz)
-                nc += 1
-        amin, amax, bmin, bmax = np.inf, -np.inf, np.inf, -np.inf
-        for k in range(nc):
-            a = cy[k] / cx[k]
-            b = cz[k] / cx[k]
-            amin, amax = min(amin, a), max(amax, a)
-            bmin, bmax = min(bmin, b), max(bmax, b)
-        # columns u with amin <= ax[u] <= amax (one pixel of margin for rounding)
-        # (clamped as floats first: a vertex just in front of the camera projects near infinity)
-        u0 = math.floor(min(max((amax - a0) / da, -2.0), w + 2.0)) - 1
-        u1 = math.ceil(min(max((amin - a0) / da, -2.0), w + 2.0)) + 1
-        v0 = math.floor(min(max((bmax - b0) / db, -2.0), h + 2.0)) - 1
-        v1 = math.ceil(min(max((bmin - b0) / db, -2.0), h + 2.0)) + 1
-        u0, u1, v0, v1 = max(u0, 0), min(u1, w - 1), max(v0, row0), min(v1, row1 - 1)
-        if u0 > u1 or v0 > v1:
-            continue
-        # edge functions r . (p_i x p_j) = e0 + e1 * a + e2 * b, and the plane n . r
-        e00, e01, e02 = y0 * z1 - z0 * y1, z0 * x1 - x0 * z1, x0 * y1 - y0 * x1
-        e10, e11, e12 = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
-        e20, e21, e22 = y2 * z0 - z2 * y0, z2 * x0 - x2 * z0, x2 * y0 - y2 * x0
-        n0, n1, n2 = e00 + e10 + e20, e01 + e11 + e21, e02 + e12 + e22
-        d = n0 * x0 + n1 * y0 + n2 * z0
-        if d == 0.0:
-            continue  # the plane passes through the camera: seen edge-on, no area
-        # a ray meets the triangle in front of the camera iff every triple product has the sign of
-        # d (their sum is n . r, and the depth d / (n . r) must be positive): flip to ">= 0" tests
-        if d < 0.0:
-            e00, e01, e02, e10, e11, e12 = -e00, -e01, -e02, -e10, -e11, -e12
-            e20, e21, e22 = -e20, -e21, -e22
-        for v in range(v0, v1 + 1):
-            b = by[v]
-            f0 = e00 + e02 * b
-            f1 = e10 + e12 * b
-            f2 = e20 + e22 * b
-            # the columns where each (affine in a) triple product is >= 0, widened by a pixel
-            # for rounding; every pixel in the span still gets the exact test below
-            lo, hi = u0, u1
-            for f_i, e_i in ((f0, e01), (f1, e11), (f2, e21)):
-                if e_i == 0.0:
-                    if f_i < 0.0:
-                        hi = -1
-                    continue
-                uc = min(max((-f_i / e_i - a0) / da, -2.0), w + 2.0)
-                if e_i > 0.0:  # a >= root: u <= uc (a decreases with u)
-                    hi = min(hi, math.ceil(uc) + 1)
-                else:
-                    lo = max(lo, math.floor(uc) - 1)
-            g = n0 + n2 * b
-            for u in range(lo, hi + 1):
-                a = ax[u]
-                if f0 + e01 * a >= 0.0 and f1 + e11 * a >= 0.0 and f2 + e21 * a >= 0.0:
-                    den = g + n1 * a
-                    if den == 0.0:
-                        continue  # the ray runs in the triangle's plane
-                    t = d / den
-                    if t > 0.0 and t <= far and t < zbuf[v, u]:
-                        zbuf[v, u] = t
-                        tri[v, u] = f
-
-
-@numba.njit(cache=True, nogil=True)
-def _draw(verts, faces, rot, origin, ax, by, far):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """The vertices in the camera frame and the z-buffer of :func:`raster_depth`: ``(zbuf, tri, pc)``,
-    the (H, W) depth of the nearest hit (inf: none), the triangle hit (-1: none) and the (M, 3) vertices."""
-    h, w = by.shape[0], ax.shape[0]
-    m = verts.shape[0]
-    pc = np.empty((m, 3))
-    for k in range(m):
-        dx = verts[k, 0] - origin[0]
-        dy = verts[k, 1] - origin[1]
-        dz = verts[k, 2] - origin[2]
-        for j in range(3):
-            pc[k, j] = rot[0, j] * dx + rot[1, j] * dy + rot[2, j] * dz
-    zbuf = np.full((h, w), np.inf)
-    tri = np.full((h, w), -1, dtype=np.int64)
-    _draw_rows(pc, faces, ax, by, far, 0, h, zbuf, tri)
-    return zbuf, tri, pc
-
-
-@numba.njit(cache=True, nogil=True)
-def _triangle_normals(pc, faces):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """(T, 3) float32 unit normal of each triangle of camera-frame vertices ``pc`` (NaN: degenerate)."""
-    nt = faces.shape[0]
-    tn = np.empty((nt, 3), dtype=np.float32)
-    for f in range(nt):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        ux, uy, uz = pc[i1, 0] - pc[i0, 0], pc[i1, 1] - pc[i0, 1], pc[i1, 2] - pc[i0, 2]
-        wx, wy, wz = pc[i2, 0] - pc[i0, 0], pc[i2, 1] - pc[i0, 1], pc[i2, 2] - pc[i0, 2]
-        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if ln > 0.0:
-            tn[f, 0], tn[f, 1], tn[f, 2] = nx / ln, ny / ln, nz / ln
-        else:
-            tn[f, 0] = tn[f, 1] = tn[f, 2] = np.nan
-    return tn
-
-
-@numba.njit(cache=True, nogil=True)
 def raster_capture(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    verts, faces, rot, origin, ax, by, far, bits, lat_table, lat_buckets, noise, model, quant, zmin, zmax
+    verts,
+    faces,
+    tri_geom,
+    rot,
+    origin,
+    ax,
+    by,
+    far,
+    bits,
+    lat_table,
+    lat_buckets,
+    noise,
+    model,
+    quant,
+    zmin,
+    zmax,
 ):
-    """:func:`raster_depth` followed by :func:`finish` (``labels=False``) without the images between them.
+    """:func:`sim._raster_kernels.raster_depth` then :func:`finish` (``labels=False``), no images between.
 
     The noisy organized cloud (H, W, 3) float32 of a capture, bit for bit the points of
     ``finish(*raster_depth(...), ...)``, but the lateral gather reads each source pixel's depth from
@@ -615,16 +519,14 @@ def raster_capture(  # type: ignore[no-untyped-def]  # pragma: no cover - compil
     """
     h, w = by.shape[0], ax.shape[0]
     n = h * w
-    zbuf, tri, pc = _draw(verts, faces, rot, origin, ax, by, far)
+    zbuf, tri, pc = draw(verts, faces, tri_geom, rot, origin, ax, by, far)
     zs = np.empty(n)
-    no_src = np.empty(1, dtype=np.int64)
-    no_labels = np.empty((1, 1), dtype=np.int64)
     if not noise:
         for v in range(h):
             for u in range(w):
                 zs[v * w + u] = zbuf[v, u] if tri[v, u] >= 0 else np.nan
-        return _emit(zs, no_src, no_labels, no_labels, ax, by, zmin, zmax, False)[2]
-    tn = _triangle_normals(pc, faces)
+        return _points(zs, ax, by, zmin, zmax)
+    tn = triangle_normals(pc, faces)
     cs = np.empty(n)
     for v in range(h):
         for u in range(w):
@@ -650,64 +552,7 @@ def raster_capture(  # type: ignore[no-untyped-def]  # pragma: no cover - compil
     axial = bits[1].reshape(n)
     _axial_pass(zs, cs, axial, model, quant, zn)
     _axial_tails(zs, cs, axial, model, quant, zn)
-    return _emit(zn, no_src, no_labels, no_labels, ax, by, zmin, zmax, False)[2]
-
-
-@numba.njit(cache=True, nogil=True)
-def raster_depth(verts, faces, tri_geom, keys, rot, origin, ax, by, far, normals, labels=True):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """First hit of every pixel ray of a pinhole camera among triangles, by image-space culling.
-
-    The exact geometric answer of casting one ray per pixel (the same as Embree's, up to floating
-    point rounding), but each triangle is only tested against the pixels of its projected bounding
-    box, so a frame costs about the pixels the triangles cover instead of a BVH walk per pixel.
-
-    Pixel (u, v) has the camera-frame ray ``(1, ax[u], by[v])`` (x forward, y left, z up; see
-    :meth:`sim.kinect.Intrinsics.rays`), so its ray parameter is the depth. A ray through the camera
-    origin crosses the triangle (p0, p1, p2) iff the three triple products ``ray . (p_i x p_j)``
-    share a sign; each is affine in (ax, by), and so is the plane's ``n . ray``, which gives the
-    depth ``(n . p0) / (n . ray)``. Triangles partly behind the camera are clipped against the plane
-    x = 1e-9 only to bound their pixels; the hit test itself needs no clipping.
-
-    Args:
-        verts: (M, 3) world vertices; faces: (T, 3) vertex indices; tri_geom: (T,) geometry index of
-            each triangle; keys: (G, 2) (body, link) of each geometry.
-        rot, origin: camera rotation (world <- camera) and position.
-        ax, by: (W,) and (H,) ray components of the pixel columns and rows.
-        far: hits beyond this depth are misses.
-        normals: fill the camera-frame unit normals of the hit triangles (else NaN).
-        labels: fill body and link (else they are 1x1 placeholders).
-
-    Returns:
-        ``(depth, normals, body, link)``: (H, W) depth (NaN: no hit), (H, W, 3) float32 normals,
-        (H, W) body and link (-1: no hit).
-    """
-    h, w = by.shape[0], ax.shape[0]
-    zbuf, tri, pc = _draw(verts, faces, rot, origin, ax, by, far)
-    tn = _triangle_normals(pc, faces if normals else faces[:0])
-    depth = np.empty((h, w))
-    nrm = np.empty((h, w, 3), dtype=np.float32)
-    lh, lw = (h, w) if labels else (1, 1)
-    body = np.empty((lh, lw), dtype=np.int64)
-    link = np.empty((lh, lw), dtype=np.int64)
-    for v in range(h):
-        for u in range(w):
-            f = tri[v, u]
-            if f < 0:
-                depth[v, u] = np.nan
-                nrm[v, u, 0] = nrm[v, u, 1] = nrm[v, u, 2] = np.nan
-                if labels:
-                    body[v, u] = link[v, u] = -1
-                continue
-            depth[v, u] = zbuf[v, u]
-            if labels:
-                g = tri_geom[f]
-                body[v, u] = keys[g, 0]
-                link[v, u] = keys[g, 1]
-            if normals:
-                nrm[v, u, 0], nrm[v, u, 1], nrm[v, u, 2] = tn[f, 0], tn[f, 1], tn[f, 2]
-            else:
-                nrm[v, u, 0] = nrm[v, u, 1] = nrm[v, u, 2] = np.nan
-    return depth, nrm, body, link
+    return _points(zn, ax, by, zmin, zmax)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

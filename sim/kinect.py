@@ -320,13 +320,13 @@ class KinectSim:
         """
         if not self.noise:
             return None
-        return (rng or self.rng).integers(
-            0,
-            np.iinfo(np.uint64).max,
-            size=(2, self.model.height, self.model.width),
-            dtype=np.uint64,
-            endpoint=True,
-        )
+        g = rng or self.rng
+        shape = (2, self.model.height, self.model.width)
+        if type(g.bit_generator) is np.random.PCG64:
+            # the same words as integers() over the full range (numpy returns PCG64's next 64-bit
+            # output there), without its per-call range handling: 1.1 -> 0.9 ms CPU per frame
+            return g.bit_generator.random_raw(size=shape)  # type: ignore[no-any-return]
+        return g.integers(0, np.iinfo(np.uint64).max, size=shape, dtype=np.uint64, endpoint=True)
 
     def _capture(
         self,
@@ -407,6 +407,7 @@ class KinectSim:
         return raster_capture(  # type: ignore[no-any-return]
             mirror.tri_vertices,
             mirror.tri_faces,
+            mirror.tri_geometry,
             np.ascontiguousarray(t[:3, :3]),
             np.ascontiguousarray(t[:3, 3]),
             self._ray_ax,

@@ -53,13 +53,14 @@ def render_raycast(
     ``rays`` may pass ``intr.rays()`` precomputed; ``normals=False`` skips the normals (NaN);
     ``buffer`` may pass a reusable (H*W, 6) float32 array for the rays handed to Embree.
     ``caster``: ``"embree"`` (Open3D's ``RaycastingScene``) or ``"raster"`` (the same rays tested
-    against the mirror's triangles with image-space culling, :func:`sim._kinect_kernels.raster_depth`:
+    against the mirror's triangles with image-space culling, :func:`sim._raster_kernels.raster_depth`:
     the same geometry up to float rounding, several times faster for a camera's coherent rays).
     ``labels=False`` lets the raster caster skip the body and link images (1x1 placeholders then).
     The per-pixel work runs in compiled kernels that release the GIL, so a capture thread
     overlaps the simulation thread.
     """
-    from sim._kinect_kernels import camera_ray_buffer, hits_to_image, raster_depth
+    from sim._kinect_kernels import camera_ray_buffer, hits_to_image
+    from sim._raster_kernels import raster_depth
 
     t = np.asarray(t_world_cam, dtype=np.float64)
     if t.shape != (4, 4) or not np.all(np.isfinite(t)):

@@ -418,7 +418,7 @@ class MeshMirror:
         self._scene = scene
         self.rebuilds += 1
         # the same triangles as flat arrays, for casters that work on them directly (the Kinect's
-        # image-space caster, sim._kinect_kernels.raster_depth)
+        # image-space caster, sim._raster_kernels.raster_depth)
         if self._links:
             counts = [len(lg.world_vertices) for lg in self._links]  # type: ignore[arg-type]
             offsets = np.cumsum([0, *counts[:-1]])

@@ -262,3 +262,15 @@ def test_raster_caster_matches_embree_on_the_office_scene(office_chair):
         d = np.abs(e.depth[both] - r.depth[both])
         assert np.mean(d < 1e-3) > 0.9999
         assert np.quantile(d, 0.999) < 1e-5
+
+
+@pytest.mark.parametrize("bitgen", [np.random.PCG64, np.random.MT19937])
+def test_noise_bits_are_the_generator_s_full_range_integers(client, bitgen):
+    # the PCG64 path reads the raw 64-bit outputs; the frames of a seed must stay what integers() gave
+    cam = KinectSim(client, "kinect2", rng=0)
+    a, b = np.random.Generator(bitgen(21)), np.random.Generator(bitgen(21))
+    bits = cam.noise_bits(a)
+    ref = b.integers(0, np.iinfo(np.uint64).max, size=(2, 424, 512), dtype=np.uint64, endpoint=True)
+    assert bits is not None and bits.dtype == np.uint64
+    assert np.array_equal(bits, ref)
+    assert a.integers(0, 2**62) == b.integers(0, 2**62)  # the generators are left in the same state
