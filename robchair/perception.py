@@ -409,17 +409,23 @@ class Perception:
                 with self._lock:
                     self.layer_s[name] = self.layer_s.get(name, 0.0) + time.perf_counter() - t0
                 continue
-            kw = {"stamp": stamp} if isinstance(m, ProbabilisticVHV) and m.now <= stamp else {}
-            s = m.insert(placer.points(t), sensor_origin=origin, **kw)
+            probabilistic = isinstance(m, ProbabilisticVHV)
+            kw = {"stamp": stamp} if probabilistic and m.now <= stamp else {}
+            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
+            # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays)
+            fw = placer.far_points(t) if insert_free is not None else None
+            free_ms = 0.0
+            if probabilistic and fw is not None and len(fw):
+                # one evidence pass for the frame: the rays' fans and the returns' fans merged on one table
+                # (one miss per cell and frame; the frame's own hits cut out of both), one update
+                s = m.insert_frame(placer.points(t), origin, no_return_ends=fw, **kw)
+            else:
+                s = m.insert(placer.points(t), sensor_origin=origin, **kw)
+                if insert_free is not None and fw is not None and len(fw):
+                    f = insert_free(fw, sensor_origin=origin, **kw)
+                    free_ms = float(getattr(f, "build_ms", 0.0))
             if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
                 s = s[0]
-            free_ms = 0.0
-            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
-            fw = placer.far_points(t) if insert_free is not None else None
-            if insert_free is not None and fw is not None and len(fw):
-                # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays)
-                f = insert_free(fw, sensor_origin=origin, **kw)
-                free_ms = float(getattr(f, "build_ms", 0.0))
             with self._lock:
                 self.layer_s[name] = self.layer_s.get(name, 0.0) + time.perf_counter() - t0
                 if role == "main" and s is not None:
