@@ -400,5 +400,27 @@ def decay_cells(cells, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_
     return dropped, keep[:nk].copy()
 
 
+@numba.jit(**_JIT)
+def band_cells(cstart, ccount, plo, phi, pl, l_occ, r, z0, z1, i0, i1, j0, j1, ny):  # type: ignore[no-untyped-def]
+    """Keys (ascending) of the cells of rows ``[i0, i1]`` x columns ``[j0, j1]`` with an occupied interval
+    (log-odds >= ``l_occ``) whose bounds in metres (lattice x ``r``) meet ``[z0, z1]``."""
+    out = np.empty((i1 - i0 + 1) * (j1 - j0 + 1), np.int64)
+    n = 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            c = i * ny + j
+            s = cstart[c]
+            for k in range(ccount[c]):
+                if (
+                    pl[s + k] >= l_occ
+                    and np.float64(phi[s + k]) * r >= z0
+                    and np.float64(plo[s + k]) * r <= z1
+                ):
+                    out[n] = c
+                    n += 1
+                    break
+    return out[:n].copy()
+
+
 # first run after an install or a change here: say why the first frame takes tens of seconds
 announce_compilation(sys.modules[__name__], "mapping kernels (interval store)")
