@@ -43,6 +43,10 @@ class IntervalStore:
         self._pt = np.empty((cap, 2), np.float64)
         self._track = track
         self._now = -math.inf
+        self._decayed_at = math.nan  # the clock of the last decay pass (NaN: none yet)
+        # every cell that may hold a dynamic interval (sorted; a superset: the decay pass prunes it), so
+        # that a pass visits those cells only, not the whole grid
+        self._dyn_cells = np.empty(0, np.int64)
         self._used = 0
         self._garbage = 0
         self._n_intervals = 0
@@ -79,6 +83,10 @@ class IntervalStore:
         extra = int(E.relocation_slots(tkey, toff, self._ccap))
         if self._used + extra > self._plo.shape[0]:
             self._grow(self._used + extra)
+        if self._track:
+            dyn = E.dynamic_cells(tkey, toff, tt)
+            if dyn.shape[0]:
+                self._dyn_cells = np.union1d(self._dyn_cells, dyn)
         used, freed, delta = E.write_back(
             tkey, toff, tlo, thi, tl, tt, self._cstart, self._ccount, self._ccap,
             self._plo, self._phi, self._pl, self._pt, self._used,
@@ -96,12 +104,23 @@ class IntervalStore:
         dwell = self.params.dynamic_max_dwell_s
         if age is None or not math.isfinite(self._now) or self._n_intervals == 0:
             return 0
+        if self._now == self._decayed_at:
+            # Nothing can have become due since the last pass at the same clock: an update stamps every
+            # dynamic piece it hits with ``now`` (age 0), lowers free pieces, and merges only pieces of
+            # equal stamps, so a piece kept by that pass (too young, too long dwelt, or not occupied) is
+            # kept again. A frame's free-only insert and the sonar inserts between frames skip the pass.
+            return 0
+        self._decayed_at = self._now
         from mapping import _store_kernels as E
 
-        n = int(
-            E.decay(self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
-                    self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ)
+        if self._dyn_cells.shape[0] == 0:
+            return 0
+        # the whole-grid pass (E.decay) restricted to the cells that hold dynamic intervals: the same drops
+        dropped, self._dyn_cells = E.decay_cells(
+            self._dyn_cells, self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
+            self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ,
         )  # fmt: skip
+        n = int(dropped)
         self._n_intervals -= n
         self._garbage += n
         return n

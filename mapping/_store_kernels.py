@@ -345,5 +345,82 @@ def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type
     return dropped
 
 
+@numba.jit(**_JIT)
+def dynamic_cells(tkey, toff, tt):  # type: ignore[no-untyped-def]
+    """The touched cells (``tkey``, ascending) whose new lists (``toff`` CSR into ``tt``) hold a dynamic
+    interval (a finite last-hit stamp)."""
+    out = np.empty(tkey.shape[0], np.int64)
+    n = 0
+    for c in range(tkey.shape[0]):
+        for k in range(toff[c], toff[c + 1]):
+            if tt[k, 0] > -np.inf:
+                out[n] = tkey[c]
+                n += 1
+                break
+    return out[:n].copy()
+
+
+@numba.jit(**_JIT)
+def decay_cells(cells, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
+    """:func:`decay` over the listed ``cells`` only (every cell holding a dynamic interval among them).
+
+    Returns:
+        (number of intervals dropped, the listed cells that still hold a dynamic interval).
+    """
+    dropped = 0
+    keep = np.empty(cells.shape[0], np.int64)
+    nk = 0
+    for q in range(cells.shape[0]):
+        c = cells[q]
+        cnt = ccount[c]
+        if cnt == 0:
+            continue
+        s = cstart[c]
+        w = 0
+        still = False
+        for k in range(cnt):
+            t = pt[s + k, 0]
+            if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
+                continue
+            if t > -np.inf:
+                still = True
+            if w != k:
+                plo[s + w] = plo[s + k]
+                phi[s + w] = phi[s + k]
+                pl[s + w] = pl[s + k]
+                pt[s + w, 0] = t
+                pt[s + w, 1] = pt[s + k, 1]
+            w += 1
+        if w != cnt:
+            dropped += cnt - w
+            ccount[c] = w
+        if still:
+            keep[nk] = c
+            nk += 1
+    return dropped, keep[:nk].copy()
+
+
+@numba.jit(**_JIT)
+def band_cells(cstart, ccount, plo, phi, pl, l_occ, r, z0, z1, i0, i1, j0, j1, ny):  # type: ignore[no-untyped-def]
+    """Keys (ascending) of the cells of rows ``[i0, i1]`` x columns ``[j0, j1]`` with an occupied interval
+    (log-odds >= ``l_occ``) whose bounds in metres (lattice x ``r``) meet ``[z0, z1]``."""
+    out = np.empty((i1 - i0 + 1) * (j1 - j0 + 1), np.int64)
+    n = 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            c = i * ny + j
+            s = cstart[c]
+            for k in range(ccount[c]):
+                if (
+                    pl[s + k] >= l_occ
+                    and np.float64(phi[s + k]) * r >= z0
+                    and np.float64(plo[s + k]) * r <= z1
+                ):
+                    out[n] = c
+                    n += 1
+                    break
+    return out[:n].copy()
+
+
 # first run after an install or a change here: say why the first frame takes tens of seconds
 announce_compilation(sys.modules[__name__], "mapping kernels (interval store)")

@@ -221,6 +221,16 @@ def map_cell_centres(
         window: ``(x_min, y_min, x_max, y_max)`` world box, m: only cells in it (None: every cell).
     """
     ny = vhv.spec.shape[1]
+    band_cell_keys = getattr(vhv, "band_cell_keys", None)
+    if window is not None and band_cell_keys is not None:
+        # a probabilistic map reads the window's cells only (the same cells, without its occupied view)
+        (i0, j0), (i1, j1) = (np.asarray(vhv.spec.world_to_index(u, v), np.int64) for u, v in
+                              ((window[0], window[1]), (window[2], window[3])))  # fmt: skip
+        key = band_cell_keys(band, (int(i0), int(i1)), (int(j0), int(j1)))
+        if key.shape[0] == 0:
+            return np.empty((0, 2))
+        u, v = vhv.spec.index_to_world(key // ny, key % ny)
+        return np.column_stack([u, v])
     keys = vhv.cell_keys
     s = vhv.structures()
     lo, hi = 0, len(keys)

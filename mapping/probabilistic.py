@@ -571,6 +571,24 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews):
         )
         return fkey, flo, fhi, int(passages)
 
+    def band_cell_keys(self, band: tuple[float, float], rows: tuple[int, int], cols: tuple[int, int]) -> Any:
+        """Sorted cell keys ``i * ny + j`` (int64) of the cells in rows ``[i0, i1]`` x columns ``[j0, j1]``
+        (clipped to the grid) holding an occupied structure that overlaps ``band`` (m).
+
+        The same cells as selecting on :meth:`structures` (``top >= z_min`` and ``bottom <= z_max``), read
+        from the window's cells only, without the whole map's occupied view (a joined structure overlaps
+        the band exactly when one of its occupied pieces does).
+        """
+        from mapping import _store_kernels as K
+
+        nx, ny = self.spec.shape
+        i0, i1 = max(int(rows[0]), 0), min(int(rows[1]), nx - 1)
+        j0, j1 = max(int(cols[0]), 0), min(int(cols[1]), ny - 1)
+        if i0 > i1 or j0 > j1:
+            return np.empty(0, np.int64)
+        return K.band_cells(self._cstart, self._ccount, self._plo, self._phi, self._pl, self._l_occ, self._r,
+                            float(band[0]), float(band[1]), i0, i1, j0, j1, ny)  # fmt: skip
+
     def __repr__(self) -> str:
         return (
             f"ProbabilisticVHV(cells={self.spec.shape}, cell_size={self.spec.cell_size}, "

@@ -19,6 +19,11 @@ exactly; a test checks it.
 The region is a world-frame box or, with :meth:`ZoomMap.follow`, a square of a given half-width that moves
 with the chair: when it moves, the fine structures in the overlap are kept and the rest of the new region
 starts from what is inserted from then on (the coarse map still answers there until then).
+
+The coarse level may be the caller's own map (any map with the grid ``spec``, ``structures()`` and
+``structures_at``; a perception stage sets its main map there) fed by the caller:
+:meth:`ZoomMap.insert_fine` then feeds the fine level alone. The exactness above holds for a coarse
+:class:`~mapping.vhv.VHVMap`; a probabilistic coarse map answers with its occupied evidence instead.
 """
 
 from __future__ import annotations
@@ -155,6 +160,24 @@ class ZoomMap:
         if self.fine is None or self._block is None:
             return coarse_stats, None
         return coarse_stats, self._insert_fine(pts, sensor_origin)
+
+    def insert_fine(self, points: ArrayLike, sensor_origin: ArrayLike | None = None) -> InsertStats | None:
+        """Insert one world-frame cloud's in-region part into the fine map only.
+
+        For a caller that feeds the coarse level itself with the same points (a perception stage whose
+        main map is the coarse level, e.g. a :class:`mapping.probabilistic.ProbabilisticVHV` set as
+        :attr:`coarse`): the fine map is then exactly what :meth:`insert` would make of it.
+
+        Args:
+            points: ``(N, 3)`` or ``(H, W, 3)`` xyz, m; NaN rows are skipped.
+            sensor_origin: World xyz of the sensor (recorded by the fine map).
+
+        Returns:
+            The fine map's :class:`~mapping.vhv.InsertStats` (None without a region).
+        """
+        if self.fine is None or self._block is None:
+            return None
+        return self._insert_fine(as_points(points), sensor_origin)
 
     def _insert_fine(self, pts: NDArray[np.floating], sensor_origin: ArrayLike | None) -> InsertStats:
         """The in-region points into the fine map, in one compiled pass over the frame.

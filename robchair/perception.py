@@ -30,15 +30,19 @@ the main one (``odometry``, ``matched`` or ``ground-truth``); the others are kep
 k-th frame.
 
 Zoom. With ``zoom_half_width``, a :class:`mapping.zoom.ZoomMap` square of that half-width around the
-chair (moving with it) is mapped ``zoom_factor`` times finer, fed by the same points in the same insert
-as the main map (it shares the main VHV map as its coarse level); the corridor distance of the safety
-layer also asks it (:meth:`Perception.zoom_distance_m`), at the fine resolution.
+chair (moving with it) is mapped ``zoom_factor`` times finer, fed by the same placed points as the main
+map, which is its coarse level (a thesis main map is fed through the zoom's insert; a probabilistic one
+is inserted itself and only the fine level beside it); the corridor distance of the safety layer also
+asks it (:meth:`Perception.zoom_distance_m`), at the fine resolution. Maps placed with the same pose
+share one transformed copy of the frame (the odometry map and the matching take the same one).
 
 Depth frames go through a small pipeline so that capturing and mapping overlap the rest of the loop:
 a camera offering ``submit_read()`` (the simulated Kinect) captures up to ``camera.max_inflight``
 frames ahead on background threads; frames are delivered in order, and their map insertion runs on one
-mapping thread. Delivery waits for the same number of frames whether threads are used or not, so a
-threaded run and a serial one give the same maps and decisions bit for bit.
+mapping thread (the matching, the main map and the zoom) and a second one for the maps beside it (the
+odometry map, the ground-truth map, the layers), which the frame waits for. Delivery waits for the same
+number of frames whether threads are used or not, so a threaded run and a serial one give the same maps
+and decisions bit for bit.
 
 This module owns the stage (:class:`Perception`: intake of every sensor, the pose layers, the safety
 queries) and its constants; the sonar arc helpers are in :mod:`robchair.perception_sonar`, the map
@@ -97,7 +101,7 @@ class Perception:
         sonar_map: map of the sonar points (default another VHV map on ``grid``; None: the main map).
         band: (z_min, z_max) m of the chair's height band; z_max None = the chair's height.
         camera_stride: pixel stride of the depth points used for the corridor distance.
-        threaded: insert frames into the maps on a background thread.
+        threaded: insert frames into the maps on background threads (the main map, and the maps beside it).
         frames: extra sensor frames ``{frame_id: T_base_frame (4, 4)}`` beyond the spec's mounts.
         tolerance: merge tolerance of the default VHV maps, m.
         matcher: a :class:`mapping.matching.ScanMatcher` to correct depth frames by scan-to-map matching
@@ -208,8 +212,8 @@ class Perception:
             if not (math.isfinite(zoom_half_width) and zoom_half_width > 0):
                 raise ConfigError(f"zoom_half_width = {zoom_half_width!r}: expected metres > 0")
             self.zoom = ZoomMap(self.grid, tolerance, factor=zoom_factor)
-            if isinstance(self.map, VHVMap) and self.map.spec == self.grid:
-                self.zoom.coarse = self.map  # one insert feeds both levels
+            if getattr(self.map, "spec", None) == self.grid and hasattr(self.map, "structures_at"):
+                self.zoom.coarse = self.map  # the main map is the coarse level: one transform feeds both
         self.band = (float(band[0]), float(band[1]) if band[1] is not None else float(spec.body.height))
         self.corridor = Corridor.from_spec(spec)
         self.camera_stride = int(camera_stride)
@@ -217,6 +221,8 @@ class Perception:
         self._frames: dict[str, np.ndarray] = {n: m.transform() for n, m in spec.mounts.items()}
         self._frames.update(frames or {})
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="perception-map") if threaded else None
+        # the maps beside the main one (odometry, ground truth, layers) on a second mapping thread
+        self._layer_pool = ThreadPoolExecutor(1, thread_name_prefix="perception-layers") if threaded else None
         self._pending: deque[Future[None]] = deque()
         self._inflight: deque[tuple[Any, dict[str, np.ndarray], list[np.ndarray], Pose2D]] = deque()
         self._lock = threading.Lock()
@@ -332,74 +338,103 @@ class Perception:
     def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
                       placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D,
                       seq: int) -> None:  # fmt: skip
+        from mapping.vhv import VHVMap
+
         pts = np.asarray(frame.points).reshape(-1, 3)
         t_odom_sensor = t_world_base["odometry"] @ t_base_sensor
         poses = {k: t @ t_base_sensor for k, t in t_world_base.items()}
+        r = self._camera_range if self.clear_no_return else None
+        far = no_return_points(frame, r, self.camera_stride, self._rays) if r else None
+        placer = _Placer(pts, far)
         if self.matcher is not None and seq % self.match_every:
             poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor  # between matches: odometry
         elif self.matcher is not None:
-            # the frame, placed by odometry in odom, is registered against the matched map first
+            # the frame, placed by odometry in odom, is registered against the matched map first (the
+            # odometry map takes the same placed points)
             t0 = time.perf_counter()
-            res = self.matcher.match(
-                transform_points(t_odom_sensor, pts, np.float32), self.pose_maps["matched"], t_odom_sensor
-            )
+            res = self.matcher.match(placer.points(t_odom_sensor), self.pose_maps["matched"], t_odom_sensor)
             poses["matched"] = self.matcher.t_map_odom @ t_odom_sensor
             with self._lock:
                 self.layer_s["matching"] = self.layer_s.get("matching", 0.0) + time.perf_counter() - t0
                 self.match_ms.append(res.ms)
                 self.stats["matches_accepted" if res.accepted else "matches_rejected"] += 1
-        main = [(self.zoom if self.zoom is not None and self.zoom.coarse is self.map else self.map,
-                 poses[self.pose], True)]  # fmt: skip
-        names = [self.pose]
-        if self.zoom is not None:
+        zoom = self.zoom
+        main: list[tuple[str, Any, np.ndarray, str]] = []
+        if zoom is not None:
             t_main_base = poses[self.pose] @ np.linalg.inv(t_base_sensor)
-            self.zoom.follow(t_main_base[0, 3], t_main_base[1, 3], self.zoom_half_width)
-            if self.zoom.coarse is not self.map:  # the main map is not a VHV map: the zoom is fed too
-                main.append((self.zoom, poses[self.pose], False))
-                names.append("zoom")
+            zoom.follow(t_main_base[0, 3], t_main_base[1, 3], self.zoom_half_width)
+        if zoom is not None and zoom.coarse is self.map and isinstance(self.map, VHVMap):
+            main.append((self.pose, zoom, poses[self.pose], "main"))  # one insert feeds both levels
+        else:
+            main.append((self.pose, self.map, poses[self.pose], "main"))
+            if zoom is not None:  # the main map is the zoom's coarse level: only the fine one is fed here
+                main.append(("zoom", zoom, poses[self.pose], "fine" if zoom.coarse is self.map else "layer"))
         evaluate = seq % self.evaluation_every == 0  # the evaluation maps take every k-th frame
         # the odometry map takes every frame: it is what a recorded bag of the run maps back to
         fed = [k for k, m in self.pose_maps.items() if m is not self.map and (evaluate or k == "odometry")]
-        others = [(self.pose_maps[k], poses[k], False) for k in fed]
-        names += fed
-        if not evaluate:
-            placed = []
-        names += [ly.name for ly in self.layers if evaluate]
-        r = self._camera_range if self.clear_no_return else None
-        far = no_return_points(frame, r, self.camera_stride, self._rays) if r else None
+        others = [(k, self.pose_maps[k], poses[k], "layer") for k in fed]
+        if evaluate:
+            others += [(ly.name, m, t, "layer") for ly, (m, t, _) in zip(self.layers, placed, strict=True)]
+        stamp = frame.stamp_ns * 1e-9
+        # the maps beside the main one go in on a second thread (the kernels release the GIL) and are
+        # waited for before the frame is done: each map takes its frames in the same order, threaded or not
+        pool = self._layer_pool
+        fut = pool.submit(self._insert_each, others, placer, stamp) if pool is not None and others else None
+        self._insert_each(main, placer, stamp)
+        if fut is not None:
+            fut.result()
+        elif others:
+            self._insert_each(others, placer, stamp)
+        if self.matcher is not None or self.zoom is not None:
+            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
+            with self._lock:
+                self._after_frame[seq] = (t, d, pose)
+
+    def _insert_each(
+        self, jobs: list[tuple[str, Any, np.ndarray, str]], placer: _Placer, stamp: float
+    ) -> None:
+        """Insert one frame into each ``(name, map, T_world_sensor, role)`` of ``jobs``, in order.
+
+        ``role``: ``"main"`` (its stats are the stage's), ``"layer"``, or ``"fine"`` (the zoom's fine level
+        only). Probabilistic maps take the capture ``stamp`` (s) and the no-return rays' free space.
+        """
         from mapping.probabilistic import ProbabilisticVHV
 
-        stamp = {"stamp": frame.stamp_ns * 1e-9}
-        for name, (m, t, is_main) in zip(names, main + others + placed, strict=True):
+        for name, m, t, role in jobs:
             t0 = time.perf_counter()
-            kw = stamp if isinstance(m, ProbabilisticVHV) and m.now <= stamp.get("stamp", m.now) else {}
-            s = m.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3], **kw)
+            origin = t[:3, 3]
+            if role == "fine":
+                m.insert_fine(placer.points(t), sensor_origin=origin)
+                with self._lock:
+                    self.layer_s[name] = self.layer_s.get(name, 0.0) + time.perf_counter() - t0
+                continue
+            probabilistic = isinstance(m, ProbabilisticVHV)
+            kw = {"stamp": stamp} if probabilistic and m.now <= stamp else {}
+            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
+            # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays)
+            fw = placer.far_points(t) if insert_free is not None else None
+            free_ms = 0.0
+            if probabilistic and fw is not None and len(fw):
+                # one evidence pass for the frame: the rays' fans and the returns' fans merged on one table
+                # (one miss per cell and frame; the frame's own hits cut out of both), one update
+                s = m.insert_frame(placer.points(t), origin, no_return_ends=fw, **kw)
+            else:
+                s = m.insert(placer.points(t), sensor_origin=origin, **kw)
+                if insert_free is not None and fw is not None and len(fw):
+                    f = insert_free(fw, sensor_origin=origin, **kw)
+                    free_ms = float(getattr(f, "build_ms", 0.0))
             if isinstance(s, tuple):  # a ZoomMap: (coarse stats, fine stats)
                 s = s[0]
-            free_ms = 0.0
-            insert_free = getattr(m, "insert_free", None)  # maps that keep free space
-            if far is not None and len(far) and insert_free is not None:
-                # no-return pixels: free space along their rays up to the range (OctoMap's max-range rays),
-                # only for rays still above NO_RETURN_MIN_HEIGHT_M there: a ray that would have met the
-                # floor within the range lost its return on something (or grazing the floor), not in air
-                fw = transform_points(t, far, np.float32)
-                f = insert_free(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M], sensor_origin=t[:3, 3], **kw)
-                free_ms = float(getattr(f, "build_ms", 0.0))
             with self._lock:
                 self.layer_s[name] = self.layer_s.get(name, 0.0) + time.perf_counter() - t0
-            if is_main and s is not None:
-                with self._lock:
+                if role == "main" and s is not None:
                     self.map_ms.append(float(getattr(s, "build_ms", math.nan)) + free_ms)
                     st = self.stats
                     st["depth_frames"] += 1
                     st["points_in"] += int(getattr(s, "points_in", 0))
                     st["points_dropped_nonfinite"] += int(getattr(s, "points_dropped_nonfinite", 0))
                     st["points_outside_grid"] += int(getattr(s, "points_outside_grid", 0))
-        if self.matcher is not None or self.zoom is not None:
-            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
-            t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
-            with self._lock:
-                self._after_frame[seq] = (t, d, pose)
 
     def _submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self._pool is None:
@@ -607,3 +642,51 @@ class Perception:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
+            if self._layer_pool is not None:
+                self._layer_pool.shutdown(wait=True)
+                self._layer_pool = None
+
+
+class _Placer:
+    """One depth frame placed in the world once per distinct ``T_world_sensor``, shared by its maps.
+
+    ``points`` (N, 3) float32 camera-frame points; ``far`` (M, 3) camera-frame no-return ray ends (or
+    None). The placed arrays are read-only: maps placed with the same transform take the same array.
+    """
+
+    def __init__(self, points: np.ndarray, far: np.ndarray | None) -> None:
+        self._pts, self._far = points, far
+        self._placed: dict[tuple[str, bytes], np.ndarray] = {}
+        self._lock = threading.Lock()
+
+    def _get(self, which: str, t: np.ndarray, make: Callable[[], np.ndarray]) -> np.ndarray:
+        key = (which, np.ascontiguousarray(t, dtype=np.float64).tobytes())
+        with self._lock:
+            got = self._placed.get(key)
+        if got is None:
+            got = make()
+            got.setflags(write=False)
+            with self._lock:
+                got = self._placed.setdefault(key, got)
+        return got
+
+    def points(self, t: np.ndarray) -> np.ndarray:
+        """The frame's points in the world, (N, 3) float32, placed with ``t`` (4, 4)."""
+        return self._get("points", t, lambda: transform_points(t, self._pts, np.float32))
+
+    def far_points(self, t: np.ndarray) -> np.ndarray | None:
+        """The no-return rays' ends placed with ``t``, only those at least
+        :data:`NO_RETURN_MIN_HEIGHT_M` high (world z) there (None: no such rays).
+
+        A ray that would have met the floor within the range lost its return on something (or grazing
+        the floor), not in air: it clears nothing.
+        """
+        far = self._far
+        if far is None or not len(far):
+            return None
+
+        def make() -> np.ndarray:
+            fw = transform_points(t, far, np.float32)
+            return np.ascontiguousarray(fw[fw[:, 2] >= NO_RETURN_MIN_HEIGHT_M])
+
+        return self._get("far", t, make)

@@ -216,3 +216,29 @@ def test_matching_the_same_view_while_standing_still_does_not_walk_the_map_away(
     # the odometry did not move: its error cannot have grown, so nothing was applied
     np.testing.assert_array_equal(standing.t_map_odom, np.eye(4))
     assert abs(per_frame.t_map_odom[0, 3]) > 0.005  # without the pose, the error grows every frame
+
+
+@pytest.mark.parametrize(
+    "window", [(0.5, -2.0, 4.0, 2.0), (-9.0, -9.0, 9.0, 9.0), (1.0, 0.0, 3.5, 1.5), (7.0, 7.0, 8.0, 8.0)]
+)
+def test_a_probabilistic_map_gives_the_map_cells_of_a_window_that_its_occupied_structures_give(
+    window,
+) -> None:
+    """map_cell_centres reads a probabilistic map's window cells directly (band_cell_keys): the same centres,
+    in the same order, as selecting on the map's occupied structures (its VHV view), for windows inside,
+    across and outside the grid; occupied pieces only (a cell only free in the band gives none)."""
+    from mapping.matching import map_cell_centres
+    from mapping.probabilistic import ProbabilisticVHV
+
+    rng = np.random.default_rng(2)
+    m = ProbabilisticVHV(GridSpec(cell_size=0.05, size_x=12.0, size_y=12.0))
+    for k in range(3):
+        m.insert(
+            render_scene(rng, 106, 128, nan_fraction=0.05, pitch_deg=5.0), sensor_origin=(0.0, 0.1 * k, 0.9)
+        )
+    band = (0.10, 1.0)
+    got = map_cell_centres(m, band, window)
+    want = map_cell_centres(m._occupied_view(), band, window)
+    np.testing.assert_array_equal(got, want)
+    if window[0] < 3.0:
+        assert len(got) > 3

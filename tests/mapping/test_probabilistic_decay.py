@@ -127,3 +127,43 @@ def test_stamps_going_back_and_bad_decay_parameters_are_refused():
         EvidenceParams(dynamic_max_dwell_s=-1)
     with pytest.raises(MappingError, match="dynamic_void_probability"):
         EvidenceParams(dynamic_void_probability=1.5)
+
+
+def _whole_grid_decay(m: ProbabilisticVHV) -> int:
+    """The decay pass over every cell of the grid, at every call (the reference of the tracked pass)."""
+    import math
+
+    from mapping import _store_kernels as E
+
+    if not math.isfinite(m._now) or m._n_intervals == 0:
+        return 0
+    n = int(E.decay(m._ccount, m._cstart, m._plo, m._phi, m._pl, m._pt, m._now, 0.5, 2.0, m._l_occ))
+    m._n_intervals -= n
+    m._garbage += n
+    return n
+
+
+def test_the_decay_over_the_tracked_dynamic_cells_drops_what_the_whole_grid_pass_drops(monkeypatch):
+    """A walker crossing in front of the wall, then out of view, with a free-only insert and a second
+    insert at the same stamp in every frame: the map whose decay visits only the cells holding dynamic
+    intervals, once per clock value, equals bit for bit the map whose decay sweeps the grid at every insert
+    (and some intervals were dropped)."""
+    params = EvidenceParams(dynamic_decay_s=0.5, dynamic_max_dwell_s=2.0)
+    spec = GridSpec(cell_size=0.05, size_x=8.0, size_y=8.0)
+    tracked, whole = ProbabilisticVHV(spec, params=params), ProbabilisticVHV(spec, params=params)
+    dropped = []
+    monkeypatch.setattr(whole, "_decay", lambda: dropped.append(_whole_grid_decay(whole)) or dropped[-1])
+    far = np.array([[4.0, y, 1.2] for y in np.linspace(-1.5, 1.5, 31)])
+    for k in range(40):
+        y = -1.0 + 0.05 * k
+        boxes = [WALL, [1.5, y - 0.2, 0.0, 1.9, y + 0.2, 1.7]] if k < 25 else [BEHIND]
+        cloud = _view(boxes, yaw=0.0 if k < 25 else 180.0)
+        for m in (tracked, whole):
+            m.insert(cloud, sensor_origin=O, stamp=k / HZ)
+            m.insert_free(far, sensor_origin=O, stamp=k / HZ)
+            m.insert(cloud[::7, ::7], sensor_origin=O, stamp=k / HZ)
+    assert sum(dropped) > 0
+    a, b = tracked.intervals(), whole.intervals()
+    for f in ("i", "j", "bottom", "top", "log_odds"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    np.testing.assert_array_equal(tracked._flat()[0], whole._flat()[0])

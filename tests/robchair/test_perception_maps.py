@@ -201,3 +201,47 @@ def test_a_person_who_walked_across_the_view_leaves_no_trail_in_the_probabilisti
             assert wc["cells_cleared"] > 0 and wc["median_s"] <= 1.0
     assert trail["thesis"] >= 20  # the accumulate-only map keeps the person's whole crossing
     assert trail["probabilistic"] == 0  # every cell it crossed reads free or unknown after it left
+
+
+def test_one_evidence_pass_per_frame_with_the_no_return_rays_keeps_the_two_pass_map_of_a_real_run(
+    monkeypatch,
+) -> None:
+    """The perception stage inserts a depth frame and its no-return rays' ends in one evidence pass
+    (``insert_frame``: one fan table, one miss per cell, the frame's hits cut out of both, one update)
+    instead of ``insert`` then ``insert_free``. On the default scenario's first 3 s of Kinect frames, placed
+    by the run's odometry, the two maps' 2D occupancy of the chair's band: occupied IoU >= 0.98, free IoU
+    >= 0.99, at most 1 % of the known cells differing (measured: 1.000, 0.9997, 1 of 3979 known cells; the
+    matched map of a 4 s run: 0.998, 0.999, 3 of 5321)."""
+    pytest.importorskip("pybullet")
+    from robchair import perception as P
+    from robchair.scenario import run_scenario
+
+    seen: list[tuple[DepthFrame, np.ndarray, np.ndarray | None]] = []
+    orig = P.Perception._insert_frame
+
+    def record(self, frame, t_world_base, t_base_sensor, placed, pose, seq):  # type: ignore[no-untyped-def]
+        r = self._camera_range if self.clear_no_return else None
+        far = P.no_return_points(frame, r, self.camera_stride, self._rays) if r else None
+        seen.append((frame, t_world_base["odometry"] @ t_base_sensor, far))
+        return orig(self, frame, t_world_base, t_base_sensor, placed, pose, seq)
+
+    monkeypatch.setattr(P.Perception, "_insert_frame", record)
+    kw = dict(sensor="kinect2", seed=0, progress=False, write=False, mapping_thread=False, pipeline=False)
+    res = run_scenario("office_corridor", duration=3.0, pose="odometry", matching=False, zoom=False, **kw)
+    assert len(seen) >= 80 and all(far is not None and len(far) for _, _, far in seen)
+    main = res.maps["odometry"]
+    one = ProbabilisticVHV(main.spec, main.tolerance, main.params)
+    two = ProbabilisticVHV(main.spec, main.tolerance, main.params)
+    for frame, t, far in seen:
+        placer = P._Placer(np.asarray(frame.points).reshape(-1, 3), far)
+        pts, ends, stamp = placer.points(t), placer.far_points(t), frame.stamp_ns * 1e-9
+        one.insert_frame(pts, t[:3, 3], no_return_ends=ends, stamp=stamp)
+        two.insert(pts, sensor_origin=t[:3, 3], stamp=stamp)
+        two.insert_free(ends, sensor_origin=t[:3, 3], stamp=stamp)
+    band = (0.10, 1.0)
+    a, b, run = one.occupancy_2d(band), two.occupancy_2d(band), main.occupancy_2d(band)
+    np.testing.assert_array_equal(a, run)  # the stage's own map is the one-pass map
+    iou = [float((x & y).sum() / (x | y).sum()) for x, y in ((a == 100, b == 100), (a == 0, b == 0))]
+    differing, known = int((a != b).sum()), int(((a != -1) | (b != -1)).sum())
+    assert known > 2000
+    assert iou[0] >= 0.98 and iou[1] >= 0.99 and differing <= 0.01 * known, (iou, differing, known)

@@ -173,3 +173,55 @@ def test_the_bag_of_a_run_has_map_odom_base_link(sim_run: Path) -> None:
     # one tree: base_link's only parent is odom, odom's only parent is map
     parents = {c: p for p, c in pairs}
     assert parents["base_link"] == "odom" and parents["odom"] == "map" and "map" not in parents
+
+
+def test_with_a_probabilistic_main_map_the_zoom_fine_level_is_what_a_zoom_map_of_its_own_makes(spec) -> None:
+    """The main (probabilistic) map is the zoom's coarse level and only the fine level is fed beside it:
+    the fine structures equal those of a ZoomMap fed the same placed frames through ``insert`` (its own
+    coarse VHV level), with the region following the chair; outside the region the zoom answers with the
+    main map's occupied structures."""
+    from mapping.zoom import ZoomMap
+
+    rng = np.random.default_rng(11)
+    clouds = [render_scene(rng, 106, 128, nan_fraction=0.05, pitch_deg=5.0) for _ in range(4)]
+    p = _perception(spec, zoom_half_width=2.5, zoom_factor=5)
+    assert p.zoom.coarse is p.map
+    own = ZoomMap(p.grid, p.tolerance, factor=5)
+    poses = [Pose2D(0.06 * k, 0.01 * k, 0.02 * k) for k in range(4)]
+    cam = Camera(clouds)
+    for pose in poses:
+        p.take_depth(cam, pose)
+    p.flush()
+    for cloud, pose in zip(clouds, poses, strict=True):
+        t = se3_planar(pose.x, pose.y, pose.theta)
+        own.follow(pose.x, pose.y, 2.5)
+        pts = np.asarray(cloud, np.float32).reshape(-1, 3)
+        from robchair.platform.frames import transform_points
+
+        own.insert(transform_points(t, pts, np.float32), sensor_origin=t[:3, 3])
+    assert len(own.fine.structures()) > 100
+    assert p.zoom.fine.structures().equals(own.fine.structures())
+    assert p.zoom.structures_at(-5.0, 0.0).equals(p.map.structures_at(-5.0, 0.0))
+
+
+def test_the_maps_beside_the_main_one_on_their_own_thread_equal_the_serial_maps_bit_for_bit(spec) -> None:
+    """Threaded, the odometry map (and a layer) take their inserts on a second mapping thread while the main
+    map and the matching run on the first: every map's intervals equal the serial run's."""
+    rng = np.random.default_rng(5)
+    clouds = [render_scene(rng, 106, 128, nan_fraction=0.05, pitch_deg=5.0) for _ in range(6)]
+    maps = []
+    for threaded in (False, True):
+        p = _perception(spec, pose="matched", threaded=threaded)
+        layer = p.new_map()
+        p.add_layer("ground_truth", layer, lambda: se3_planar(0.01, 0.0, 0.0))
+        assert (p._layer_pool is not None) == threaded
+        cam = Camera(clouds)
+        for k in range(6):
+            p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.01 * k))
+        p.close()
+        maps.append([p.pose_maps["matched"], p.pose_maps["odometry"], layer])
+    for a, b in zip(*maps, strict=True):
+        ia, ib = a.intervals(), b.intervals()
+        assert len(ia.i) > 100
+        for f in ("i", "j", "bottom", "top", "log_odds"):
+            np.testing.assert_array_equal(getattr(ia, f), getattr(ib, f))
