@@ -17,7 +17,9 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
   where the person's command points, the chair follows the doorway's centre line at the person's
   speed (at most ``door_speed``) and hands control back once its rear edge is through, or once the
   person has steered away for ``override_s`` (doorway assistance of partially automated wheelchairs:
-  Argall lab, Northwestern, SPEC section 7).
+  Argall lab, Northwestern, SPEC section 7). A doorway is taken only while the chair faces through it
+  (within ``MAX_ENGAGE_PHI_RAD`` of its normal), and a different one only ``NEW_DOOR_M`` from where
+  the last was let go.
 
 The person always wins:
 
@@ -62,6 +64,10 @@ SAME_DOOR_M = 0.5  # m: a doorway found again within this of the last one keeps 
 # 1000000009, 1000000075, 1000000097: a gap 2 m aside taken over the doorway being passed, or in the
 # room, and the chair turned away from the goal); the same doorway is taken again at once
 NEW_DOOR_M = 1.0
+# rad: a doorway is taken only while the chair's heading is within this of its normal (through it). The
+# corridor's side doors are seen at 85-100 degrees; the office floor's seed 1000000028 took a gap at
+# 156 degrees, half behind the chair, turned toward it and never reached the doorway ahead
+MAX_ENGAGE_PHI_RAD = math.radians(120.0)
 GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage's twist before taking it
 
 
@@ -361,7 +367,10 @@ class AssistedSource:
                 return None
             return d
         for d in find_doorways(pts, self.doorway):
-            if abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
+            # the chair faces the doorway's through direction within MAX_ENGAGE_PHI_RAD (a side door of a
+            # corridor is seen at about 90 degrees; one behind its plane's normal is not the way ahead)
+            facing = abs(math.atan2(d.ny, d.nx)) <= MAX_ENGAGE_PHI_RAD
+            if facing and abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
                 d = refine(d, pts)
                 odom = d.transformed(pose.x, pose.y, pose.theta)
                 last = self._last_door

@@ -103,3 +103,14 @@ def test_door_passes_random_floors_9_and_97_keeping_to_the_doorway_it_let_go() -
         ep = episode_set(k, (0.8, 0.9), "random", ["door"], "tremor")["door"]
         assert ep["success"] and ep["collisions"] == 0, k
         assert math.isfinite(ep["time_s"])
+
+
+def test_door_passes_office_episode_28_ignoring_a_gap_half_behind_the_chair() -> None:
+    """Office episode 28 (0.840 m doorway ahead along the corridor): a swing of the stick pointed at a
+    gap seen 156 degrees off its normal (half behind the chair), the passage turned toward it and the
+    chair never reached the doorway ahead. A doorway is now taken only while the chair faces it within
+    MAX_ENGAGE_PHI_RAD of its normal."""
+    from robchair.commands.assist_eval import episode_set
+
+    ep = episode_set(28, (0.8, 0.9), "office", ["door"], "tremor")["door"]
+    assert ep["success"] and ep["collisions"] == 0
