@@ -11,7 +11,8 @@ every 50 ms cycle. It is a kinematic model (no PyBullet): cheap enough for hundr
 
 Metrics per episode (:func:`run_episode`): success, time, collisions, safety stops, minimum
 clearance; agreement (mean cosine of the person's and the applied (v, w), each scaled to the limits)
-and the share of cycles the assistance changed the command; effort (the stick's path length and
+and the share of cycles the assistance changed the command, with the agreement lost split by what
+the stage did (``agreement_loss``); effort (the stick's path length and
 reversals of its turn axis); comfort: peak and RMS longitudinal (dv/dt) and lateral (v w)
 acceleration and peak longitudinal jerk. ISO 2631-1:1997 (Annex C) rates frequency-weighted RMS
 acceleration: < 0.315 m/s^2 not uncomfortable, 0.315-0.63 a little, 0.5-1.0 fairly uncomfortable
@@ -166,15 +167,31 @@ def run_episode(world: Any, spec: RobChairSpec, start: tuple[float, float, float
     return episode_metrics(d, person, limits, rate_hz)
 
 
+def loss_key(report: dict[str, Any]) -> str:
+    """What the stage did in one cycle, for attributing lost agreement: its ``action``, and the
+    doorway passage's phase when it drove one (``window/back-off``, ``door/pass``, ...)."""
+    phase = report.get("door_phase")
+    return f"{report['action']}/{phase}" if phase else str(report["action"])
+
+
 def episode_metrics(d: dict[str, Any], person: Any, limits: SafetyLimits, rate_hz: float) -> dict[str, Any]:
-    """The metrics of one :func:`drive` (see the module)."""
+    """The metrics of one :func:`drive` (see the module).
+
+    ``agreement_loss`` splits ``1 - agreement`` by what the stage did (:func:`loss_key`): the sum of
+    ``1 - cosine`` over that kind of cycle divided by every counted cycle, so the values add up to
+    ``1 - agreement`` (the cycles where the person's command is zero do not count, as for the
+    agreement).
+    """
     dt = 1.0 / rate_hz
     scale = (limits.max_speed, limits.max_yaw_rate)
     cos, changed = [], 0
+    loss: dict[str, float] = {}
     for r in d["reports"]:
         p, a = r["person"], r["applied"]
         if p != (0.0, 0.0):
             cos.append(cosine((p[0] / scale[0], p[1] / scale[1]), (a[0] / scale[0], a[1] / scale[1])))
+            key = loss_key(r)
+            loss[key] = loss.get(key, 0.0) + 1.0 - cos[-1]
         changed += bool(r["overridden"])
     v, w = d["twist"][:, 0], d["twist"][:, 1]
     a_lon = np.diff(np.concatenate([[0.0], v])) / dt
@@ -190,6 +207,7 @@ def episode_metrics(d: dict[str, Any], person: Any, limits: SafetyLimits, rate_h
         "safety_stops": len(d["stops"]),
         "min_clearance_m": float(d["clearance_m"]),
         "agreement": float(np.mean(cos)) if cos else 1.0,
+        "agreement_loss": {k: v / len(cos) for k, v in sorted(loss.items())},
         "overridden_share": changed / max(1, len(d["reports"])),
         "joystick_path": float(np.sum(np.hypot(*np.diff(stick, axis=0).T))) if len(stick) > 1 else 0.0,
         "reversals": int(np.sum(np.diff(np.sign(turn)) != 0)) if len(turn) > 1 else 0,

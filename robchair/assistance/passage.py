@@ -9,9 +9,13 @@ turn to its heading):
 1. ``approach``: drive to the approach pose, ``approach_m`` before the doorway's plane on its centre
    line, facing through it. The chair turns toward that pose and moves forward as it faces it
    (``v = v_person cos^2(bearing)``, none while the safety layer's corridor holds a point within
-   ``stop_gap_m``); within ``arrive_m`` of it, or once it lies beside or behind the chair within
-   ``pass_by_m`` (chasing a point that close only turns the chair back and forth), it turns in place
-   onto the door's normal (``align``), and from then on never approaches again.
+   ``stop_gap_m``), braking at ``APPROACH_DECEL`` onto it; within ``arrive_m`` of it, or once it lies
+   beside or behind the chair within ``pass_by_m`` (chasing a point that close only turns the chair
+   back and forth) or ahead within ``pass_by_m`` where the corridor holds the chair, it turns in place
+   onto the door's normal (``align``), and from then on never approaches again, unless aligned it
+   finds itself more than ``reapproach_m`` off the centre line (it overshot the pose, or took the
+   doorway late, beside it): then it approaches again (at most ``max_reapproaches`` times), reaching
+   the pose only within ``arrive_m`` (or, held by the corridor, within ``pass_by_m``).
 2. ``back-off``: when the approach pose lies behind the chair and near (it came too close to the
    wall, off the line or askew: the jambs would stop it), or when turning toward it would sweep a
    corner into something, it reverses (toward that pose, or straight back) at ``reverse_speed``, at
@@ -22,8 +26,8 @@ turn to its heading):
    per radian off it and slowing by ``cos^2`` of that, until the rear is through. The residual offset
    from the line decays over about ``lookahead_m`` of travel. A jamb in the safety layer's corridor
    within ``stop_gap_m`` slows the chair to a creep; where even that would stop it before the front is
-   between the jambs, the chair backs off turning onto the normal (within ``reverse_m``) and follows
-   the line again from farther out.
+   more than ``front_in_m`` past the doorway's plane (at the wall's face, askew), the chair backs off
+   turning onto the normal (within ``reverse_m``) and follows the line again from farther out.
 
 Everything here is in a doorway frame: ``s`` the signed distance of ``base_link`` along the normal
 from the doorway's plane (negative before it), ``e`` its offset left of the centre line, ``phi`` its
@@ -41,7 +45,11 @@ from robchair.assistance.doorway import Doorway
 from robchair.assistance.window import Footprint, arc_clearance, first_per_cell
 from robchair.perception_queries import Corridor
 
-APPROACH_DECEL = 0.4  # m/s^2: half the safety layer's braking deceleration (0.8 m/s^2, SafetyLimits)
+# m/s^2: the approach brakes onto its pose at this. The safety layer ramps each wheel's rim speed at most
+# max_wheel_accel = 0.4 m/s^2 (SafetyLimits), |dv| + |dw| b / 2 together: planned at 0.4 m/s^2, the
+# braking lags whenever the chair also turns, and it overshot the pose by 0.13-0.25 m along the corridor
+# (13 of 29 failed random-floor episodes, seeds 1000000000 and on); 0.25 m/s^2 leaves 0.15 m/s^2 to the turn.
+APPROACH_DECEL = 0.25
 
 
 @dataclass(frozen=True)
@@ -56,9 +64,16 @@ class PassageParams:
             wall, and the rear corners' (hypot(0.26, 0.32) = 0.41 m) of the far wall of a 1.6 m
             corridor (0.6 m behind).
         arrive_m: the approach pose is reached within this, m.
-        pass_by_m: an approach pose beside or behind the chair (more than 60 degrees off its heading)
-            within this counts as reached, m.
+        pass_by_m: an approach pose beside or behind the chair (more than 60 degrees off its heading),
+            or ahead of it while the safety layer's corridor holds a point within ``stop_gap_m`` (the
+            chair could only turn toward a pose it may not drive to), within this counts as reached, m.
         line_tol_m: the chair is on the centre line within this, m.
+        reapproach_m: aligned farther than this off the centre line, the chair approaches again, m.
+            From 1.0 m before the plane the line law cannot take out more than about 0.05 m before the
+            front reaches the jambs (the offset decays over ``lookahead_m`` of travel, 0.42 m are left,
+            and the heading it takes meanwhile, atan(e / lookahead_m), puts a jamb in the safety
+            corridor): 9 of 29 failed random-floor episodes stalled there from 0.12-0.25 m off.
+        max_reapproaches: at most this many re-approaches per passage.
         align_tol_rad: and aligned with the normal within this, rad.
         turn_accel: deceleration planned when turning in place onto a heading, rad/s^2.
         turn_rate: fastest turn in place, rad/s.
@@ -69,6 +84,8 @@ class PassageParams:
         heading_gain: yaw rate per radian of heading error while passing, 1/s.
         door_speed: fastest forward speed through the doorway, m/s.
         memory_s: how long seen points are kept to check a back-off, s.
+        front_in_m: a creep that stalls before the front edge is this far past the doorway's plane
+            backs off, m (at the wall's face, askew, the jamb stays in the safety corridor).
         stop_gap_m: a point this near ahead of the front edge in the safety layer's corridor (the
             chair's width plus ``corridor_margin_m`` a side) would stop the chair there (the stopping
             distance at ``door_speed``: 0.15 + 0.45 x 0.3 + 0.45^2 / 1.6 = 0.41 m): the approach does
@@ -84,6 +101,8 @@ class PassageParams:
     arrive_m: float = 0.05
     pass_by_m: float = 0.15
     line_tol_m: float = 0.03
+    reapproach_m: float = 0.1
+    max_reapproaches: int = 2
     align_tol_rad: float = math.radians(2.5)
     turn_accel: float = 1.0
     turn_rate: float = 1.0
@@ -94,6 +113,7 @@ class PassageParams:
     heading_gain: float = 2.5
     door_speed: float = 0.45
     memory_s: float = 3.0
+    front_in_m: float = 0.05
     stop_gap_m: float = 0.45
     creep_gap_m: float = 0.17
     corridor_margin_m: float = 0.05
@@ -208,6 +228,8 @@ class Passage:
         self.phase = "approach"
         self.reversed_m = 0.0
         self._backed = 0.0
+        self.reapproaches = 0
+        self._reapproach = False  # approaching again: the pose is reached within arrive_m only
 
     def twist(self, d: Doorway, v_person: float, dt: float, ahead: np.ndarray,
               behind: np.ndarray | None = None,
@@ -227,11 +249,20 @@ class Passage:
         p = self.params
         s, e, phi = door_coordinates(d)
         aligned = abs(phi) <= p.align_tol_rad
+        if (
+            self.phase == "align"
+            and aligned
+            and abs(e) > p.reapproach_m
+            and self.reapproaches < p.max_reapproaches
+        ):
+            self.reapproaches += 1
+            self._reapproach = True
+            self.phase = "approach"
         if self.phase in ("pass", "back-off-pass") or (
             aligned and (abs(e) <= p.line_tol_m or self.phase == "align")
         ):
             v, w = self._pass(d, v_person)
-            front_before = s + self.footprint.front_x < -0.05  # the front is not yet between the jambs
+            front_before = s + self.footprint.front_x < p.front_in_m  # the front is not yet between the jambs
             if self.phase == "back-off-pass" and front_before:
                 return self._back_off_pass(phi, dt, behind, allow_reverse)
             gap = self._gap(ahead)
@@ -279,12 +310,13 @@ class Passage:
         ax, ay = d.cx - p.approach_m * d.nx, d.cy - p.approach_m * d.ny
         dist = math.hypot(ax, ay)
         bearing = math.atan2(ay, ax)
-        if (
-            self.phase == "align"
-            or dist <= p.arrive_m
-            or (dist <= p.pass_by_m and abs(bearing) > math.pi / 3)
-        ):
+        ahead_of = abs(bearing) <= math.pi / 3
+        # beside or behind and near: reached (a re-approach drives there); ahead and near, where the
+        # safety corridor holds the chair: reached too (it could only turn toward it)
+        near = (not ahead_of and not self._reapproach) or (ahead_of and self._blocked(ahead))
+        if self.phase == "align" or dist <= p.arrive_m or (dist <= p.pass_by_m and near):
             turn, phase = _wrap(-phi), "align"
+            self._reapproach = False
         else:
             turn, phase = math.atan2(ay, ax), "approach"
         back = _wrap(turn - math.pi)  # the same target seen from the chair's back

@@ -17,7 +17,9 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
   where the person's command points, the chair follows the doorway's centre line at the person's
   speed (at most ``door_speed``) and hands control back once its rear edge is through, or once the
   person has steered away for ``override_s`` (doorway assistance of partially automated wheelchairs:
-  Argall lab, Northwestern, SPEC section 7).
+  Argall lab, Northwestern, SPEC section 7). A doorway is taken only while the chair faces through it
+  (within ``MAX_ENGAGE_PHI_RAD`` of its normal), and a different one only ``NEW_DOOR_M`` from where
+  the last was let go.
 
 The person always wins:
 
@@ -56,6 +58,16 @@ from robchair.sources import Command, CommandSource, Observation
 
 MODES = ("off", "shield", "assist", "door")
 SAME_DOOR_M = 0.5  # m: a doorway found again within this of the last one keeps its passage
+# m: once a doorway is let go (through, or the person steered away), another one is taken only after the
+# chair has moved this far from there: the person's swing of the stick past a doorway they are
+# aligning with, or in the room just entered, points at any gap in view (random floors, seeds
+# 1000000009, 1000000075, 1000000097: a gap 2 m aside taken over the doorway being passed, or in the
+# room, and the chair turned away from the goal); the same doorway is taken again at once
+NEW_DOOR_M = 1.0
+# rad: a doorway is taken only while the chair's heading is within this of its normal (through it). The
+# corridor's side doors are seen at 85-100 degrees; the office floor's seed 1000000028 took a gap at
+# 156 degrees, half behind the chair, turned toward it and never reached the doorway ahead
+MAX_ENGAGE_PHI_RAD = math.radians(120.0)
 GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage's twist before taking it
 
 
@@ -195,6 +207,8 @@ class AssistedSource:
         self._away = 0  # cycles the person has steered away from the doorway being passed
         self._door: Doorway | None = None  # the doorway being passed, in odom
         self._last_door: Doorway | None = None  # the last doorway engaged, in odom
+        self._held = False  # a doorway was being passed at the last cycle that looked for one
+        self._handback: tuple[float, float] | None = None  # odom (x, y) where the last one was let go
         self.dt = 1.0 / rate_hz
         self.passage_params = PassageParams(door_speed=self.config.door_speed,
                                             lookahead_m=self.config.door_lookahead_m)  # fmt: skip
@@ -211,6 +225,7 @@ class AssistedSource:
     def mode(self, mode: str) -> None:
         self._mode = check_mode(mode)
         self._conflict, self._reverse, self._away, self._door = 0, 0, 0, None
+        self._held, self._handback = False, None
 
     def bind(self, runtime: Any) -> None:
         """Take the obstacle points from the runtime's perception (unless given at construction)."""
@@ -333,26 +348,38 @@ class AssistedSource:
     def _doorway(self, p: Command, pose: Pose2D, pts: np.ndarray) -> Doorway | None:
         cfg = self.config
         heading = _intent(p)
+        if self._door is None and self._held:  # let go since (override, reverse, dead-man)
+            self._held, self._handback = False, (pose.x, pose.y)
         if self._door is not None:
             d = refine(self._door.inverse_transformed(pose.x, pose.y, pose.theta), pts)
             self._door = d.transformed(pose.x, pose.y, pose.theta)
             along = -(d.cx * d.nx + d.cy * d.ny)  # base_link's distance past the doorway's plane
             if along - (self.footprint.half_depth - self.footprint.centre_x) > cfg.door_through_m:
                 self._door = None  # through: hand back
+                self._held, self._handback = False, (pose.x, pose.y)
                 return None
             # the person steers away, held for override_s: a tremor's swing of the stick past
             # steer_share (half a period, 0.1 s at 5 Hz) does not drop the doorway mid-approach
             self._away = self._away + 1 if along < 0 and self._steers_away(d, p) else 0
             if self._away >= self.override_cycles:
                 self._door, self._away = None, 0
+                self._held, self._handback = False, (pose.x, pose.y)
                 return None
             return d
         for d in find_doorways(pts, self.doorway):
-            if abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
+            # the chair faces the doorway's through direction within MAX_ENGAGE_PHI_RAD (a side door of a
+            # corridor is seen at about 90 degrees; one behind its plane's normal is not the way ahead)
+            facing = abs(math.atan2(d.ny, d.nx)) <= MAX_ENGAGE_PHI_RAD
+            if facing and abs(_wrap(math.atan2(d.cy, d.cx) - heading)) <= cfg.door_engage_rad:
                 d = refine(d, pts)
-                self._door = odom = d.transformed(pose.x, pose.y, pose.theta)
+                odom = d.transformed(pose.x, pose.y, pose.theta)
                 last = self._last_door
-                if last is None or math.hypot(odom.cx - last.cx, odom.cy - last.cy) > SAME_DOOR_M:
+                new = last is None or math.hypot(odom.cx - last.cx, odom.cy - last.cy) > SAME_DOOR_M
+                hb = self._handback
+                if new and hb is not None and math.hypot(pose.x - hb[0], pose.y - hb[1]) < NEW_DOOR_M:
+                    continue  # another doorway right after one was let go
+                self._door, self._held = odom, True
+                if new:
                     # a new doorway (the same one again keeps its passage: how far it backed off)
                     self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
                 self._last_door = odom

@@ -216,6 +216,10 @@ def _summary(mode: str, eps: list[dict[str, Any]], args: argparse.Namespace) -> 
                            "collisions": int(sum(e["collisions"] for e in eps))}  # fmt: skip
     for k in MEANS:
         rec[k] = float(np.mean([e[k] for e in eps]))
+    keys = sorted({k for e in eps for k in e.get("agreement_loss", {})})
+    # 1 - agreement split by what the stage did (episode means: the values add up to 1 - agreement)
+    rec["agreement_loss"] = {k: float(np.mean([e.get("agreement_loss", {}).get(k, 0.0) for e in eps]))
+                             for k in keys}  # fmt: skip
     rec["peak_lon_accel_max"] = float(max(e["peak_lon_accel"] for e in eps))
     ok = [e["time_s"] for e in eps if e["success"]]
     rec["time_to_goal_s"] = float(np.mean(ok)) if ok else None
