@@ -362,10 +362,11 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
             _warm_up(spec, args, points, origin)
             warmed.add(str(points.dtype))
         kw = {"stamp": frame.stamp_ns * 1e-9} if stamped and frame.stamp_ns >= 1e9 * m.now else {}
-        stats = m.insert(points, sensor_origin=origin, **kw)
-        build_ms += stats.build_ms
         if frame.no_return is not None and len(frame.no_return):
-            build_ms += no_return.insert(m, frame.no_return, origin, kw)
+            stats = no_return.insert(m, points, frame.no_return, origin, kw)
+        else:
+            stats = m.insert(points, sensor_origin=origin, **kw)
+        build_ms += stats.build_ms
         sensor_origin_used = origin if placement is None else None  # a moving sensor has no one origin
         frame_id = frame.frame_id or frame_id
         stamp_ns = max(stamp_ns, int(frame.stamp_ns))

@@ -227,8 +227,8 @@ class BandCheck:
 @dataclasses.dataclass
 class NoReturn:
     """Free space along the no-return rays a bag carries next to its clouds (``<topic>/no_return``,
-    :data:`mapping.io.bags.NO_RETURN_SUFFIX`), inserted as a run's odometry map inserts them: after the
-    frame's cloud, at its stamp, only the rays whose end lies at least
+    :data:`mapping.io.bags.NO_RETURN_SUFFIX`), inserted as a run's odometry map inserts them: with the
+    frame's cloud in one evidence pass, at its stamp, only the rays whose end lies at least
     ``robchair.perception.NO_RETURN_MIN_HEIGHT_M`` high (a lower ray would have met the floor within
     the range: its return was lost on something, not in free air).
 
@@ -244,20 +244,33 @@ class NoReturn:
     rays_inserted: int = 0
     unused: int = 0  # clouds with rays a map without free space (--map-kind thesis) could not take
 
-    def insert(self, m: Any, ends: Any, origin: Any, kw: dict[str, Any]) -> float:
-        """Insert one frame's ray ends (fixed frame, (M, 3)) into ``m``; returns the build ms."""
+    def ends(self, m: Any, ends: Any, origin: Any) -> Any:
+        """The ray ends (fixed frame, (M, 3)) of one frame that ``m`` clears free space along, or None
+        when ``m`` keeps no free space or the frame has no sensor origin (counted as not used)."""
         from robchair.perception import NO_RETURN_MIN_HEIGHT_M
 
         self.clouds += 1
         self.rays += int(ends.shape[0])
-        insert_free = getattr(m, "insert_free", None)
-        if insert_free is None or origin is None:
+        if getattr(m, "insert_free", None) is None or origin is None:
             self.unused += 1
-            return 0.0
+            return None
         high = ends[ends[:, self.column] >= NO_RETURN_MIN_HEIGHT_M]
         self.rays_inserted += int(high.shape[0])
-        stats = insert_free(high, sensor_origin=origin, **kw)
-        return float(getattr(stats, "build_ms", 0.0))
+        return high
+
+    def insert(self, m: Any, points: Any, ends: Any, origin: Any, kw: dict[str, Any]) -> Any:
+        """Insert one frame's cloud and its no-return ray ends (both fixed frame) into ``m`` as the run's
+        odometry map does: in one evidence pass (``insert_frame``) where the map has it, else the cloud
+        then the rays' free space. Returns the stats of the cloud's insert (``build_ms`` covers both)."""
+        high = self.ends(m, ends, origin)
+        if high is None:
+            return m.insert(points, sensor_origin=origin, **kw)
+        insert_frame = getattr(m, "insert_frame", None)
+        if insert_frame is not None:
+            return insert_frame(points, origin, no_return_ends=high, **kw)
+        stats = m.insert(points, sensor_origin=origin, **kw)
+        free = m.insert_free(high, sensor_origin=origin, **kw)
+        return dataclasses.replace(stats, build_ms=stats.build_ms + float(getattr(free, "build_ms", 0.0)))
 
     def summary(self) -> dict[str, Any] | None:
         """The ``no_return`` entry of summary.json (None without a companion topic)."""
