@@ -389,7 +389,26 @@ def test_default_cli_run_drives_through_the_runtime_with_safety_on(tmp_path: Pat
     assert cycles["n"] == m["cycles"] > 0
     assert m["safety"]["enabled"] is True and METRICS_KEYS <= set(m)
     assert m["collisions"] == 0
-    assert m["map"]["iou_odometry_vs_ground_truth_pose"] > 0.5
+    # The odometry map against the ground-truth pose map (cell-by-cell IoU of the occupied cells). 0.5 was
+    # set for the thesis's accumulate-only map, and holds for it: the same drive with `--map thesis` (run
+    # below) gives 0.539 (2026-12-02). The default probabilistic map gives 0.444 for the same drive (the
+    # same odometry, 0.278 m final error after 9.98 m): its later, more drifted views clear cells that
+    # earlier ones marked, so a wall sits where the last views put it, while the thesis map keeps the
+    # union of all views (2002 occupied cells against 2497; IoU per 2 m of x falls alike along the route,
+    # 0.91 -> 0.23 against 0.92 -> 0.27). Its bound comes from that run: shifting its odometry map by one
+    # 5 cm cell across the corridor drops its IoU to 0.316, and odometry that reads one wheel's distance
+    # 0.3 % short gives 0.533 m final error and 0.275 (its own run), so 0.4 fails on a few centimetres of
+    # extra odometry or registration error; the same drive scored 0.424-0.489 at the merges since
+    # 2026-11-30.
+    assert m["map"]["kind"] == "probabilistic"
+    assert m["map"]["iou_odometry_vs_ground_truth_pose"] > 0.4
+    assert m["map"]["ground_truth_pose_map_vs_scene"]["precision"] > 0.95  # 0.997: only real structure
+    assert main(["sim", "--no-progress", "--no-pictures", "--map", "thesis", "--out", "thesis"]) == 0
+    t = json.loads((tmp_path / "thesis" / "metrics.json").read_text())
+    drift = ("final_position_error_m", "final_heading_error_rad")  # the same drive, the same odometry
+    assert t["map"]["kind"] == "thesis"
+    assert [t["odometry_drift"][k] for k in drift] == [m["odometry_drift"][k] for k in drift]
+    assert t["map"]["iou_odometry_vs_ground_truth_pose"] > 0.5
     # the main job does what it says: through the doorway and past the table to the goal, and the
     # 1.4 m doorway (0.38 m clear each side of the 0.64 m chair) is no reason for a safety stop
     assert m["route"]["goal_reached"] is True
