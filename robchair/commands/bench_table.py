@@ -110,7 +110,11 @@ def _mapping(r: dict[str, Any]) -> tuple[str, str, str]:
         f"{_f(hd.get('vhv_fast_cpu_median_ms'), '.1f')} ms CPU (target <= {_f(hd.get('target_ms'), 'g')} ms: "
         f"{_met(hd.get('meets_time_target'))}); Open3D {_f(hd.get('ratio_open3d'), '.1f')}x slower "
         f"(target >= {_f(hd.get('target_ratio_open3d'), 'g')}x: {_met(hd.get('meets_open3d_target'))}); "
-        f"OctoMap {_f(hd.get('ratio_octomap'), '.0f')}x"
+        + (
+            f"OctoMap {_f(hd.get('ratio_octomap'), '.0f')}x"
+            if hd.get("ratio_octomap") is not None
+            else "OctoMap not measured (--no-octomap)"
+        )
     )
     ev = r.get("evidence") or {}
     ins = (ev.get("insert") or {}).get("verdict") or {}
@@ -168,6 +172,39 @@ def _table52(r: dict[str, Any]) -> tuple[str, str, str]:
     )
 
 
+def _assist(r: dict[str, Any]) -> tuple[str, str, str]:
+    target = r.get("target_ms")
+    cells = [
+        f"{mode} {_f(ms.get('median'), '.3f')} ms median, p99 {_f(ms.get('p99'), '.3f')}"
+        + (f" ({_met(r.get('met', {}).get(mode))})" if mode in r.get("met", {}) else "")
+        for mode, ms in (r.get("ms") or {}).items()
+    ]
+    return (
+        f"one assistance decision per cycle (CPU ms; target <= {_f(target, 'g')} ms)",
+        "`robchair bench assist`",
+        "; ".join(cells),
+    )
+
+
+def _map(r: dict[str, Any]) -> tuple[str, str, str]:
+    x, v = r.get("x_real_time") or {}, r.get("verdict") or {}
+    share = r.get("inserts_share") or {}
+    names = {"read_and_build": "build", "read_and_build_cpu": "build in CPU time", "inserts": "inserts alone",
+             "whole": "whole command", "whole_no_pictures": "whole command --no-pictures"}  # fmt: skip
+    cells = [
+        f"{label} {_f(x.get(k), '.1f')}x real time ({v.get(k, '-')})" for k, label in names.items() if k in x
+    ]
+    return (
+        f"`robchair map` on a {_f(r.get('sim_time_s'), '.0f')} s run's bag "
+        f"({_f(r.get('bag_mb'), '.0f')} MB); "
+        f"target >= {_f(r.get('target_x_real_time'), 'g')}x real time",
+        f"`robchair bench map --repeats {r.get('repeats', 1)}`",
+        "; ".join(cells)
+        + f"; the inserts are {_f(100 * share['of_build'] if 'of_build' in share else None, '.0f')} "
+        "% of the build",
+    )
+
+
 MACHINE_KEYS = {"load_average_before", "load_average_after", "cpus", "cpu_model", "time_utc"}
 
 
@@ -190,6 +227,8 @@ SUMMARIES: dict[str, Callable[[dict[str, Any]], tuple[str, str, str]]] = {
     "env": _env,
     "laser": _laser,
     "table52": _table52,
+    "assist": _assist,
+    "map": _map,
 }
 
 

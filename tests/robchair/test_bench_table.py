@@ -99,3 +99,38 @@ def test_a_readme_without_markers_or_a_folder_without_bench_json_is_refused_in_o
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bench_laser.json" in err[0]
     assert readme.read_text() == README
+
+
+def test_assist_and_map_rows_give_their_figures_and_verdicts_not_their_parameters(tmp_path, capsys):
+    d = tmp_path / "b"
+    d.mkdir()
+    machine = {
+        "load_average_before": [0.5],
+        "load_average_after": [0.6],
+        "cpus": 2,
+        "time_utc": "2026-12-02T01:00:00Z",
+    }
+    assist = {
+        "cycles": 200,
+        "target_ms": 2.0,
+        "met": {"door": True, "assist": False},
+        "ms": {"door": {"median": 0.481, "p99": 0.697}, "assist": {"median": 2.5, "p99": 3.25}},
+        **machine,
+    }
+    bag_map = {"sim_time_s": 20.0, "bag_mb": 209.6, "repeats": 3, "target_x_real_time": 10.0,
+               "x_real_time": {"read_and_build": 2.67, "inserts": 3.29},
+               "verdict": {"read_and_build": "missed", "inserts": "missed"}, "inserts_share": {"of_build": 0.81}, **machine}  # fmt: skip
+    (d / "bench_assist.json").write_text(json.dumps(assist))
+    (d / "bench_map.json").write_text(json.dumps(bag_map))
+    readme = tmp_path / "README.md"
+    readme.write_text(README)
+    assert main(["bench", "table", str(d), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert (
+        "door 0.481 ms median, p99 0.697 (met)" in text
+        and "assist 2.500 ms median, p99 3.250 (missed)" in text
+    )
+    assert "target <= 2 ms" in text and "cycles 200" not in text
+    assert "`robchair map` on a 20 s run's bag (210 MB); target >= 10x real time" in text
+    assert "build 2.7x real time (missed)" in text and "inserts alone 3.3x real time (missed)" in text
+    assert "the inserts are 81 % of the build" in text and "bag_mb" not in text
