@@ -119,7 +119,8 @@ def test_assist_and_map_rows_give_their_figures_and_verdicts_not_their_parameter
     }
     bag_map = {"sim_time_s": 20.0, "bag_mb": 209.6, "repeats": 3, "target_x_real_time": 10.0,
                "x_real_time": {"read_and_build": 2.67, "inserts": 3.29},
-               "verdict": {"read_and_build": "missed", "inserts": "missed"}, "inserts_share": {"of_build": 0.81}, **machine}  # fmt: skip
+               "verdict": {"read_and_build": "missed", "inserts": "missed"},
+               "inserts_share": {"of_build": 0.81}, **machine}  # fmt: skip
     (d / "bench_assist.json").write_text(json.dumps(assist))
     (d / "bench_map.json").write_text(json.dumps(bag_map))
     readme = tmp_path / "README.md"
