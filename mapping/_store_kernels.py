@@ -311,6 +311,30 @@ def compact(cstart, ccount, ccap, plo, phi, pl, pt, new_lo, new_hi, new_l, new_t
 
 
 @numba.jit(**_JIT)
+def _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
+    """:func:`decay` of cell ``c``: (intervals dropped, whether the cell still holds a dynamic one)."""
+    cnt = ccount[c]
+    s = cstart[c]
+    w = 0
+    still = False
+    for k in range(cnt):
+        t = pt[s + k, 0]
+        if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
+            continue
+        if t > -np.inf:
+            still = True
+        if w != k:
+            plo[s + w] = plo[s + k]
+            phi[s + w] = phi[s + k]
+            pl[s + w] = pl[s + k]
+            pt[s + w, 0] = t
+            pt[s + w, 1] = pt[s + k, 1]
+        w += 1
+    ccount[c] = w
+    return cnt - w, still
+
+
+@numba.jit(**_JIT)
 def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
     """Forget dynamic occupied intervals whose last hit is older than ``age``: they become unknown.
 
@@ -323,25 +347,8 @@ def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type
     """
     dropped = 0
     for c in range(ccount.shape[0]):
-        cnt = ccount[c]
-        if cnt == 0:
-            continue
-        s = cstart[c]
-        w = 0
-        for k in range(cnt):
-            t = pt[s + k, 0]
-            if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
-                continue
-            if w != k:
-                plo[s + w] = plo[s + k]
-                phi[s + w] = phi[s + k]
-                pl[s + w] = pl[s + k]
-                pt[s + w, 0] = t
-                pt[s + w, 1] = pt[s + k, 1]
-            w += 1
-        if w != cnt:
-            dropped += cnt - w
-            ccount[c] = w
+        if ccount[c] != 0:
+            dropped += _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ)[0]
     return dropped
 
 
@@ -372,28 +379,10 @@ def decay_cells(cells, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_
     nk = 0
     for q in range(cells.shape[0]):
         c = cells[q]
-        cnt = ccount[c]
-        if cnt == 0:
+        if ccount[c] == 0:
             continue
-        s = cstart[c]
-        w = 0
-        still = False
-        for k in range(cnt):
-            t = pt[s + k, 0]
-            if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
-                continue
-            if t > -np.inf:
-                still = True
-            if w != k:
-                plo[s + w] = plo[s + k]
-                phi[s + w] = phi[s + k]
-                pl[s + w] = pl[s + k]
-                pt[s + w, 0] = t
-                pt[s + w, 1] = pt[s + k, 1]
-            w += 1
-        if w != cnt:
-            dropped += cnt - w
-            ccount[c] = w
+        n, still = _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ)
+        dropped += n
         if still:
             keep[nk] = c
             nk += 1

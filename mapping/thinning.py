@@ -28,32 +28,20 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mapping._deps import announce_compilation
+
+# the lattice packing and the open-addressing hash slot are the voxel filter's (one key per cell)
+from mapping._voxel_first import _BITS, _EMPTY, _JIT, _OFFSET, _slot
 from mapping.grid import AXIS_COLUMNS
 
-_JIT: dict[str, Any] = {"cache": True, "nogil": True, "nopython": True, "error_model": "numpy"}
-_BITS = 21
-_OFFSET = 1 << (_BITS - 1)
-_EMPTY = -1
 #: The height slices are this fraction of the tolerance (strictly narrower: two points of one slice are
 #: less than the tolerance apart, even after the float64 rounding of the slice index).
 SLICE_FRACTION = 1.0 - 1e-6
-
-
-@numba.jit(**_JIT)
-def _slot(keys, key, shift):  # type: ignore[no-untyped-def]
-    """The slot of ``key`` in ``keys`` of ``2**(64 - shift)`` slots (its own, or the empty one)."""
-    mask = keys.shape[0] - 1
-    h = np.int64((np.uint64(key) * np.uint64(11400714819323198485)) >> np.uint64(shift))
-    while keys[h] != _EMPTY and keys[h] != key:
-        h = (h + 1) & mask
-    return h
 
 
 @numba.jit(**_JIT)
