@@ -7,7 +7,8 @@ T_base_sensor(mount)`` (:mod:`robchair.platform.frames`), then ``map.insert(poin
   map; the points of the frame that stand in the chair's height band inside its corridor ahead give
   the *map distance* the safety layer checks;
 * sonar array readings: five-zone fusion and the cone -> points algorithm (:mod:`mapping.sonar`) into
-  a sonar map; the fused arc gives the *sonar distance*; the servo is turned toward the nearest echo;
+  a sonar map; the fused arc, clipped to the surfaces the laser and the zoom map locate in its cone
+  at its range, gives the *sonar distance*; the servo is turned toward the nearest echo;
 * laser scans: points (N, 3) in the scanner's frame, into the map.
 
 The map is pluggable: any object with ``insert(points_world (N, 3), sensor_origin=(3,))``. By default
@@ -231,7 +232,9 @@ class Perception:
         # what the loop sees of the mapping thread's work: the state after frame k - SNAPSHOT_LAG when
         # frame k is delivered, threaded or not (so both runs decide the same, bit for bit)
         self._seq = 0
-        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D]] = {}
+        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D, np.ndarray | None]] = {}
+        # the zoom's fine cells in the band, (N, 2) in base_link at the pose of that frame (sonar echoes)
+        self._zoom_xy: tuple[np.ndarray, Pose2D] | None = None
         self._frame_futs: dict[int, Future[None]] = {}
         self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
@@ -332,8 +335,9 @@ class Perception:
             fut.result()
         snap = self._after_frame.pop(k, None)
         if snap is not None:
-            self._t_map_odom, d, pose = snap
+            self._t_map_odom, d, pose, xy = snap
             self._zoom_depth = (d, pose) if self.zoom is not None else None
+            self._zoom_xy = (xy, pose) if self.zoom is not None and xy is not None else None
 
     def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
                       placed: list[tuple[PointMap, np.ndarray, bool]], pose: Pose2D,
@@ -386,10 +390,11 @@ class Perception:
         elif others:
             self._insert_each(others, placer, stamp)
         if self.matcher is not None or self.zoom is not None:
-            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            xy = self._zoom_band_xy(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            d = self.corridor.distance_ahead(xy) if xy is not None else None
             t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
-                self._after_frame[seq] = (t, d, pose)
+                self._after_frame[seq] = (t, d, pose, xy)
 
     def _insert_each(
         self, jobs: list[tuple[str, Any, np.ndarray, str]], placer: _Placer, stamp: float
@@ -478,8 +483,10 @@ class Perception:
         """
         return _travelled(self._zoom_depth, pose)
 
-    def _zoom_corridor(self, t_world_base: np.ndarray) -> float | None:
-        """Corridor distance of the zoom's fine cells whose structures overlap the band."""
+    def _zoom_band_xy(self, t_world_base: np.ndarray) -> np.ndarray | None:
+        """The zoom's fine cells whose structures overlap the band: (N, 2) in ``base_link``, m (None: none).
+
+        ``t_world_base`` (4, 4): the chair's pose in the main map's frame (the zoom's)."""
         fine = self.zoom.fine if self.zoom is not None else None
         if fine is None:
             return None
@@ -490,8 +497,7 @@ class Perception:
             return None
         x, y = fine.spec.index_to_world(s.i[hit], s.j[hit])
         rot = t_world_base[:2, :2]
-        xy = (np.column_stack([x, y]) - t_world_base[:2, 3]) @ rot  # world -> base_link
-        return self.corridor.distance_ahead(xy)
+        return (np.column_stack([x, y]) - t_world_base[:2, 3]) @ rot  # type: ignore[no-any-return]
 
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
@@ -514,7 +520,11 @@ class Perception:
     def add_sonar(self, name: str, reading: SonarArrayReading, pose: Pose2D) -> float | None:
         """Fuse one array reading, map its points, and return the servo angle to turn to (deg; None: none).
 
-        ``name`` is the array's mount (``sonar_array_left``...).
+        ``name`` is the array's mount (``sonar_array_left``...). The fused arc (where the echo may lie) is
+        clipped to the known surfaces at its range inside its cone (:meth:`_known_surfaces`,
+        :func:`robchair.perception_sonar.explained_arc`) before its distance ahead is taken: at 31 cm and
+        under, three agreeing sonars give a 120 deg arc (zone 3 is empty there), which reaches from a
+        door post beside the chair into the corridor ahead.
         """
         from mapping.sonar import array_points, servo_command_deg
 
@@ -527,12 +537,10 @@ class Perception:
         arrays = self.spec.sonar_arrays
         fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
         arc = sonar_obstacle_points(reading, mount, arrays, fusion=fusion)
-        if len(arc) and self._scan_world is not None:  # the laser locates the echo's surface if it sees it
-            c, s = math.cos(pose.theta), math.sin(pose.theta)
-            q = self._scan_world - (pose.x, pose.y)
-            arc = explained_arc(
-                arc, mount.xyz, np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1)
-            )
+        if len(arc):  # the laser and the zoom map locate the echo's surface if they know it
+            known = self._known_surfaces(pose)
+            if known is not None:
+                arc = explained_arc(arc, mount.xyz, known)
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
@@ -556,6 +564,28 @@ class Perception:
         )
         self._servo[name] = cmd
         return float(cmd)
+
+    def _known_surfaces(self, pose: Pose2D) -> np.ndarray | None:
+        """Surfaces around the chair that may explain a sonar echo: (M, 2) in ``base_link`` at ``pose``, m.
+
+        The last laser scan's returns in the band and the zoom's fine cells in the band (the map
+        remembers a door post the camera saw on the way in and no longer sees beside the chair), each
+        moved from the odometry pose it was measured at to ``pose``. None: neither is there.
+        """
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        parts = []
+        if self._scan_world is not None:
+            q = self._scan_world - (pose.x, pose.y)
+            parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
+        if self._zoom_xy is not None:
+            xy, p0 = self._zoom_xy
+            c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
+            qx = c0 * xy[:, 0] - s0 * xy[:, 1] + (p0.x - pose.x)  # base at p0 -> odom, less the pose
+            qy = s0 * xy[:, 0] + c0 * xy[:, 1] + (p0.y - pose.y)
+            parts.append(np.stack([c * qx + s * qy, c * qy - s * qx], 1))
+        if not parts:
+            return None
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def _t_base_array(self, name: str, mount: Any, joint: float) -> np.ndarray:
         """``T_base_array`` (4, 4) of sonar array ``name`` with its servo at ``joint`` rad (read-only).

@@ -1,9 +1,10 @@
-"""Sonar intake of the perception stage: where a fused sonar echo may lie, and what the laser explains of it.
+"""Sonar intake of the perception stage: where a fused sonar echo may lie, and what known surfaces explain.
 
 :func:`sonar_obstacle_points` turns one array reading into the arc (N, 2) in ``base_link`` where the
 five-zone fusion (:mod:`mapping.sonar`, thesis 5.2) puts the obstacle; :func:`explained_arc` keeps the
-part of that arc that laser returns locate. :class:`robchair.perception.Perception` uses both for the
-sonar map and the sonar distance the safety layer checks.
+part of that arc that known surfaces (laser returns, the zoom map's cells) locate.
+:class:`robchair.perception.Perception` uses both for the sonar map and the sonar distance the safety
+layer checks.
 """
 
 from __future__ import annotations
@@ -50,12 +51,12 @@ def sonar_obstacle_points(
 
 
 def explained_arc(arc: np.ndarray, origin: Any, scan_xy: np.ndarray | None, tol: float = 0.06) -> np.ndarray:
-    """The part of a fused sonar arc (N, 2) that laser returns ``scan_xy`` (M, 2) explain, else the arc.
+    """The part of a fused sonar arc (N, 2) that known surface points ``scan_xy`` (M, 2) explain, else all.
 
-    All in ``base_link``. The echo comes from the nearest surface in the cone: laser returns at the
-    arc's range (within ``tol`` m) from the sonar ``origin`` (x, y) and inside its bearing interval
-    locate that surface (e.g. a door post beside the chair's path); without such returns (a table
-    top above the scan plane) the whole arc stays.
+    All in ``base_link``. The echo comes from the nearest surface in the cone: known points (laser
+    returns, the zoom map's cells) at the arc's range (within ``tol`` m) from the sonar ``origin``
+    (x, y) and inside its bearing interval locate that surface (e.g. a door post beside the chair's
+    path); without such points (a table top above the scan plane and not mapped) the whole arc stays.
     """
     if scan_xy is None or len(scan_xy) == 0 or len(arc) < 2:
         return arc
