@@ -229,7 +229,7 @@ class NoReturn:
     """Free space along the no-return rays a bag carries next to its clouds (``<topic>/no_return``,
     :data:`mapping.io.bags.NO_RETURN_SUFFIX`), inserted as a run's odometry map inserts them: with the
     frame's cloud in one evidence pass, at its stamp, only the rays whose end lies at least
-    ``robchair.perception.NO_RETURN_MIN_HEIGHT_M`` high (a lower ray would have met the floor within
+    ``robchair.perception_layers.NO_RETURN_MIN_HEIGHT_M`` high (a lower ray would have met the floor within
     the range: its return was lost on something, not in free air).
 
     Attributes:
@@ -247,7 +247,7 @@ class NoReturn:
     def ends(self, m: Any, ends: Any, origin: Any) -> Any:
         """The ray ends (fixed frame, (M, 3)) of one frame that ``m`` clears free space along, or None
         when ``m`` keeps no free space or the frame has no sensor origin (counted as not used)."""
-        from robchair.perception import NO_RETURN_MIN_HEIGHT_M
+        from robchair.perception_layers import NO_RETURN_MIN_HEIGHT_M
 
         self.clouds += 1
         self.rays += int(ends.shape[0])

@@ -43,8 +43,8 @@ the frame's cloud on :data:`CLOUD_TOPIC`: one point per ``camera_stride``-th pix
 return, at depth (camera x) equal to the camera's maximum range along that pixel's ray
 (:func:`robchair.perception_depth.no_return_points`; the thinned cloud has no NaN pixels left to say
 it). The odometry map takes free space along these rays (OctoMap's max-range rays, for the rays that end
-at least ``robchair.perception.NO_RETURN_MIN_HEIGHT_M`` high); ``robchair map`` reads them back from the
-topic ``<cloud topic>/no_return`` and does the same. A frame with no such pixel has no message.
+at least ``robchair.perception_layers.NO_RETURN_MIN_HEIGHT_M`` high); ``robchair map`` reads them back
+from the topic ``<cloud topic>/no_return`` and does the same. A frame with no such pixel has no message.
 """
 
 from __future__ import annotations

@@ -214,6 +214,8 @@ def test_one_evidence_pass_per_frame_with_the_no_return_rays_keeps_the_two_pass_
     matched map of a 4 s run: 0.998, 0.999, 3 of 5321)."""
     pytest.importorskip("pybullet")
     from robchair import perception as P
+    from robchair.perception_depth import no_return_points
+    from robchair.perception_layers import _Placer
     from robchair.scenario import run_scenario
 
     seen: list[tuple[DepthFrame, np.ndarray, np.ndarray | None]] = []
@@ -221,7 +223,7 @@ def test_one_evidence_pass_per_frame_with_the_no_return_rays_keeps_the_two_pass_
 
     def record(self, frame, t_world_base, t_base_sensor, placed, pose, seq):  # type: ignore[no-untyped-def]
         r = self._camera_range if self.clear_no_return else None
-        far = P.no_return_points(frame, r, self.camera_stride, self._rays) if r else None
+        far = no_return_points(frame, r, self.camera_stride, self._rays) if r else None
         seen.append((frame, t_world_base["odometry"] @ t_base_sensor, far))
         return orig(self, frame, t_world_base, t_base_sensor, placed, pose, seq)
 
@@ -233,7 +235,7 @@ def test_one_evidence_pass_per_frame_with_the_no_return_rays_keeps_the_two_pass_
     one = ProbabilisticVHV(main.spec, main.tolerance, main.params)
     two = ProbabilisticVHV(main.spec, main.tolerance, main.params)
     for frame, t, far in seen:
-        placer = P._Placer(np.asarray(frame.points).reshape(-1, 3), far)
+        placer = _Placer(np.asarray(frame.points).reshape(-1, 3), far)
         pts, ends, stamp = placer.points(t), placer.far_points(t), frame.stamp_ns * 1e-9
         one.insert_frame(pts, t[:3, 3], no_return_ends=ends, stamp=stamp)
         two.insert(pts, sensor_origin=t[:3, 3], stamp=stamp)
