@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
 
 if TYPE_CHECKING:
-    from robchair.observers.recorder import RosMessages, RunRecorder
+    from robchair.observers.bag_writer import RosMessages
+    from robchair.observers.recorder import RunRecorder
 
 TOPIC = "/diagnostics"
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels

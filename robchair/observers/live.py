@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 
 from robchair.loop_types import CycleResult, LoopView, Observer, RunResult
-from robchair.observers.recorder import CLOUD_TOPIC, RosMessages, RunTopics
+from robchair.observers.bag_writer import RosMessages
+from robchair.observers.recorder import CLOUD_TOPIC, RunTopics
 from robchair.platform.frames import MAP, ODOM
 
 log = logging.getLogger(__name__)

@@ -120,7 +120,7 @@ def test_the_tf_rotation_is_the_unit_quaternion_of_the_transform(matrix, quat) -
     """The /tf rotation of a transform (x, y, z, w), hand computed as (axis sin(a / 2), cos(a / 2))."""
     import numpy as np
 
-    from robchair.observers.recorder import _quat
+    from robchair.observers.bag_writer import _quat
 
     m = np.eye(4)
     m[:3, :3] = matrix
