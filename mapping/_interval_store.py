@@ -44,9 +44,13 @@ class IntervalStore:
         self._track = track
         self._now = -math.inf
         self._decayed_at = math.nan  # the clock of the last decay pass (NaN: none yet)
-        # every cell that may hold a dynamic interval (sorted; a superset: the decay pass prunes it), so
-        # that a pass visits those cells only, not the whole grid
-        self._dyn_cells = np.empty(0, np.int64)
+        # every cell that may hold a dynamic interval (``_dyn_cells[:_n_dyn]``, in no order; a superset:
+        # the decay pass prunes it), flagged in ``_dyn_flag``, so that a pass visits those cells only, not
+        # the whole grid; ``_dyn_due``: per cell the earliest last hit of its dynamic intervals (inf: none)
+        self._dyn_cells = np.empty(1024 if track else 0, np.int64)
+        self._n_dyn = 0
+        self._dyn_flag = np.zeros(n_cells if track else 0, np.uint8)
+        self._dyn_due = np.full(n_cells if track else 0, np.inf)
         self._used = 0
         self._garbage = 0
         self._n_intervals = 0
@@ -84,9 +88,15 @@ class IntervalStore:
         if self._used + extra > self._plo.shape[0]:
             self._grow(self._used + extra)
         if self._track:
-            dyn = E.dynamic_cells(tkey, toff, tt)
-            if dyn.shape[0]:
-                self._dyn_cells = np.union1d(self._dyn_cells, dyn)
+            if self._n_dyn + tkey.shape[0] > self._dyn_cells.shape[0]:
+                grown = np.empty(2 * (self._n_dyn + tkey.shape[0]), np.int64)
+                grown[: self._n_dyn] = self._dyn_cells[: self._n_dyn]
+                self._dyn_cells = grown
+            n_dyn = E.track_dynamic(
+                tkey, toff, tl, tt, self._max_dwell(), self._l_occ,
+                self._dyn_flag, self._dyn_due, self._dyn_cells, self._n_dyn,
+            )  # fmt: skip
+            self._n_dyn = int(n_dyn)
         used, freed, delta = E.write_back(
             tkey, toff, tlo, thi, tl, tt, self._cstart, self._ccount, self._ccap,
             self._plo, self._phi, self._pl, self._pt, self._used,
@@ -98,10 +108,14 @@ class IntervalStore:
             self._compact()
         return int(tkey.shape[0])
 
+    def _max_dwell(self) -> float:
+        """``dynamic_max_dwell_s`` as a number of seconds (inf: any)."""
+        dwell = self.params.dynamic_max_dwell_s
+        return math.inf if dwell is None else float(dwell)
+
     def _decay(self) -> int:
         """Forget the dynamic occupied intervals not hit for ``dynamic_decay_s``; returns how many."""
         age = self.params.dynamic_decay_s
-        dwell = self.params.dynamic_max_dwell_s
         if age is None or not math.isfinite(self._now) or self._n_intervals == 0:
             return 0
         if self._now == self._decayed_at:
@@ -113,13 +127,16 @@ class IntervalStore:
         self._decayed_at = self._now
         from mapping import _store_kernels as E
 
-        if self._dyn_cells.shape[0] == 0:
+        if self._n_dyn == 0:
             return 0
-        # the whole-grid pass (E.decay) restricted to the cells that hold dynamic intervals: the same drops
-        dropped, self._dyn_cells = E.decay_cells(
-            self._dyn_cells, self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
-            self._now, float(age), math.inf if dwell is None else float(dwell), self._l_occ,
+        # the whole-grid pass (E.decay) restricted to the cells that hold dynamic intervals, skipping those
+        # with nothing old enough: the same drops
+        dropped, n_dyn = E.decay_listed(
+            self._dyn_cells, self._n_dyn, self._dyn_flag, self._dyn_due,
+            self._ccount, self._cstart, self._plo, self._phi, self._pl, self._pt,
+            self._now, float(age), self._max_dwell(), self._l_occ,
         )  # fmt: skip
+        self._n_dyn = int(n_dyn)
         n = int(dropped)
         self._n_intervals -= n
         self._garbage += n

@@ -209,14 +209,8 @@ def update_cells(  # type: ignore[no-untyped-def]
         tkey[nt] = key
         nt += 1
         toff[nt] = n
-    return (
-        tkey[:nt].copy(),
-        toff[: nt + 1].copy(),
-        tlo[:n].copy(),
-        thi[:n].copy(),
-        tl[:n].copy(),
-        tt[:n].copy(),
-    )
+    # views, not copies: the caller writes them back and drops them
+    return tkey[:nt], toff[: nt + 1], tlo[:n], thi[:n], tl[:n], tt[:n]
 
 
 @numba.jit(**_JIT)
@@ -312,17 +306,23 @@ def compact(cstart, ccount, ccap, plo, phi, pl, pt, new_lo, new_hi, new_l, new_t
 
 @numba.jit(**_JIT)
 def _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
-    """:func:`decay` of cell ``c``: (intervals dropped, whether the cell still holds a dynamic one)."""
+    """:func:`decay` of cell ``c``: (intervals dropped, whether the cell still holds a dynamic one, the
+    earliest last hit of the ones it keeps that a later pass could drop, ``inf`` when none: see
+    :func:`track_dynamic`)."""
     cnt = ccount[c]
     s = cstart[c]
     w = 0
     still = False
+    due = np.inf
     for k in range(cnt):
         t = pt[s + k, 0]
-        if t > -np.inf and now - t > age and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ:
+        droppable = t > -np.inf and t - pt[s + k, 1] <= max_dwell and pl[s + k] >= l_occ
+        if droppable and now - t > age:
             continue
         if t > -np.inf:
             still = True
+        if droppable:
+            due = min(due, t)
         if w != k:
             plo[s + w] = plo[s + k]
             phi[s + w] = phi[s + k]
@@ -331,7 +331,7 @@ def _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ)
             pt[s + w, 1] = pt[s + k, 1]
         w += 1
     ccount[c] = w
-    return cnt - w, still
+    return cnt - w, still, due
 
 
 @numba.jit(**_JIT)
@@ -353,40 +353,64 @@ def decay(ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type
 
 
 @numba.jit(**_JIT)
-def dynamic_cells(tkey, toff, tt):  # type: ignore[no-untyped-def]
-    """The touched cells (``tkey``, ascending) whose new lists (``toff`` CSR into ``tt``) hold a dynamic
-    interval (a finite last-hit stamp)."""
-    out = np.empty(tkey.shape[0], np.int64)
-    n = 0
+def track_dynamic(tkey, toff, tl, tt, max_dwell, l_occ, flag, due, cells, n):  # type: ignore[no-untyped-def]
+    """Keep the list of the cells the decay pass must visit after an update.
+
+    A dynamic interval can be dropped by a later pass only while it is occupied (``log-odds >= l_occ``)
+    and was hit for at most ``max_dwell`` (its stamps and log-odds change only in an update, or when a
+    pass drops it). For every touched cell (``tkey``, its new list ``toff`` CSR into ``tl``/``tt``):
+    ``due[key]`` becomes the earliest last hit of such intervals (``inf`` when it holds none), and a cell
+    with one that is not yet listed (``flag[key] == 0``) is appended to ``cells[:n]`` (room for
+    ``tkey.shape[0]`` more is the caller's) and flagged. Cells listed before stay listed (the pass
+    removes those with nothing left to drop).
+
+    Returns:
+        The new length of the list.
+    """
     for c in range(tkey.shape[0]):
+        key = tkey[c]
+        d = np.inf
         for k in range(toff[c], toff[c + 1]):
-            if tt[k, 0] > -np.inf:
-                out[n] = tkey[c]
-                n += 1
-                break
-    return out[:n].copy()
+            t = tt[k, 0]
+            if t > -np.inf and t - tt[k, 1] <= max_dwell and tl[k] >= l_occ:
+                d = min(d, t)
+        due[key] = d
+        if d < np.inf and flag[key] == 0:
+            flag[key] = 1
+            cells[n] = key
+            n += 1
+    return n
 
 
 @numba.jit(**_JIT)
-def decay_cells(cells, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
-    """:func:`decay` over the listed ``cells`` only (every cell holding a dynamic interval among them).
+def decay_listed(cells, n, flag, due, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ):  # type: ignore[no-untyped-def]
+    """:func:`decay` over the listed ``cells[:n]`` only (every cell holding an interval a pass could
+    drop is listed, see :func:`track_dynamic`); the list is compacted in place to the cells that still
+    hold one (the others are unflagged). A cell whose earliest such last hit ``due[c]`` is not older
+    than ``age`` is skipped: nothing in it is due, and a pass over it would change nothing.
 
     Returns:
-        (number of intervals dropped, the listed cells that still hold a dynamic interval).
+        (number of intervals dropped, the new length of the list).
     """
     dropped = 0
-    keep = np.empty(cells.shape[0], np.int64)
     nk = 0
-    for q in range(cells.shape[0]):
+    for q in range(n):
         c = cells[q]
-        if ccount[c] == 0:
-            continue
-        n, still = _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ)
-        dropped += n
-        if still:
-            keep[nk] = c
+        if ccount[c] != 0 and due[c] < np.inf and not (now - due[c] > age):
+            cells[nk] = c  # nothing due yet: unchanged
             nk += 1
-    return dropped, keep[:nk].copy()
+            continue
+        d, first_due = 0, np.inf
+        if ccount[c] != 0:
+            d, _, first_due = _decay_cell(c, ccount, cstart, plo, phi, pl, pt, now, age, max_dwell, l_occ)
+        dropped += d
+        due[c] = first_due
+        if first_due < np.inf:
+            cells[nk] = c
+            nk += 1
+        else:
+            flag[c] = 0
+    return dropped, nk
 
 
 @numba.jit(**_JIT)

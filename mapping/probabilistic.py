@@ -83,6 +83,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mapping._evidence_views import EvidenceViews, _structures_from
+from mapping._frame_evidence import FrameEvidence
 from mapping._interval_store import IntervalStore
 from mapping.errors import MappingError
 from mapping.evidence import EvidenceIntervals, EvidenceParams, EvidenceStats
@@ -94,11 +95,8 @@ __all__ = ["EvidenceIntervals", "EvidenceParams", "EvidenceStats", "MapKind", "P
 #: Map kinds of :func:`make_map`.
 MapKind = Literal["probabilistic", "thesis"]
 
-# Heights farther than this many lattice steps from 0 cannot be stored (int32 bounds).
-_LATTICE_LIMIT = float(2**30)
 
-
-class ProbabilisticVHV(IntervalStore, EvidenceViews):
+class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
     """A variable-height map that keeps occupied and free evidence per vertical interval.
 
     Accepts the same inputs as :class:`mapping.vhv.VHVMap` (``insert(points, sensor_origin=...)``) and
@@ -211,37 +209,6 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews):
             elif built is not None:
                 return self._counted(pts, n_in, None, origin, method, t0, 0, built)
         return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
-
-    def _build(self, pts: NDArray[np.floating], method: str) -> tuple[Any, ...]:
-        """The frame's VHV structures: (key, bottom, top, n_nonfinite, n_outside, path)."""
-        from mapping.vhv import _build_compiled, _build_numpy
-
-        if method not in ("auto", "bins", "sort", "numpy"):
-            raise MappingError(f"insert method={method!r}: expected one of ('auto', 'bins', 'sort', 'numpy')")
-        if method == "numpy":
-            with np.errstate(over="ignore"):
-                return (*_build_numpy(pts, self.spec, self.tolerance), "numpy")
-        return tuple(_build_compiled(pts, self.spec, self.tolerance, method))
-
-    def _within(
-        self,
-        key: NDArray[np.int64],
-        bot: NDArray[np.float64],
-        top: NDArray[np.float64],
-        origin: tuple[float, float, float],
-        max_range: float,
-    ) -> bool:
-        """True when the box of the structures' cells and heights lies within ``max_range`` of origin."""
-        if key.shape[0] == 0:
-            return True
-        ny, cs = self.spec.shape[1], self.spec.cell_size
-        (ou, ov) = self.spec.origin
-        i, j = key // ny, key % ny
-        su, sv, sh = (float(c) for c in self.spec.to_grid_frame(np.asarray(origin)))
-        du = max(abs((int(i.min()) + ou) * cs - su), abs((int(i.max()) + ou + 1) * cs - su))
-        dv = max(abs((int(j.min()) + ov) * cs - sv), abs((int(j.max()) + ov + 1) * cs - sv))
-        dh = max(abs(float(bot.min()) - sh), abs(float(top.max()) - sh))
-        return math.sqrt(du * du + dv * dv + dh * dh) <= max_range
 
     def _insert_with_free(
         self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
@@ -441,62 +408,6 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews):
         ev["cells_updated"] = ncells
         return ev
 
-    def _evidence(
-        self,
-        pts: NDArray[np.floating],
-        free_only: NDArray[np.float64] | None,
-        origin: tuple[float, float, float] | None,
-        method: str,
-        built: tuple[Any, ...] | None = None,
-    ) -> dict[str, Any]:
-        """One frame's occupied slabs and merged free intervals (lattice units), without touching the map."""
-        from mapping import _evidence_kernels as E
-        from mapping.vhv import _build_compiled, _build_numpy
-
-        spec, tol = self.spec, self.tolerance
-        key, bot, top, n_nf, n_out, used = built if built is not None else self._build(pts, method)
-        r = self._r
-        lim = _LATTICE_LIMIT * r * 0.5
-        ok = (bot > -lim) & (top < lim)
-        if not bool(ok.all()):
-            key, bot, top = key[ok], bot[ok], top[ok]
-        okey, olo, ohi = E.occupied_evidence(
-            key, bot, top, 1.0 / r, self._half, -_LATTICE_LIMIT, _LATTICE_LIMIT
-        )
-        fkey = np.empty(0, np.int64)
-        flo = np.empty(0, np.int32)
-        fhi = np.empty(0, np.int32)
-        passages = 0
-        if origin is not None:
-            tkey, tbot, ttop = key, bot, top
-            if free_only is not None and free_only.shape[0]:
-                k2, b2, t2, _, _ = (
-                    _build_numpy(free_only, spec, tol)
-                    if method == "numpy"
-                    else _build_compiled(free_only, spec, tol, "auto")[:5]
-                )
-                ok2 = (b2 > -lim) & (t2 < lim)
-                tkey = np.concatenate([key, k2[ok2]])
-                tbot = np.concatenate([bot, b2[ok2]])
-                ttop = np.concatenate([top, t2[ok2]])
-            if tkey.shape[0]:
-                fkey, flo, fhi, passages = self._free_evidence(tkey, tbot, ttop, origin, okey, olo, ohi)
-        return {
-            "n_nonfinite": int(n_nf),
-            "n_outside": int(n_out),
-            "frame_structures": int(key.shape[0]),
-            "method": used,
-            "free_intervals": int(fkey.shape[0]),
-            "occupied_slabs": int(okey.shape[0]),
-            "fan_passages": int(passages),
-            "okey": okey,
-            "olo": olo,
-            "ohi": ohi,
-            "fkey": fkey,
-            "flo": flo,
-            "fhi": fhi,
-        }
-
     def frame_evidence(
         self, points: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None
     ) -> tuple[Structures, Structures]:
@@ -525,51 +436,6 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews):
         occ = _structures_from(ev["okey"], ev["olo"] * r, ev["ohi"] * r, ny)
         free = _structures_from(ev["fkey"], ev["flo"] * r, ev["fhi"] * r, ny)
         return occ, free
-
-    def _free_evidence(
-        self,
-        key: NDArray[np.int64],
-        bot: NDArray[np.float64],
-        top: NDArray[np.float64],
-        origin: tuple[float, float, float],
-        okey: NDArray[np.int64],
-        olo: NDArray[np.int32],
-        ohi: NDArray[np.int32],
-    ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], int]:
-        """The frame's merged free intervals (fans of every target structure), see the module docs."""
-        from mapping import _evidence_kernels as E
-
-        spec = self.spec
-        nx, ny = spec.shape
-        (ou, ov), cs = spec.origin, spec.cell_size
-        su, sv, sh = (float(c) for c in spec.to_grid_frame(np.asarray(origin)))
-        si, sj = (int(c) for c in spec.world_to_index(su, sv))
-        ti = key // ny
-        tj = key % ny
-        i0 = max(min(int(ti.min()), si), 0)
-        i1 = min(max(int(ti.max()), si), nx - 1)
-        j0 = max(min(int(tj.min()), sj), 0)
-        j1 = min(max(int(tj.max()), sj), ny - 1)
-        ni, nj = i1 - i0 + 1, j1 - j0 + 1
-        r = self._r
-        inv_r = 1.0 / r
-        b0 = math.floor(min(sh, float(bot.min())) * inv_r)
-        b1 = math.floor(max(sh, float(top.max())) * inv_r)
-        span = b1 - b0 + 1
-        words_budget = max(1, int(self.params.max_table_bytes) // (8 * ni * nj))
-        m = max(1, math.ceil(span / (64 * words_budget)))
-        nbins = math.ceil(span / m)
-        nw = (nbins + 63) // 64
-        bits = np.zeros(ni * nj * nw, np.uint64)
-        passages = E.fan_bits(
-            key, bot, top, ny, cs, ou, ov, su, sv, sh, i0, j0, ni, nj, nw, inv_r, b0, m, nbins, bits
-        )
-        erode = math.ceil(self._margin / (m * r) - 1e-9)
-        gap = math.floor(self._gap / (m * r) + 1e-9)
-        fkey, flo, fhi = E.extract_free(
-            bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
-        )
-        return fkey, flo, fhi, int(passages)
 
     def band_cell_keys(self, band: tuple[float, float], rows: tuple[int, int], cols: tuple[int, int]) -> Any:
         """Sorted cell keys ``i * ny + j`` (int64) of the cells in rows ``[i0, i1]`` x columns ``[j0, j1]``

@@ -129,7 +129,7 @@ def test_stamps_going_back_and_bad_decay_parameters_are_refused():
         EvidenceParams(dynamic_void_probability=1.5)
 
 
-def _whole_grid_decay(m: ProbabilisticVHV) -> int:
+def _whole_grid_decay(m: ProbabilisticVHV, age: float = 0.5, dwell: float = 2.0) -> int:
     """The decay pass over every cell of the grid, at every call (the reference of the tracked pass)."""
     import math
 
@@ -137,7 +137,7 @@ def _whole_grid_decay(m: ProbabilisticVHV) -> int:
 
     if not math.isfinite(m._now) or m._n_intervals == 0:
         return 0
-    n = int(E.decay(m._ccount, m._cstart, m._plo, m._phi, m._pl, m._pt, m._now, 0.5, 2.0, m._l_occ))
+    n = int(E.decay(m._ccount, m._cstart, m._plo, m._phi, m._pl, m._pt, m._now, age, dwell, m._l_occ))
     m._n_intervals -= n
     m._garbage += n
     return n
@@ -167,3 +167,42 @@ def test_the_decay_over_the_tracked_dynamic_cells_drops_what_the_whole_grid_pass
     for f in ("i", "j", "bottom", "top", "log_odds"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
     np.testing.assert_array_equal(tracked._flat()[0], whole._flat()[0])
+
+
+@pytest.mark.parametrize("dwell", [0.1, 0.4, None])
+def test_the_tracked_decay_that_skips_cells_with_nothing_due_drops_what_the_whole_grid_pass_drops(
+    monkeypatch, dwell
+):
+    """The tracked pass skips a cell whose dynamic intervals that could drop (occupied, dwelt at most
+    ``dynamic_max_dwell_s``) were all hit within ``dynamic_decay_s``, and forgets cells holding none:
+    with dwell bounds that exclude some of the walker's intervals (0.1 s, 0.4 s) or none, the map still
+    equals bit for bit the map whose decay sweeps the whole grid at every insert, and some intervals
+    were dropped while others stayed dynamic."""
+    import math
+
+    params = EvidenceParams(dynamic_decay_s=0.3, dynamic_max_dwell_s=dwell)
+    spec = GridSpec(cell_size=0.05, size_x=8.0, size_y=8.0)
+    tracked, whole = ProbabilisticVHV(spec, params=params), ProbabilisticVHV(spec, params=params)
+    dropped: list[int] = []
+    ref = math.inf if dwell is None else dwell
+    monkeypatch.setattr(
+        whole, "_decay", lambda: dropped.append(_whole_grid_decay(whole, 0.3, ref)) or dropped[-1]
+    )
+    for k in range(45):
+        y = -1.0 + 0.04 * k
+        # a walker that stops for a while (long dwell in its cells), walks on, and leaves the view
+        y = min(y, -0.4) if 15 <= k < 28 else y
+        boxes = [WALL, [1.5, y - 0.2, 0.0, 1.9, y + 0.2, 1.7]] if k < 34 else [WALL]
+        cloud = _view(boxes)
+        for m in (tracked, whole):
+            m.insert(cloud, sensor_origin=O, stamp=k / HZ)
+            m.insert(cloud[::5, ::5], sensor_origin=O, stamp=k / HZ)
+    from mapping import _store_kernels as E
+
+    def stored(m: ProbabilisticVHV) -> tuple[np.ndarray, ...]:  # every interval with its stamps
+        return tuple(E.gather(m._cstart, m._ccount, m._plo, m._phi, m._pl, m._pt, m._n_intervals))
+
+    assert sum(dropped) > 0
+    assert np.isfinite(stored(whole)[4][:, 0]).any()  # dynamic intervals that did not decay remain
+    for x, y in zip(stored(tracked), stored(whole), strict=True):
+        np.testing.assert_array_equal(x, y)
