@@ -69,8 +69,8 @@ def _floor(x: float) -> int:
 # the result, only the speed. Prime steps: every 32nd point of an HD frame (a 384-byte stride) cost
 # 0.86 ms, every 97th 0.11 ms when the frame is in cache; a frame that is not (the usual case: it was
 # just rendered or read, and the previous build streamed through 25 MB) costs one memory access per
-# sample, ~0.65 ms at every 97th point. Large clouds take every 997th (2,080 samples of an HD frame,
-# whose box they guess within the margin).
+# sample, ~0.65 ms at every 97th point. Clouds of a million points and more take every 997th (2,080
+# samples of an HD frame, whose box they guess within the margin).
 _SAMPLE_STEP = 97
 _SAMPLE_STEP_LARGE = 997
 _MARGIN_CELLS = 2
@@ -198,7 +198,7 @@ def _build_compiled(
     if n == 0:
         return *empty, 0, 0, "bins"
     step = _SAMPLE_STEP if n >= 64 * _SAMPLE_STEP else 1
-    if n >= 64 * _SAMPLE_STEP_LARGE:
+    if n >= 1024 * _SAMPLE_STEP_LARGE:
         step = _SAMPLE_STEP_LARGE
     nf_s, u0, u1, v0, v1, h0, h1 = K.scan(pts, cu, cv, ch, step)
     if step > 1 and not math.isfinite(u0):  # the sample saw no finite point: look at all of them

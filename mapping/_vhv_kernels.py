@@ -211,7 +211,9 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
             nf, n_ok = _bin_chunk(pc, m, cu, cv, ch, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm)
         n_nonfinite += nf
         if m - nf - n_ok:  # finite points outside the box: off the grid, or a poor box guess
-            off, n_over = _box_misses(pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, trash, buf, s, overflow, n_over)
+            off, n_over = _box_misses(
+                pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, trash, buf, s, overflow, n_over
+            )
             n_outside += off
     return n_nonfinite, n_outside, n_over
 
