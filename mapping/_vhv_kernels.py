@@ -231,7 +231,7 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t):  # type: i
     for c in range(n_cells):
         base = 2 * c * nb
         # most cells of the box are empty: a branch-free count (vectorised) skips them
-        filled = 0
+        filled = np.int64(0)
         for b in range(nb):
             filled += np.int64(mm[base + 2 * b] != np.inf)
         if filled == 0:
