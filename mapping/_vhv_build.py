@@ -28,6 +28,7 @@ small or sparse clouds, outliers far away in height — the build takes the comp
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,12 +66,57 @@ def _floor(x: float) -> int:
 
 # Points sampled to guess the frame's box (every _SAMPLE_STEP-th); the guess is widened by a margin and
 # points that still fall outside it are handled exactly by the sort path, so the guess never changes
-# the result, only the speed. A prime step: every 32nd point of an HD frame (a 384-byte stride) cost
-# 0.86 ms, every 97th 0.11 ms, with the same table and no overflow.
+# the result, only the speed. Prime steps: every 32nd point of an HD frame (a 384-byte stride) cost
+# 0.86 ms, every 97th 0.11 ms when the frame is in cache; a frame that is not (the usual case: it was
+# just rendered or read, and the previous build streamed through 25 MB) costs one memory access per
+# sample, ~0.65 ms at every 97th point. Clouds of a million points and more take every 997th (2,080
+# samples of an HD frame, whose box they guess within the margin).
 _SAMPLE_STEP = 97
+_SAMPLE_STEP_LARGE = 997
 _MARGIN_CELLS = 2
 # Table slots addressable by the binning kernel's int32 indices.
 _INT32_SLOTS = 2**31 - 1
+
+
+# Largest (min, max) table kept between frames, per thread and dtype (an HD frame's is ~3 MB in float32).
+_KEEP_TABLE_BYTES = 16 << 20
+_tables = threading.local()
+
+
+def _empty_table(entries: int, dtype: np.dtype) -> NDArray[np.floating]:
+    """A flat table of at least ``entries`` (min, max) pairs, all (+inf, -inf), to be handed back empty.
+
+    The table of the previous frame of this thread is reused when it is large enough (the extraction
+    empties every bin it reads, so it comes back clean, and no page is faulted in or filled again);
+    one still marked in use (an earlier build raised midway) is refilled. Larger tables than
+    ``_KEEP_TABLE_BYTES`` are allocated per call.
+    """
+    key = np.dtype(dtype).char
+    kept = getattr(_tables, key, None)
+    if kept is not None and kept[0].shape[0] >= 2 * entries:
+        table, clean = kept
+        setattr(_tables, key, (table, False))
+        if not clean:
+            _fill_empty(table)
+        return table
+    table = np.empty(2 * entries, dtype=dtype)
+    _fill_empty(table)
+    if table.nbytes <= _KEEP_TABLE_BYTES:
+        setattr(_tables, key, (table, False))
+    return table
+
+
+def _release_table(table: NDArray[np.floating]) -> None:
+    """Mark this thread's kept table clean again (every bin back at (+inf, -inf))."""
+    key = table.dtype.char
+    kept = getattr(_tables, key, None)
+    if kept is not None and kept[0] is table:
+        setattr(_tables, key, (table, True))
+
+
+def _fill_empty(table: NDArray[np.floating]) -> None:
+    # one contiguous fill of (min, max) = (+inf, -inf) pairs, twice as fast as two strided column fills
+    table.view(np.complex64 if table.dtype == np.float32 else np.complex128).fill(complex(np.inf, -np.inf))
 
 
 def _run_bounds(
@@ -152,6 +198,8 @@ def _build_compiled(
     if n == 0:
         return *empty, 0, 0, "bins"
     step = _SAMPLE_STEP if n >= 64 * _SAMPLE_STEP else 1
+    if n >= 1024 * _SAMPLE_STEP_LARGE:
+        step = _SAMPLE_STEP_LARGE
     nf_s, u0, u1, v0, v1, h0, h1 = K.scan(pts, cu, cv, ch, step)
     if step > 1 and not math.isfinite(u0):  # the sample saw no finite point: look at all of them
         step = 1
@@ -186,14 +234,13 @@ def _build_compiled(
     if 2 * dense + 2 >= _INT32_SLOTS:  # inputs of several GB: the kernel's slots are int32
         return *_sort_path(pts, spec, tol), "sort"
     # One (min, max) pair more: the scratch slot of the points that are not binned.
-    table = np.empty((dense + 1, 2), dtype=pts.dtype)
-    # one contiguous fill of (min, max) = (+inf, -inf) pairs, twice as fast as two strided column fills
-    table.view(np.complex64 if pts.dtype == np.float32 else np.complex128).fill(complex(np.inf, -np.inf))
+    table = _empty_table(dense + 1, pts.dtype)
+    flat = table[: 2 * dense + 2]
     overflow = np.empty(max(4096, n // 64), np.int64)
     n_nonfinite, n_outside, n_over = K.bin_minmax(
-        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, table.reshape(-1), overflow
+        pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb, flat, overflow
     )
-    mm = table[:dense].reshape(-1)
+    mm = flat[: 2 * dense]
     n_nonfinite, n_outside = int(n_nonfinite), int(n_outside)
     # Output capacity: the worst case (every binned point its own structure) when that is small next
     # to the input (np.empty maps pages lazily, so only written pages cost memory), else counted exactly
@@ -202,8 +249,12 @@ def _build_compiled(
     if cap * 24 > pts.nbytes // 2:
         cap = max(int(K.count_bin_structures(mm, nb, tol)), 1)
     out_key, out_b, out_t = np.empty(cap, np.int64), np.empty(cap, np.float64), np.empty(cap, np.float64)
+    # The extraction empties every bin it reads; the scratch slot is emptied here.
     n_out = int(K.extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t))
-    del mm, table
+    flat[2 * dense] = np.inf
+    flat[2 * dense + 1] = -np.inf
+    _release_table(table)
+    del mm, flat, table
     key, bot, top = out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
     del out_key, out_b, out_t
     if n_over:
@@ -211,9 +262,8 @@ def _build_compiled(
             rest = pts[overflow[:n_over]]
         else:  # the guessed box was poor: take every point outside it (exact, slower)
             rest = _outside_box(pts, spec, i0, j0, ni, nj, iw, b0, nb)
-        # The overflow holds in-grid points only; some may have a non-finite height.
-        k2, b2, t2, nf2, _ = _sort_path(rest, spec, tol)
-        n_nonfinite += nf2
+        # The overflow holds finite in-grid points only (bin_minmax counted the non-finite ones).
+        k2, b2, t2, _, _ = _sort_path(rest, spec, tol)
         key, bot, top = K.merge_structures(key, bot, top, k2, b2, t2, tol)
     return key, bot, top, n_nonfinite, n_outside, "bins"
 
@@ -221,9 +271,9 @@ def _build_compiled(
 def _outside_box(
     pts: NDArray[np.floating], spec: GridSpec, i0: int, j0: int, ni: int, nj: int, iw: float, b0: int, nb: int
 ) -> NDArray[np.floating]:
-    """In-grid points outside a (cell, bin) box, non-finite heights included (after a bad box guess)."""
+    """Finite in-grid points outside a (cell, bin) box (after a bad box guess)."""
     cu, cv, ch = spec.columns
-    ok = np.isfinite(pts[:, cu]) & np.isfinite(pts[:, cv])
+    ok = np.isfinite(pts).all(axis=1)
     i, j = spec.world_to_index(pts[:, cu], pts[:, cv])
     with np.errstate(invalid="ignore", over="ignore"):
         b = np.floor(pts[:, ch].astype(np.float64) * iw)

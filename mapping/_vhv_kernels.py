@@ -68,40 +68,67 @@ _STREAMS = 4
 
 
 @numba.jit(**_JIT)
-def _slot_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf):  # type: ignore[no-untyped-def]
+def _slot_chunk(pc, m, xu, xv, xh, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf):  # type: ignore[no-untyped-def]
     """Table slot (``2 * entry``, or ``trash``) of each of the ``m`` points of the flat chunk ``pc``.
 
     Branch-free and in float64 only (the slot is an exact integer below 2**31 in float64), so that the
     compiler vectorises it (the columns ``xu, xv, xh`` are constants after inlining). Same float64
-    operations as ``GridSpec.world_to_index``, so the cells are exact.
+    operations as ``GridSpec.world_to_index``, so the cells are exact. Only what every point needs is
+    computed here (its box test and whether it is finite); the points that are finite but outside
+    the box are classified by :func:`_box_misses` in the chunks that have any.
 
     Returns:
-        (points off the grid, points off the grid with a non-finite coordinate, points in the box).
+        (points with a non-finite coordinate, points in the box).
     """
-    n_off = np.int64(0)
-    n_off_nonfinite = np.int64(0)
+    n_nonfinite = np.int64(0)
     n_ok = np.int64(0)
     for q in range(m):
         u = np.float64(pc[3 * q + xu])
         v = np.float64(pc[3 * q + xv])
         h = np.float64(pc[3 * q + xh])
-        fu = np.floor(u * ics)
-        fv = np.floor(v * ics)
-        di = fu - fi0
-        dj = fv - fj0
+        di = np.floor(u * ics) - fi0
+        dj = np.floor(v * ics) - fj0
         db = np.floor(h * iw) - fb0
-        fi = fu - fou
-        fj = fv - fov
-        finite = (u - u == 0.0) & (v - v == 0.0) & (h - h == 0.0)
-        # NaN fails every comparison: non-finite points are never in the grid nor in the box
-        ingrid = (fi >= 0.0) & (fj >= 0.0) & (fi < fnx) & (fj < fny)
+        # x - x is 0 for a finite x and NaN otherwise; the sum of three is 0 only when all are finite
+        finite = (u - u) + (v - v) + (h - h) == 0.0
+        # NaN fails every comparison: non-finite points are never in the box
         ok = (di >= 0.0) & (dj >= 0.0) & (db >= 0.0) & (di < fni) & (dj < fnj) & (db < fnb)
-        n_off += np.int64(not ingrid)
-        n_off_nonfinite += np.int64(not (ingrid | finite))
+        n_nonfinite += np.int64(not finite)
         n_ok += np.int64(ok)
         slot = ((di * fnj + dj) * fnb + db) * 2.0
         buf[q] = np.int32(slot if ok else trash)
-    return n_off, n_off_nonfinite, n_ok
+    return n_nonfinite, n_ok
+
+
+@numba.jit(**_JIT)
+def _box_misses(pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, trash, buf, base, overflow, n_over):  # type: ignore[no-untyped-def]
+    """Finite points of a chunk that are not in the box: off the grid (counted) or in it (to overflow).
+
+    ``buf`` holds the chunk's slots from :func:`_slot_chunk`; the indices (``base + q``) of in-grid
+    misses are appended to ``overflow`` from position ``n_over`` while they fit.
+
+    Returns:
+        (finite points off the grid, the new n_over).
+    """
+    cap = overflow.shape[0]
+    n_outside = 0
+    for q in range(m):
+        if buf[q] != trash:
+            continue
+        u = np.float64(pc[3 * q + cu])
+        v = np.float64(pc[3 * q + cv])
+        h = np.float64(pc[3 * q + ch])
+        if (u - u) + (v - v) + (h - h) != 0.0:  # non-finite: counted by the slot pass, dropped
+            continue
+        fi = np.floor(u * ics) - fou
+        fj = np.floor(v * ics) - fov
+        if fi >= 0.0 and fj >= 0.0 and fi < fnx and fj < fny:
+            if n_over < cap:
+                overflow[n_over] = base + q
+            n_over += 1
+        else:
+            n_outside += 1
+    return n_outside, n_over
 
 
 @numba.jit(**_JIT)
@@ -127,11 +154,9 @@ def _scatter_chunk(pc, m, xh, buf, mm):  # type: ignore[no-untyped-def]
 
 
 @numba.jit(**_JIT)
-def _bin_chunk(pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm):  # type: ignore[no-untyped-def]
+def _bin_chunk(pc, m, xu, xv, xh, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm):  # type: ignore[no-untyped-def]
     """Slots then scatter of one chunk; returns the counts of :func:`_slot_chunk`."""
-    counts = _slot_chunk(
-        pc, m, xu, xv, xh, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf
-    )
+    counts = _slot_chunk(pc, m, xu, xv, xh, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf)
     _scatter_chunk(pc, m, xh, buf, mm)
     return counts
 
@@ -144,21 +169,19 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     one cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 +
     nj) x [b0, b0 + nb)`` (grid indices, bin indices); the last two entries are scratch (points that
     are not binned write there, so that the scatter has no branch). ``2 * ni * nj * nb + 2`` must fit
-    an int32, and the box must lie inside the grid. ``pts`` is C-contiguous ``(N, 3)``. In-grid points
-    whose cell or bin falls outside the box — including those with a non-finite height — are not
-    binned: their indices go to ``overflow`` (as many as fit, in increasing order) for the exact slow
-    path, which also counts their non-finite heights.
+    an int32, and the box must lie inside the grid. ``pts`` is C-contiguous ``(N, 3)``. Points with a
+    non-finite coordinate are counted and dropped; finite in-grid points whose cell or bin falls
+    outside the box are not binned: their indices go to ``overflow`` (as many as fit, in increasing
+    order) for the exact slow path.
 
     Per chunk of points: a vectorised pass computes every point's slot, then a scalar pass updates
-    the table.
+    the table; a chunk with finite points outside the box is walked once more to classify them.
 
     Returns:
-        (n_nonfinite_uv, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
-        ``n_nonfinite_uv`` counts the points off the grid with a non-finite coordinate.
+        (n_nonfinite, n_outside_grid, n_overflow); n_overflow may exceed ``overflow.shape[0]``.
     """
     n = pts.shape[0]
     p = pts.reshape(-1)
-    cap = overflow.shape[0]
     trash = np.float64(mm.shape[0] - 2)
     fou = np.float64(ou)
     fov = np.float64(ov)
@@ -181,28 +204,17 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
         pc = p[3 * s : 3 * (s + m)]
         # literal columns for the common axes: contiguous loads the compiler can vectorise
         if ch == 2:
-            off, off_nf, n_ok = _bin_chunk(
-                pc, m, 0, 1, 2, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
-            )
+            nf, n_ok = _bin_chunk(pc, m, 0, 1, 2, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm)
         elif ch == 0:
-            off, off_nf, n_ok = _bin_chunk(
-                pc, m, 1, 2, 0, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
-            )
+            nf, n_ok = _bin_chunk(pc, m, 1, 2, 0, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm)
         else:
-            off, off_nf, n_ok = _bin_chunk(
-                pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm
+            nf, n_ok = _bin_chunk(pc, m, cu, cv, ch, ics, fi0, fj0, fni, fnj, iw, fb0, fnb, trash, buf, mm)
+        n_nonfinite += nf
+        if m - nf - n_ok:  # finite points outside the box: off the grid, or a poor box guess
+            off, n_over = _box_misses(
+                pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, trash, buf, s, overflow, n_over
             )
-        n_nonfinite += off_nf
-        n_outside += off - off_nf
-        if m - off - n_ok:  # rare: in-grid points outside the guessed box (or with a non-finite height)
-            for q in range(m):
-                if buf[q] == trash:
-                    fi = np.floor(np.float64(pc[3 * q + cu]) * ics) - fou
-                    fj = np.floor(np.float64(pc[3 * q + cv]) * ics) - fov
-                    if fi >= 0.0 and fj >= 0.0 and fi < fnx and fj < fny:
-                        if n_over < cap:
-                            overflow[n_over] = s + q
-                        n_over += 1
+            n_outside += off
     return n_nonfinite, n_outside, n_over
 
 
@@ -211,12 +223,19 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t):  # type: i
     """Merge consecutive non-empty bins of each cell into structures (gap <= tol joins).
 
     Writes into ``out_*`` (capacity: at least the number of non-empty bins; pages never written are
-    never touched) and returns the number of structures.
+    never touched) and returns the number of structures. Every bin read is emptied again (+inf, -inf),
+    so that the table can serve the next frame without a refill.
     """
     n_cells = mm.shape[0] // (2 * nb)
     n_out = 0
     for c in range(n_cells):
         base = 2 * c * nb
+        # most cells of the box are empty: a branch-free count (vectorised) skips them
+        filled = np.int64(0)
+        for b in range(nb):
+            filled += np.int64(mm[base + 2 * b] != np.inf)
+        if filled == 0:
+            continue
         open_ = False
         key = (i0 + c // nj) * ny + (j0 + c % nj)
         for b in range(nb):
@@ -224,6 +243,9 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t):  # type: i
             if lo == np.inf:
                 continue
             hi = np.float64(mm[base + 2 * b + 1])
+            mm[base + 2 * b] = np.inf
+            mm[base + 2 * b + 1] = -np.inf
+            filled -= 1
             if open_ and lo - out_t[n_out - 1] <= tol:
                 out_t[n_out - 1] = hi
             else:
@@ -232,6 +254,8 @@ def extract_bins(mm, nb, i0, j0, nj, ny, tol, out_key, out_b, out_t):  # type: i
                 out_t[n_out] = hi
                 n_out += 1
                 open_ = True
+            if filled == 0:  # the cell's last non-empty bin
+                break
     return n_out
 
 

@@ -551,3 +551,52 @@ def test_binning_over_chunks_and_streams_equals_a_numpy_reference(
     m = VHVMap(SPEC, tolerance=tol)
     m.insert(pts, method=method)
     assert as_tuples(m.structures()) == numpy_reference_structures(pts, SPEC, tol)
+
+
+def test_frames_of_any_size_in_a_row_on_one_thread_equal_fresh_builds_and_leave_the_table_empty() -> None:
+    """The bins path keeps its (min, max) table between frames of a thread and relies on the
+    extraction emptying it: a sequence of frames of growing and shrinking boxes, with NaN, off-grid and
+    overflow points, gives on every frame the map a fresh numpy build gives, and the kept table is all
+    (+inf, -inf) afterwards."""
+    from mapping import _vhv_build
+    from mapping.synthetic import kinect_hd_like_cloud
+
+    rng = np.random.default_rng(5)
+    spec = GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
+    frames = [kinect_hd_like_cloud(rng, h, w) for h, w in ((240, 320), (60, 80), (300, 400), (120, 160))]
+    frames += [c.astype(np.float32) for _, c in _chunked_edge_clouds()]
+    for k, cloud in enumerate(frames + frames[::-1]):
+        m, ref = VHVMap(spec, 0.05), VHVMap(spec, 0.05)
+        stats = m.insert(cloud, method="bins")
+        ref_stats = ref.insert(cloud, method="numpy")
+        assert m.structures().equals(ref.structures()), k
+        assert (stats.points_dropped_nonfinite, stats.points_outside_grid) == (
+            ref_stats.points_dropped_nonfinite,
+            ref_stats.points_outside_grid,
+        ), k
+        table, clean = _vhv_build._tables.f
+        assert clean and bool(np.all(table[0::2] == np.inf)) and bool(np.all(table[1::2] == -np.inf)), k
+
+
+def test_a_build_that_stopped_midway_leaves_no_trace_in_the_next_frame(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A build that raises after binning (its table still full) must not leak into the next frame."""
+    from mapping import _vhv_kernels
+    from mapping.synthetic import kinect_hd_like_cloud
+
+    rng = np.random.default_rng(6)
+    spec = GridSpec(cell_size=0.05, size_x=20.0, size_y=20.0)
+    first, second = kinect_hd_like_cloud(rng, 240, 320), kinect_hd_like_cloud(rng, 200, 300)
+
+    def stop(*args: object) -> int:
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as mp:
+        mp.setattr(_vhv_kernels, "extract_bins", stop)
+        with pytest.raises(KeyboardInterrupt):
+            VHVMap(spec, 0.05).insert(first, method="bins")
+    m, ref = VHVMap(spec, 0.05), VHVMap(spec, 0.05)
+    m.insert(second, method="bins")
+    ref.insert(second, method="numpy")
+    assert m.structures().equals(ref.structures())
