@@ -168,9 +168,18 @@ def test_readme_heavy_command_runs_twice_in_its_smallest_variant(cmd: str, tmp_p
         assert json.loads((tmp_path / "runs/default/metrics.json").read_text())["status"] == "ok"
 
 
+@pytest.fixture(scope="module")
+def made_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The folder :data:`MAKE_RUN` was run in (``runs/default`` in it), made once; read-only: each test
+    copies it."""
+    folder = tmp_path_factory.mktemp("made_run")
+    _run(MAKE_RUN, folder)
+    return folder
+
+
 @pytest.mark.parametrize("cmd", sorted(ON_A_RUN))
-def test_readme_command_on_a_run_folder_runs_twice(cmd: str, tmp_path: Path) -> None:
-    _run(MAKE_RUN, tmp_path)
+def test_readme_command_on_a_run_folder_runs_twice(cmd: str, made_run: Path, tmp_path: Path) -> None:
+    shutil.copytree(made_run / "runs", tmp_path / "runs")
     _twice(cmd, tmp_path)
 
 
