@@ -128,7 +128,7 @@ def _recorded_seconds() -> dict[str, float]:
     return {str(k): float(v) for k, v in data.items()}
 
 
-@pytest.hookimpl(tryfirst=True)
+@pytest.hookimpl(tryfirst=True, optionalhook=True)  # optional: a run with -p no:xdist
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
     """``--dist loadgroup`` with the work units handed out heaviest first (see the module's text)."""
     if config.getvalue("dist") != "loadgroup":
