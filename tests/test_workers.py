@@ -53,3 +53,70 @@ def test_the_users_of_a_session_fixture_share_one_group_across_files_and_a_modul
     spec = groups[f"{perception}::test_unknown_pose_source_and_ground_truth_without_a_source_are_refused"]
     assert spec is not None and spec not in sim_run
     assert groups[f"{bag}::test_synthetic_run_bag_is_read_by_the_mcap_reader"] is None
+
+
+SUITE_FILES = {
+    "pytest.ini": "[pytest]\n",
+    "test_a.py": """
+import os
+from pathlib import Path
+
+import pytest
+
+LOG = Path(__file__).parent / "log.txt"
+
+
+def _note(what):
+    with LOG.open("a") as f:
+        f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')} {what}\\n")
+
+
+@pytest.fixture(scope="session")
+def built():
+    _note("built")
+    return 1
+
+
+@pytest.mark.parametrize("k", range(4))
+def test_user(built, k):
+    _note(f"test_user[{k}]")
+
+
+@pytest.mark.parametrize("k", range(4))
+def test_plain(k):
+    _note(f"test_plain[{k}]")
+""",
+    "test_b.py": """
+from test_a import _note
+
+
+def test_heavy():
+    _note("test_heavy")
+""",
+    "durations.json": '{"test_b.py::test_heavy": 100.0}\n',
+}
+
+
+def test_a_two_worker_run_builds_a_shared_fixture_once_and_starts_the_recorded_heaviest_test_first(
+    tmp_path: Path,
+) -> None:
+    """A small suite under this suite's conftest, run with ``-n 2 --dist loadgroup``: four tests share a
+    session fixture (it must be built once, in one worker), and the last collected test is recorded as
+    the heaviest (it must be the first test its worker runs)."""
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "conftest.py").write_text((ROOT / "tests" / "conftest.py").read_text(encoding="utf-8"))
+    for name, text in SUITE_FILES.items():
+        (suite / name).write_text(text, encoding="utf-8")
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    env.pop("PYTEST_XDIST_WORKER", None)
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2",
+                          "--dist", "loadgroup"], cwd=suite, env=env, capture_output=True, text=True,
+                         timeout=600)  # fmt: skip
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    rows = [line.split(" ", 1) for line in (suite / "log.txt").read_text().splitlines()]
+    assert [what for _, what in rows].count("built") == 1, rows
+    users = {worker for worker, what in rows if what.startswith("test_user")}
+    assert len(users) == 1, rows
+    heavy_worker = next(worker for worker, what in rows if what == "test_heavy")
+    assert next(what for worker, what in rows if worker == heavy_worker) == "test_heavy", rows

@@ -3,7 +3,9 @@ read by the tests that use them (a test that writes into a run folder makes its 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -61,3 +63,17 @@ def emulated_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
             "--duration", "20", "--no-safety", "--out", str(root / "run")]  # fmt: skip
     assert main(argv) == 0
     return root / "run"
+
+
+@pytest.fixture(scope="session")
+def ray_2cpu() -> Iterator[Any]:
+    """A local Ray instance of 2 CPUs (the ``ray`` module), started once for every test that runs work on
+    Ray (a `--ray` command joins it: an initialised Ray is reused and left running), shut down at the end
+    of the session; its workers run with :data:`robchair.sweep.harness.THREAD_ENV`."""
+    ray = pytest.importorskip("ray")
+    from robchair.sweep.harness import THREAD_ENV
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             runtime_env={"env_vars": dict(THREAD_ENV)})  # fmt: skip
+    yield ray
+    ray.shutdown()

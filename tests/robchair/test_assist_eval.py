@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -49,20 +50,12 @@ def test_floors_keep_their_doorways_within_the_asked_width_range() -> None:
 
 
 def test_serial_and_ray_assist_eval_give_the_same_json_and_the_report_page_shows_table_and_paths(
-    tmp_path: Path,
+    ray_2cpu: Any, tmp_path: Path
 ) -> None:
-    ray = pytest.importorskip("ray")
-    from robchair.sweep.harness import THREAD_ENV
-
     common = ["assist-eval", "--env", "office", "--user", "tremor", "--mode", "off", "--mode", "door",
               "--episodes", "2", "--seed", "3", "--pictures", "2"]  # fmt: skip
     assert main([*common, "--out", str(tmp_path / "serial")]) == 0
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             runtime_env={"env_vars": dict(THREAD_ENV)})  # fmt: skip
-    try:
-        assert main([*common, "--ray", "--out", str(tmp_path / "ray")]) == 0
-    finally:
-        ray.shutdown()
+    assert main([*common, "--ray", "--out", str(tmp_path / "ray")]) == 0
     serial = json.loads((tmp_path / "serial" / "assist_eval.json").read_text())
     assert json.loads((tmp_path / "ray" / "assist_eval.json").read_text()) == serial  # bit for bit
     page = (tmp_path / "ray" / "report.md").read_text()

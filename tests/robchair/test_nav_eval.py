@@ -73,22 +73,15 @@ def test_nav_eval_refuses_an_unknown_policy_or_id_in_one_line(capsys):
     assert "no_such_module" in err and err.count("\n") == 1
 
 
-def test_serial_and_distributed_nav_eval_give_the_same_results_for_the_same_seeds(tmp_path):
+def test_serial_and_distributed_nav_eval_give_the_same_results_for_the_same_seeds(ray_2cpu, tmp_path):
     pytest.importorskip("pybullet")
-    ray = pytest.importorskip("ray")
     from robchair.cli import main
-    from robchair.sweep.harness import THREAD_ENV
 
     common = ["nav-eval", "--env", "RobChair/Navigation-v1", "--episodes", "2", "--seed", "4",
               "--policy", "baseline", "--policy", "random", "--pictures", "1"]  # fmt: skip
     assert main([*common, "--out", str(tmp_path / "serial")]) == 0
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             runtime_env={"env_vars": dict(THREAD_ENV)})  # fmt: skip
-    try:
-        assert main([*common, "--ray", "--out", str(tmp_path / "ray")]) == 0
-        workers = {n["NodeManagerAddress"] for n in ray.nodes()}
-    finally:
-        ray.shutdown()
+    assert main([*common, "--ray", "--out", str(tmp_path / "ray")]) == 0
+    workers = {n["NodeManagerAddress"] for n in ray_2cpu.nodes()}
     serial = json.loads((tmp_path / "serial" / "nav_eval.json").read_text())
     distributed = json.loads((tmp_path / "ray" / "nav_eval.json").read_text())
     assert workers

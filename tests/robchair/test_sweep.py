@@ -94,22 +94,6 @@ def test_an_earlier_sweep_needs_resume(tmp_path: Path) -> None:
     prepare_out(tmp_path / "s", spec, resume=True)
 
 
-@pytest.fixture(scope="module")
-def ray_2cpu():
-    ray = pytest.importorskip("ray")
-    from robchair.sweep.harness import THREAD_ENV
-
-    ray.init(
-        num_cpus=2,
-        include_dashboard=False,
-        log_to_driver=False,
-        configure_logging=False,
-        runtime_env={"env_vars": dict(THREAD_ENV)},
-    )
-    yield ray
-    ray.shutdown()
-
-
 def _rows(path: Path) -> list[dict[str, str]]:
     with path.open(newline="") as f:
         return list(csv.DictReader(f))
