@@ -231,10 +231,14 @@ class Perception:
         # what the loop sees of the mapping thread's work: the state after frame k - SNAPSHOT_LAG when
         # frame k is delivered, threaded or not (so both runs decide the same, bit for bit)
         self._seq = 0
-        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D]] = {}
+        self._after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D, np.ndarray | None]] = {}
+        # the zoom's fine cells in the height band, (M, 2) in the main map's frame (the local map the
+        # safety layer's swept-footprint check asks: walls beside and behind the chair too)
+        self._zoom_xy: np.ndarray | None = None
         self._frame_futs: dict[int, Future[None]] = {}
         self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
+        self._sonar_arc: dict[str, tuple[np.ndarray, Pose2D]] = {}  # per array: (arc (N, 2) base_link, pose)
         self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
         self._t_mount: dict[str, tuple[float, np.ndarray]] = {}  # per sonar array: (joint, T_base_array)
@@ -332,7 +336,7 @@ class Perception:
             fut.result()
         snap = self._after_frame.pop(k, None)
         if snap is not None:
-            self._t_map_odom, d, pose = snap
+            self._t_map_odom, d, pose, self._zoom_xy = snap
             self._zoom_depth = (d, pose) if self.zoom is not None else None
 
     def _insert_frame(self, frame: DepthFrame, t_world_base: dict[str, np.ndarray], t_base_sensor: np.ndarray,
@@ -386,10 +390,11 @@ class Perception:
         elif others:
             self._insert_each(others, placer, stamp)
         if self.matcher is not None or self.zoom is not None:
-            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor))
+            xy = self._zoom_band_xy()
+            d = self._zoom_corridor(poses[self.pose] @ np.linalg.inv(t_base_sensor), xy)
             t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
-                self._after_frame[seq] = (t, d, pose)
+                self._after_frame[seq] = (t, d, pose, xy)
 
     def _insert_each(
         self, jobs: list[tuple[str, Any, np.ndarray, str]], placer: _Placer, stamp: float
@@ -478,8 +483,9 @@ class Perception:
         """
         return _travelled(self._zoom_depth, pose)
 
-    def _zoom_corridor(self, t_world_base: np.ndarray) -> float | None:
-        """Corridor distance of the zoom's fine cells whose structures overlap the band."""
+    def _zoom_band_xy(self) -> np.ndarray | None:
+        """Centres (M, 2) of the zoom's fine cells whose structures overlap the band, in the main map's
+        frame, m (None: no zoom or none)."""
         fine = self.zoom.fine if self.zoom is not None else None
         if fine is None:
             return None
@@ -489,9 +495,42 @@ class Perception:
         if not hit.any():
             return None
         x, y = fine.spec.index_to_world(s.i[hit], s.j[hit])
+        return np.column_stack([x, y])
+
+    def _zoom_corridor(self, t_world_base: np.ndarray, xy_world: np.ndarray | None) -> float | None:
+        """Corridor distance of the zoom's fine cells ``xy_world`` (:meth:`_zoom_band_xy`)."""
+        if xy_world is None:
+            return None
         rot = t_world_base[:2, :2]
-        xy = (np.column_stack([x, y]) - t_world_base[:2, 3]) @ rot  # world -> base_link
+        xy = (xy_world - t_world_base[:2, 3]) @ rot  # world -> base_link
         return self.corridor.distance_ahead(xy)
+
+    def obstacle_points_base(self, pose: Pose2D) -> np.ndarray:
+        """Obstacle points (N, 2) in ``base_link`` at odometry ``pose`` all around the chair, m.
+
+        For the safety layer's swept-footprint check (:func:`robchair.platform.safety.swept_distances`):
+        the zoom's fine cells in the height band (the local map: walls seen earlier, beside and behind
+        the chair too; as of the frame the loop sees, :data:`SNAPSHOT_LAG`), the last laser scan's
+        returns in the band, and each sonar array's last fused arc (placed at the pose of its reading).
+        Empty (0, 2) when there is none.
+        """
+        parts = []
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        if self._zoom_xy is not None:
+            t = self._t_main_base(pose)
+            parts.append((self._zoom_xy - t[:2, 3]) @ t[:2, :2])
+        if self._scan_world is not None and len(self._scan_world):
+            q = self._scan_world - (pose.x, pose.y)
+            parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
+        for arc, p0 in self._sonar_arc.values():
+            # base_link at the reading -> odom -> base_link now
+            c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
+            wx, wy = (
+                p0.x + c0 * arc[:, 0] - s0 * arc[:, 1] - pose.x,
+                p0.y + s0 * arc[:, 0] + c0 * arc[:, 1] - pose.y,
+            )
+            parts.append(np.stack([c * wx + s * wy, c * wy - s * wx], 1))
+        return np.concatenate(parts) if parts else np.zeros((0, 2))
 
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
@@ -522,6 +561,7 @@ class Perception:
         self.stats["sonar_readings"] += 1
         if mount is None:
             self._sonar[name] = None
+            self._sonar_arc.pop(name, None)
             return None
         ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
         arrays = self.spec.sonar_arrays
@@ -534,6 +574,10 @@ class Perception:
                 arc, mount.xyz, np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1)
             )
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
+        if len(arc):
+            self._sonar_arc[name] = (np.asarray(arc, dtype=float)[:, :2], pose)
+        else:
+            self._sonar_arc.pop(name, None)
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
         joint = arrays.joint_angle(reading.servo_angle_deg)
