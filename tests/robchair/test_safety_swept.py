@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -242,3 +243,83 @@ def test_stopping_time_brakes_the_rims_at_brake_decel(spec) -> None:
 def test_footprint_rejects_a_bad_box() -> None:
     with pytest.raises(ValueError, match="rear_x < front_x"):
         Footprint(0.5, 0.2, 0.3)
+
+
+def _speed_commands(emu) -> list[tuple[int, int]]:
+    """(arrival time ns, RPM) of every ``!S`` the emulated Roboteq received."""
+    return [
+        (t, int(m.group(2)))
+        for t, line in list(emu.received)
+        if (m := re.fullmatch(r"!S (\d) (-?\d+)", line))
+    ]
+
+
+@pytest.mark.parametrize(("w", "blocked"), [(-0.8, True), (0.8, False)])
+def test_emulated_chair_does_not_turn_its_footrest_into_an_echo(spec, w, blocked) -> None:
+    # the real drivers on the emulated Roboteq and SRF08s, in the loop's own time (the SyncedClock):
+    # the left array's three sonars hear an echo 6 cm ahead (just past the footrest's front edge), the
+    # right array nothing. Turning right in place swings the chair's front-left forward into it: the
+    # loop must hold the motors at zero; turning left swings it away: the chair turns
+    from robchair.backends import get_backend
+    from robchair.run_output import run_to_dir
+    from robchair.sources import PolicySource
+
+    backend = get_backend("emulated", {"timeout_s": 0.1})
+    bus, emu = backend.extras["srf08_bus"], backend.extras["roboteq_emulator"]
+    left = (0x70, 0x71, 0x72)  # robchair.backends.DEFAULT_SONAR_ADDRESSES[:3]: sonar_array_left
+    bus.ranges = lambda addr, _t: 0.06 if addr in left else math.inf
+    bus.groups = [frozenset(left), frozenset((0x73, 0x74, 0x75))]  # the arrays do not hear each other
+    res = run_to_dir(backend, PolicySource(lambda o: (0.0, w)), 3.0, None, spec=spec)
+    reasons = [s["reason"] for s in res.stops]
+    theta = res.poses[-1][3]
+    cmds = _speed_commands(emu)
+    t0 = cmds[0][0]
+    if blocked:
+        assert "obstacle_swept" in reasons
+        # the first readings arrive within 0.4 s: from then on every speed command is zero
+        assert all(rpm == 0 for t, rpm in cmds if t - t0 > 400_000_000)
+        assert abs(theta) < 0.02
+    else:
+        assert "obstacle_swept" not in reasons
+        assert theta > 1.0
+
+
+@pytest.mark.parametrize(
+    ("env", "user", "mode", "index"),
+    [("random", "switch", "off", 6), ("office", "tremor", "shield", 6)],
+)
+def test_rebuilt_assist_eval_contact_is_avoided_with_the_swept_check(
+    monkeypatch, env, user, mode, index
+) -> None:
+    # issue 22's `robchair assist-eval` episodes that ended in contact (out6b: switch on random floors,
+    # off: the right footrest swung into the doorway's wall turning in place; tremor on the office,
+    # shield: the right side brushed the door post on an arc). Rebuilt with the eval's own episode
+    # (assist_eval.scenario + evaluation.run_episode); the check is fed the episode's laser scan, the
+    # points evaluation.drive has each cycle (it does not pass them to SafetyInputs yet)
+    import robchair.assistance.evaluation as ev
+    from robchair.commands.assist_eval import scenario
+    from sim.user import preset
+
+    sc = scenario(index, (0.8, 0.9), env)
+
+    def episode():
+        return ev.run_episode(sc["world"], spec_, sc["start"], sc["route"], mode, preset(user), seed=index)
+
+    spec_ = load_spec()
+    before = episode()
+    assert before["collisions"] == 1  # the eval as it is: the contact
+
+    last: dict[str, np.ndarray] = {}
+    scan = ev.PlanarChair.scan
+
+    def scan_and_keep(self):
+        last["pts"] = scan(self)
+        return last["pts"]
+
+    monkeypatch.setattr(ev.PlanarChair, "scan", scan_and_keep)
+    monkeypatch.setattr(
+        ev, "SafetyInputs", lambda stamp, **kw: SafetyInputs(stamp, obstacles_xy=last["pts"], **kw)
+    )
+    after = episode()
+    assert after["collisions"] == 0
+    assert after["min_clearance_m"] > 0.0
