@@ -323,3 +323,30 @@ def test_rebuilt_assist_eval_contact_is_avoided_with_the_swept_check(
     after = episode()
     assert after["collisions"] == 0
     assert after["min_clearance_m"] > 0.0
+
+
+def test_the_coarse_pass_decides_as_the_fine_poses_alone(spec, fp) -> None:
+    # sweep_scale sorts the points with coarse poses first; deciding on the fine poses of every point
+    # (written out here from swept_distances) must give the same scale for every case
+    from robchair.platform.safety import SWEEP_KEEP_TOL_M, SWEEP_SCALES
+
+    layer = _layer(spec)
+    lim = layer.limits
+    rng = np.random.default_rng(3)
+    decided = set()
+    for _ in range(150):
+        v, w = rng.uniform(-0.6, 0.6), rng.uniform(-2.0, 2.0)
+        pts = rng.uniform(-1.0, 1.4, size=(rng.integers(1, 40), 2))
+        pts = pts[fp.signed_distance(pts) > 0.0]
+        if len(pts) == 0:
+            continue
+        c0 = float(fp.signed_distance(pts).min())
+        want = 0.0
+        for k in SWEEP_SCALES:
+            d_min, _, bound = swept_distances(pts, k * v, k * w, layer.stopping_time(k * v, k * w), fp)
+            if d_min.min() >= min(lim.sweep_margin_m + bound, c0 - SWEEP_KEEP_TOL_M):
+                want = k
+                break
+        assert layer.sweep_scale(v, w, pts)[0] == want
+        decided.add(want)
+    assert {0.0, 1.0} <= decided and len(decided) >= 3  # the cases stop, limit and pass
