@@ -8,7 +8,8 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
    previous cycle overran its period, or this one outlived its deadline before writing),
    ``stale_sensor`` (a sensor gave nothing new for longer than ``stale_after_s``),
    ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
-   obstacle ahead closer than the stopping distance for the speed the chair would have);
+   obstacle ahead closer than the stopping distance for the speed the chair would have), and, after
+   the limits of 2., ``obstacle_swept`` (3.);
 2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
    motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
    change per cycle to the acceleration limits: of the body (``max_accel``, ``max_yaw_accel``) and of
