@@ -238,6 +238,7 @@ class Perception(FrameInserter):
         self._frame_futs: dict[int, Future[None]] = {}
         self._t_map_odom = np.eye(4)
         self._sonar: dict[str, float | None] = {}
+        self._sonar_arc: dict[str, tuple[np.ndarray, Pose2D]] = {}  # per array: (arc (N, 2) base_link, pose)
         self._scan_world: np.ndarray | None = None  # (M, 2) the last laser scan's returns placed at its pose
         self._servo: dict[str, float] = {}
         self._t_mount: dict[str, tuple[float, np.ndarray]] = {}  # per sonar array: (joint, T_base_array)
@@ -381,6 +382,33 @@ class Perception(FrameInserter):
         """
         return _travelled(self._zoom_depth, pose)
 
+    def obstacle_points_base(self, pose: Pose2D) -> np.ndarray:
+        """Obstacle points (N, 2) in ``base_link`` at odometry ``pose`` all around the chair, m.
+
+        For the safety layer's swept-footprint check (:func:`robchair.platform.safety.swept_distances`):
+        the zoom's fine cells in the height band (the local map: walls seen earlier, beside and behind
+        the chair too; as of the frame the loop sees, :data:`SNAPSHOT_LAG`), the last laser scan's
+        returns in the band, and each sonar array's last fused arc (placed at the pose of its reading).
+        Empty (0, 2) when there is none.
+        """
+        parts = []
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        arcs = list(self._sonar_arc.values())
+        if self._zoom_xy is not None:
+            arcs.append(self._zoom_xy)  # (N, 2) in base_link at the pose of the frame that placed them
+        if self._scan_world is not None and len(self._scan_world):
+            q = self._scan_world - (pose.x, pose.y)
+            parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
+        for arc, p0 in arcs:
+            # base_link at the reading (or frame) -> odom -> base_link now
+            c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
+            wx, wy = (
+                p0.x + c0 * arc[:, 0] - s0 * arc[:, 1] - pose.x,
+                p0.y + s0 * arc[:, 0] + c0 * arc[:, 1] - pose.y,
+            )
+            parts.append(np.stack([c * wx + s * wy, c * wy - s * wx], 1))
+        return np.concatenate(parts) if parts else np.zeros((0, 2))
+
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
         if self.pose == "ground-truth" and self.ground_truth is not None:
@@ -414,6 +442,7 @@ class Perception(FrameInserter):
         self.stats["sonar_readings"] += 1
         if mount is None:
             self._sonar[name] = None
+            self._sonar_arc.pop(name, None)
             return None
         ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
         arrays = self.spec.sonar_arrays
@@ -424,6 +453,10 @@ class Perception(FrameInserter):
             if known is not None:
                 arc = explained_arc(arc, mount.xyz, known)
         self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
+        if len(arc):
+            self._sonar_arc[name] = (np.asarray(arc, dtype=float)[:, :2], pose)
+        else:
+            self._sonar_arc.pop(name, None)
         if fusion.has_obstacle:
             self.stats["sonar_fusions_with_obstacle"] += 1
         joint = arrays.joint_angle(reading.servo_angle_deg)

@@ -56,6 +56,7 @@ from robchair.perception import Perception
 from robchair.platform.errors import ConfigError, RobChairError, StopSignal
 from robchair.platform.kinematics import DiffDrive, Odometry, Pose2D
 from robchair.platform.safety import (
+    Footprint,
     SafetyDecision,
     SafetyInputs,
     SafetyLayer,
@@ -130,7 +131,9 @@ class Runtime:
         self.safety = (
             safety
             if safety is not None
-            else SafetyLayer(SafetyLimits.from_spec(self.spec), self.spec.wheel_separation)
+            else SafetyLayer(
+                SafetyLimits.from_spec(self.spec), self.spec.wheel_separation, Footprint.from_spec(self.spec)
+            )
         )
         self.safety_enabled = bool(safety_enabled)
         self.perception = (
@@ -367,6 +370,7 @@ class Runtime:
                 stale_sensors=self._stale(now),
                 driver_fault=self._fault,
                 deadman=command.deadman,
+                obstacles_xy=p.obstacle_points_base(pose),
             )
             decision = self.safety.filter(command.v, command.w, inputs, dt)
         elif self._fault is not None:

@@ -39,7 +39,7 @@ from robchair.loop_types import LoopView, Observer, RunResult
 from robchair.perception import MAP_KINDS
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import DiffDrive, Pose2D
-from robchair.platform.safety import SafetyLayer, SafetyLimits
+from robchair.platform.safety import Footprint, SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec, load_spec
 from robchair.route import PurePursuit, Route
 from robchair.run_output import _json_default
@@ -301,7 +301,9 @@ def _drive(scenario: Any, spec: RobChairSpec, chair: Any, backend: Any, config: 
         observers.append(ProgressBar(scenario.name, duration))
     observers.extend(extra_observers)
     follower = PurePursuit(scenario_route(scenario), DiffDrive(spec))
-    safety = SafetyLayer(o["safety_limits"] or SafetyLimits.from_spec(spec), spec.wheel_separation)
+    safety = SafetyLayer(
+        o["safety_limits"] or SafetyLimits.from_spec(spec), spec.wheel_separation, Footprint.from_spec(spec)
+    )
     backend.open()
     rt = Runtime(backend, follower, spec=spec, config=config, safety=safety,
                  perception=perception, observers=observers, start_pose=Pose2D(*scenario.start),

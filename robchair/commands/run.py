@@ -174,7 +174,7 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
     from robchair.backends import get_backend
     from robchair.outdir import overwrite_allowed
     from robchair.platform.errors import ConfigError
-    from robchair.platform.safety import SafetyLayer, SafetyLimits
+    from robchair.platform.safety import Footprint, SafetyLayer, SafetyLimits
     from robchair.platform.spec import load_spec
     from robchair.route import Route
     from robchair.run_output import run_to_dir
@@ -191,7 +191,11 @@ def _drive(args: argparse.Namespace, live: list[Any]) -> int:
     if args.map is not None:
         overrides["map_kind"] = args.map
     runtime_config = RuntimeConfig.from_dict(cfg.table("runtime", {}), **overrides)
-    safety = SafetyLayer(SafetyLimits.from_spec(spec, cfg.table("safety", {})), spec.wheel_separation)
+    safety = SafetyLayer(
+        SafetyLimits.from_spec(spec, cfg.table("safety", {})),
+        spec.wheel_separation,
+        Footprint.from_spec(spec),
+    )
     route = None
     if args.route is not None:
         route = Route.load(args.route)

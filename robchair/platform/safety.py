@@ -8,7 +8,8 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
    previous cycle overran its period, or this one outlived its deadline before writing),
    ``stale_sensor`` (a sensor gave nothing new for longer than ``stale_after_s``),
    ``deadman_released`` (joystick), ``obstacle_sonar`` / ``obstacle_map`` (an
-   obstacle ahead closer than the stopping distance for the speed the chair would have);
+   obstacle ahead closer than the stopping distance for the speed the chair would have), and, after
+   the limits of 2., ``obstacle_swept`` (3.);
 2. otherwise limits the twist: speed and yaw rate to the platform maximum (scaled uniformly so the
    motors stay within ``max_motor_rpm``, keeping the curve) and to the configured caps, then the
    change per cycle to the acceleration limits: of the body (``max_accel``, ``max_yaw_accel``) and of
@@ -16,9 +17,22 @@ what it knows about the world and itself (:class:`SafetyInputs`). The layer
 
 Stopping distance grows with speed: ``d_stop(v) = margin + v * reaction_time + v**2 / (2 * brake_decel)``.
 Obstacle distances are measured from the front of the chair (sonar ranges from the sonar face, map
-distances from the footprint's front edge), so ``margin`` is the gap left when stopped. The chair's
-sonars and camera look forward only: obstacle stops apply while the wanted or current speed is
-forward; reversing and turning in place are bounded by the speed and acceleration limits alone.
+distances from the footprint's front edge), so ``margin`` is the gap left when stopped. These two
+distances look forward only and apply while the wanted or current speed is forward.
+
+3. then checks the footprint the limited twist would sweep (:func:`swept_clearance`) against the
+   obstacle points the perception keeps around the chair (``SafetyInputs.obstacles_xy``: its local
+   map, laser scan and sonar arcs, beside and behind the chair too), for every motion: forward,
+   reverse, an arc, or a turn in place, whose front corners (the footrests) swing out beside the
+   chair. The sweep is the arc of constant curvature the twist would follow over its stopping time
+   (the reaction time, then braking at ``brake_decel`` at the rim: ``2 brake_decel / b`` rad/s^2 in
+   yaw). The clearance (the nearest point's distance to the footprint) may not fall below
+   ``sweep_margin_m`` along the sweep, unless it is below already: then the motion may not lower it
+   any further (so a chair beside a wall can always turn or drive away from it, or along it: it is
+   never trapped). When the twist fails, it is scaled down along the same
+   curve (to :data:`SWEEP_SCALES` of itself, the first that passes; a shorter stop needs less room);
+   when none passes, the chair stops with ``obstacle_swept``. The scale is recorded in the decision
+   (``SafetyDecision.swept_scale``).
 
 The runtime adds stops found when the command is about to be written (:meth:`SafetyLayer.stop_now`):
 a deadline or freshness limit passed while the cycle ran, or a gap since the last command longer than
@@ -38,6 +52,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from robchair.platform.config import ConfigTable, bounds, check_dataclass, load_dataclass
 from robchair.platform.spec import RobChairSpec
 
@@ -52,6 +68,20 @@ class StopReason(enum.StrEnum):
     OBSTACLE_SONAR = "obstacle_sonar"
     OBSTACLE_MAP = "obstacle_map"
     CONTROLLER_WATCHDOG = "controller_watchdog"
+    OBSTACLE_SWEPT = "obstacle_swept"
+
+
+#: the fractions of a twist the swept-footprint check tries, largest first, before it stops
+SWEEP_SCALES = (1.0, 0.5, 0.25, 0.1)
+#: a point closer than the margin already may come this much closer along a sweep (m): the rounding
+#: of a motion that keeps its distance (driving parallel to a wall)
+SWEEP_KEEP_TOL_M = 1e-6
+#: the longest step between the sampled poses of a sweep, of any footprint point (m); at most
+#: :data:`SWEEP_MAX_POSES` poses (then the step is longer, and the bound below wider)
+SWEEP_STEP_M = 0.01
+SWEEP_MAX_POSES = 64
+#: the step of the coarse pass that sorts out the points far from the sweep, m
+SWEEP_COARSE_STEP_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -74,6 +104,9 @@ class SafetyLimits:
         brake_decel: deceleration assumed when braking, m/s^2 (for the stopping distance).
         reaction_time_s: delay before braking starts (one loop + controller + plant lag), s.
         margin_m: gap kept to an obstacle when stopped, m.
+        sweep_margin_m: gap kept between the footprint and any obstacle point along the swept
+            footprint of the commanded twist (beside and behind too), m. Small: the chair (0.64 m wide)
+            passes doorways of 0.80 m, 8 cm each side.
         stale_after_s: a sensor older than this stops the chair, s.
     """
 
@@ -85,6 +118,7 @@ class SafetyLimits:
     brake_decel: float = field(default=0.8, metadata=bounds(gt=0))
     reaction_time_s: float = field(default=0.3, metadata=bounds(gt=0))
     margin_m: float = field(default=0.15, metadata=bounds(gt=0))
+    sweep_margin_m: float = field(default=0.03, metadata=bounds(gt=0))
     stale_after_s: float = field(default=0.5, metadata=bounds(gt=0))
 
     def __post_init__(self) -> None:
@@ -133,6 +167,102 @@ class SafetyLimits:
 
 
 @dataclass(frozen=True)
+class Footprint:
+    """The chair's footprint: the rectangle ``rear_x <= x <= front_x``, ``|y| <= half_width`` in
+    ``base_link`` (x forward, y left), m."""
+
+    rear_x: float
+    front_x: float
+    half_width: float
+
+    def __post_init__(self) -> None:
+        if not (self.rear_x < self.front_x and self.half_width > 0):
+            raise ValueError(f"footprint {self}: expected rear_x < front_x and half_width > 0")
+
+    @classmethod
+    def from_spec(cls, spec: RobChairSpec) -> Footprint:
+        """The body box of the spec (``body.centre_x +- depth / 2``, ``width / 2``)."""
+        b = spec.body
+        return cls(b.centre_x - 0.5 * b.depth, b.centre_x + 0.5 * b.depth, 0.5 * b.width)
+
+    @property
+    def reach(self) -> float:
+        """Distance from ``base_link`` to the farthest corner (the front corners: the footrests), m."""
+        return math.hypot(max(abs(self.rear_x), abs(self.front_x)), self.half_width)
+
+    def signed_distance(self, xy: np.ndarray) -> np.ndarray:
+        """Signed distance (..., ) of points ``xy`` (..., 2) in ``base_link`` to the rectangle, m:
+        Euclidean outside, minus the depth inside."""
+        cx, hx = 0.5 * (self.front_x + self.rear_x), 0.5 * (self.front_x - self.rear_x)
+        qx = np.abs(xy[..., 0] - cx) - hx
+        qy = np.abs(xy[..., 1]) - self.half_width
+        outside = np.hypot(np.maximum(qx, 0.0), np.maximum(qy, 0.0))
+        return np.asarray(outside + np.minimum(np.maximum(qx, qy), 0.0))
+
+
+def sweep_poses(v: float, w: float, duration: float, n: int) -> np.ndarray:
+    """Poses (n + 1, 3) ``(x, y, theta)`` at ``k duration / n`` along the constant twist ``(v, w)`` (m/s,
+    rad/s) from the origin: the arc of radius ``v / w`` (a straight line for ``w = 0``, a turn in place
+    for ``v = 0``)."""
+    t = np.linspace(0.0, duration, n + 1)
+    th = w * t
+    if abs(w) > 1e-9:
+        x, y = v / w * np.sin(th), v / w * (1.0 - np.cos(th))
+    else:
+        x, y = v * t, np.zeros_like(t)
+    return np.stack([x, y, th], axis=1)
+
+
+def swept_distances(xy: np.ndarray, v: float, w: float, duration: float, footprint: Footprint,
+                    step_m: float = SWEEP_STEP_M, max_poses: int = SWEEP_MAX_POSES
+                    ) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+    """Distances of obstacle points to the footprint swept by the twist ``(v, w)`` over ``duration`` s.
+
+    The sweep is sampled at poses (:func:`sweep_poses`) so that no footprint point moves more than
+    ``step_m`` between two of them (at most ``max_poses`` steps): a footprint point moves at most
+    ``|v| + reach |w|`` m/s, so every pose between two samples is within half a step of one of them.
+
+    Args:
+        xy: obstacle points (N, 2) in ``base_link`` at the start, m.
+        v, w: the twist, m/s and rad/s.
+        duration: s (>= 0).
+        footprint: the chair's.
+
+    Returns:
+        ``(d_min, d_start, bound)``: per point the smallest signed distance over the sampled poses
+        (N,) and at the start (N,), m, and the sampling bound, m: the exact smallest distance over the
+        continuous sweep lies in ``[d_min - bound, d_min]``.
+    """
+    n, bound = _sweep_steps(v, w, duration, footprint, step_m, max_poses)
+    poses = sweep_poses(v, w, duration, n)
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    dx = xy[None, :, 0] - poses[:, 0:1]
+    dy = xy[None, :, 1] - poses[:, 1:2]
+    local = np.stack([c * dx + s * dy, c * dy - s * dx], axis=-1)  # (n + 1, N, 2) in each pose's frame
+    d = footprint.signed_distance(local)
+    return d.min(axis=0), d[0], bound
+
+
+def _sweep_steps(v: float, w: float, duration: float, footprint: Footprint, step_m: float = SWEEP_STEP_M,
+                 max_poses: int = SWEEP_MAX_POSES) -> tuple[int, float]:  # fmt: skip
+    """The steps of :func:`swept_distances`' sampling and its bound (half a step), m."""
+    length = (abs(v) + footprint.reach * abs(w)) * duration
+    n = max(1, min(max_poses, math.ceil(length / step_m)))
+    return n, 0.5 * length / n
+
+
+def swept_clearance(xy: np.ndarray, v: float, w: float, duration: float, footprint: Footprint) -> float:
+    """A lower bound on the smallest distance between the points ``xy`` (N, 2, ``base_link``) and the
+    footprint swept by ``(v, w)`` over ``duration`` s, m: within the sampling bound of
+    :func:`swept_distances` (half of :data:`SWEEP_STEP_M`, more for a sweep longer than
+    :data:`SWEEP_MAX_POSES` steps); inf without points."""
+    if len(xy) == 0:
+        return math.inf
+    d_min, _, bound = swept_distances(np.asarray(xy, dtype=float), v, w, duration, footprint)
+    return float(d_min.min()) - bound
+
+
+@dataclass(frozen=True)
 class SafetyInputs:
     """What the runtime knows this cycle. None = no such sensor / no information.
 
@@ -144,6 +274,9 @@ class SafetyInputs:
         stale_sensors: names of sensors whose newest reading is older than ``stale_after_s``.
         driver_fault: text of a motor-driver fault, if one happened.
         deadman: joystick dead-man button state (None when no joystick drives).
+        obstacles_xy: obstacle points (N, 2) in ``base_link`` in the chair's height band, all around
+            it (the perception's local map, laser scan and sonar arcs), m; None: no swept-footprint
+            check.
     """
 
     stamp_ns: int = 0
@@ -153,6 +286,7 @@ class SafetyInputs:
     stale_sensors: tuple[str, ...] = ()
     driver_fault: str | None = None
     deadman: bool | None = None
+    obstacles_xy: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -168,7 +302,9 @@ class SafetyDecision:
     w: float
     stop: StopReason | None = None
     detail: str = ""
-    limited: bool = False  # the twist was changed by a speed or acceleration limit
+    limited: bool = False  # the twist was changed by a speed or acceleration limit, or the sweep
+    #: the fraction of the limited twist the swept-footprint check let through (None: no check ran)
+    swept_scale: float | None = None
 
 
 def _default_wheel_separation() -> float:
@@ -177,16 +313,24 @@ def _default_wheel_separation() -> float:
     return load_spec().wheel_separation
 
 
+def _default_footprint() -> Footprint:
+    from robchair.platform.spec import load_spec
+
+    return Footprint.from_spec(load_spec())
+
+
 @dataclass
 class SafetyLayer:
     """Stateful filter: remembers the last output (for acceleration limits) and the latched fault.
 
     ``wheel_separation`` (m, the platform's; default the default spec's) turns the body twist into the
-    wheel rim speeds ``max_wheel_accel`` bounds.
+    wheel rim speeds ``max_wheel_accel`` bounds; ``footprint`` (default the default spec's body) is
+    what the swept-footprint check moves.
     """
 
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     wheel_separation: float = field(default_factory=_default_wheel_separation)
+    footprint: Footprint = field(default_factory=_default_footprint)
     stops: list[StopRecord] = field(default_factory=list)
     #: ``logging`` level of the line each new stop logs (WARNING on a chair; the Gymnasium envs and the
     #: benchmarks, where stops are part of learning and are counted in ``info["safety"]``, use INFO)
@@ -224,6 +368,58 @@ class SafetyLayer:
                     return reason, f"obstacle at {dist:.2f} m ahead < stopping distance {d_stop:.2f} m"
         return None
 
+    def stopping_time(self, v: float, w: float) -> float:
+        """Time the twist ``(v, w)`` keeps going after it is commanded, s: the reaction time, then
+        braking at ``brake_decel`` (rim deceleration: ``2 brake_decel / b`` rad/s^2 in yaw), the slower
+        of the two (a constant-curvature stop)."""
+        lim = self.limits
+        yaw_decel = 2.0 * lim.brake_decel / self.wheel_separation
+        return lim.reaction_time_s + max(abs(v) / (2.0 * lim.brake_decel), abs(w) / (2.0 * yaw_decel))
+
+    def sweep_scale(self, v: float, w: float, xy: np.ndarray) -> tuple[float, str]:
+        """The largest of :data:`SWEEP_SCALES` ``k`` whose twist ``(k v, k w)`` sweeps clear of the
+        obstacle points ``xy`` (N, 2, ``base_link``) over its stopping time (module docstring), or 0;
+        and a text naming the nearest point of the full twist's sweep (empty when it passes)."""
+        lim, fp = self.limits, self.footprint
+        pts = np.asarray(xy, dtype=float).reshape(-1, 2)
+        if len(pts) == 0 or (v == 0.0 and w == 0.0):
+            return 1.0, ""
+        # only points the footprint can reach within the full twist's stop can matter
+        reach = fp.reach + abs(v) * self.stopping_time(v, w) + lim.sweep_margin_m + SWEEP_STEP_M
+        near = pts[np.einsum("ij,ij->i", pts, pts) <= reach * reach]
+        if len(near) == 0:
+            return 1.0, ""
+        d0 = self.footprint.signed_distance(near)
+        # a point inside the footprint at the start is the chair's own or a map error: it cannot be
+        # driven away from, and is left to the obstacle stops
+        near, d0 = near[d0 > 0.0], d0[d0 > 0.0]
+        if len(near) == 0:
+            return 1.0, ""
+        c0 = float(d0.min())
+        why = ""
+        for k in SWEEP_SCALES:
+            vk, wk = k * v, k * w
+            t_stop = self.stopping_time(vk, wk)
+            # coarse poses first: a point whose coarse bound clears the margin by the fine bound cannot
+            # fail the fine test; the fine poses only for the rest (the same decision, for less work)
+            d_c, _, bound_c = swept_distances(near, vk, wk, t_stop, fp, step_m=SWEEP_COARSE_STEP_M)
+            bound_f = _sweep_steps(vk, wk, t_stop, fp)[1]
+            need = near[d_c - bound_c < lim.sweep_margin_m + bound_f]
+            if len(need) == 0:
+                return k, why
+            d_min, _, bound = swept_distances(need, vk, wk, t_stop, fp)
+            j = int(np.argmin(d_min))
+            # clear by the margin (with the sampling bound), or, closer already, no closer than now
+            if d_min[j] >= min(lim.sweep_margin_m + bound, c0 - SWEEP_KEEP_TOL_M):
+                return k, why
+            if not why:
+                why = (
+                    f"footprint swept by (v, w) = ({v:.2f} m/s, {w:.2f} rad/s) comes within "
+                    f"{max(0.0, d_min[j] - bound):.3f} m of an obstacle at ({need[j, 0]:.2f}, "
+                    f"{need[j, 1]:.2f}) m (clearance now {c0:.3f} m)"
+                )
+        return 0.0, why
+
     def stop_now(self, stamp_ns: int, reason: StopReason, detail: str) -> SafetyDecision:
         """Stop this cycle for ``reason`` (found after :meth:`filter`, when the command is written)."""
         return self._stop(stamp_ns, reason, detail)
@@ -246,7 +442,6 @@ class SafetyLayer:
             stop = self._stop_reason(v, inputs)
         if stop is not None:
             return self._stop(inputs.stamp_ns, *stop)
-        self._active = None
         lim = self.limits
         v_out = min(max(v, -lim.max_speed), lim.max_speed)
         w_out = min(max(w, -lim.max_yaw_rate), lim.max_yaw_rate)
@@ -268,6 +463,14 @@ class SafetyLayer:
         load = abs(v_out) / lim.max_speed + abs(w_out) / lim.max_yaw_rate
         if load > 1.0:
             v_out, w_out = v_out / load, w_out / load
+        scale: float | None = None
+        detail = ""
+        if inputs.obstacles_xy is not None:
+            scale, detail = self.sweep_scale(v_out, w_out, inputs.obstacles_xy)
+            if scale == 0.0:
+                return self._stop(inputs.stamp_ns, StopReason.OBSTACLE_SWEPT, detail)
+            v_out, w_out = scale * v_out, scale * w_out
+        self._active = None
         limited = not (math.isclose(v_out, v, abs_tol=1e-12) and math.isclose(w_out, w, abs_tol=1e-12))
         self._v, self._w = v_out, w_out
-        return SafetyDecision(v_out, w_out, None, "", limited)
+        return SafetyDecision(v_out, w_out, None, detail, limited, scale)
