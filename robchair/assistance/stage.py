@@ -48,11 +48,12 @@ from typing import Any
 import numpy as np
 
 from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
-from robchair.assistance.passage import Passage, PassageParams, PointMemory, refine
+from robchair.assistance.passage import Passage, PassageParams, PointMemory, door_coordinates, refine
 from robchair.assistance.window import Footprint, WindowParams, arc_clearance, first_per_cell, search
 from robchair.platform.config import bounds, check_dataclass
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import Pose2D
+from robchair.platform.safety import SafetyLimits
 from robchair.platform.spec import RobChairSpec
 from robchair.sources import Command, CommandSource, Observation
 
@@ -69,6 +70,12 @@ NEW_DOOR_M = 1.0
 # 156 degrees, half behind the chair, turned toward it and never reached the doorway ahead
 MAX_ENGAGE_PHI_RAD = math.radians(120.0)
 GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage's twist before taking it
+# s: ``assist`` lets the person's own twist through a doorway when, held, it brings the rear edge
+# ``door_through_m`` past the doorway's plane within this, the safety layer's corridor around and ahead
+# of the footprint clear of every point (:meth:`AssistedSource._person_clears`). The approach pose is
+# 1.0 m before the plane and the approach brakes onto it from 0.48 m before it at 0.49 m/s (the typical
+# user's push): 1.48 + 0.26 + 0.2 m to go at 0.49 m/s is 4.0 s
+CLEAR_HORIZON_S = 5.0
 
 
 def check_mode(mode: str) -> str:
@@ -214,6 +221,7 @@ class AssistedSource:
                                             lookahead_m=self.config.door_lookahead_m)  # fmt: skip
         self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
         self._memory = PointMemory(round(self.passage_params.memory_s * rate_hz))
+        self._stopping = SafetyLimits().stopping_distance  # the safety layer's (default margin, brake)
         self.last: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
 
@@ -317,6 +325,12 @@ class AssistedSource:
                 extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
                          "door_phase": phase, "_door": door}  # fmt: skip
                 return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
+            if self._passage.phase in ("approach", "align", "pass") and self._person_clears(door, p, front):
+                # the person already drives cleanly through: no approach pose, no turn in place; should
+                # their arc stop clearing, the passage follows the centre line from here
+                self._passage.phase = "pass"
+                extra = {"door_width_m": door.width, "door_phase": "clear", "_door": door}
+                return p.v, p.w, "pass", f"the person's arc clears a {door.width:.2f} m doorway", extra
             vg, wg, phase = self._passage.twist(door, p.v, self.dt, front, behind)
             if vg <= 0.0 or self._guide_clear(vg, wg, pts):
                 # backing off (checked against the points seen behind), turning in place, or clear for
@@ -338,6 +352,33 @@ class AssistedSource:
         if v == 0.0 and w == 0.0:
             return v, w, "stop", "no admissible twist within the horizon", extra
         return v, w, "window", f"person's twist clears {clear_p:.2f} m: nearest admissible twist", extra
+
+    def _person_clears(self, d: Doorway, p: Command, pts: np.ndarray) -> bool:
+        """Whether the person's twist, held, takes the chair through the doorway ``d`` (``base_link``).
+
+        Held until the rear edge is ``door_through_m`` past the doorway's plane (at most
+        ``CLEAR_HORIZON_S``; a longer way is not judged), the footprint widened by the safety layer's
+        corridor margin (``PassageParams.corridor_margin_m`` a side) and stretched ahead by its
+        stopping distance at the person's speed keeps clear of every point ``pts`` (N, 2): the body
+        passes both jambs with the margin and the safety layer never stops it on the way. Sampled
+        every 4 cm of travel.
+        """
+        if p.v <= 0.0:
+            return False
+        s, _, phi = door_coordinates(d)
+        if abs(phi) >= math.pi / 3:
+            return False
+        fp = self.footprint
+        arc = (self.config.door_through_m - fp.rear_x - s) / math.cos(phi)
+        if arc <= 0.0 or arc > p.v * CLEAR_HORIZON_S:
+            return False
+        ahead = self._stopping(p.v)
+        margin = self.passage_params.corridor_margin_m
+        box = Footprint(fp.centre_x + 0.5 * ahead, fp.half_depth + 0.5 * ahead, fp.half_width + margin)
+        reach = arc + box.front_x + box.half_width
+        near = pts[np.einsum("ij,ij->i", pts, pts) <= reach * reach].astype(np.float32)
+        times = np.linspace(0.0, arc / p.v, max(2, math.ceil(arc / 0.04) + 1))
+        return float(arc_clearance(box, np.array([p.v]), np.array([p.w]), times, near)[0]) > 0.0
 
     def _guide_clear(self, v: float, w: float, pts: np.ndarray) -> bool:
         """Whether holding ``(v, w)`` for ``GUIDE_HORIZON_S`` keeps the window's minimum clearance."""
