@@ -144,8 +144,8 @@ def test_assist_does_not_slow_a_clean_push_through_the_office_doorway() -> None:
 
 def test_assist_still_guides_a_push_that_would_hit_the_office_doorway_jamb() -> None:
     """The same push 0.12 m off the centre line would put a jamb within the corridor margin (the
-    doorway's 0.10 m a side): it is not let through as clear at first; the passage turns it toward the line (``off`` is stopped
-    at the post by the safety layer, ``assist`` passes with no contact)."""
+    doorway's 0.10 m a side): it is not let through as clear at first; the passage turns it toward the
+    line (``off`` is stopped at the post by the safety layer, ``assist`` passes with no contact)."""
     start = (4.4, 0.12, 0.0)
     off = _office_doorway_drive("off", start, 200)
     assist = _office_doorway_drive("assist", start, 200)
