@@ -12,7 +12,11 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
 - ``assist``: the admissible twist nearest the person's over a short horizon
   (:func:`robchair.assistance.window.search`, a dynamic-window search); near a doorway the person
   points at, the doorway passage's twist (:class:`robchair.assistance.passage.Passage`, back-off
-  included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it;
+  included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it. The person's
+  own twist passes unchanged when, held, it takes the chair through the doorway with the safety
+  layer's margin (:meth:`AssistedSource._person_clears`), and a chair already near the centre line
+  and along it follows the line at once (``JOIN_*``) instead of braking onto the approach pose and
+  turning there: a clean push is not slowed by the passage;
 - ``door``: ``assist``, and when a doorway (:func:`robchair.assistance.doorway.find_doorways`) lies
   where the person's command points, the chair follows the doorway's centre line at the person's
   speed (at most ``door_speed``) and hands control back once its rear edge is through, or once the
@@ -76,6 +80,15 @@ GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage'
 # 1.0 m before the plane and the approach brakes onto it from 0.48 m before it at 0.49 m/s (the typical
 # user's push): 1.48 + 0.26 + 0.2 m to go at 0.49 m/s is 4.0 s
 CLEAR_HORIZON_S = 5.0
+# ``assist`` follows the doorway's centre line at once (the passage's ``pass`` law, no approach pose and
+# no turn in place) from a chair at least JOIN_BEFORE_M before the doorway's plane, within JOIN_OFFSET_M
+# of the line and JOIN_PHI_RAD of its normal: the line law (``lookahead_m`` 0.25 m) joins the line
+# within about 0.5 m. Aiming at the approach pose instead brings the chair there askew (office episode
+# 7, typical user: 7 degrees), where the person's straight push does not clear the jambs and the
+# passage brakes and turns in place
+JOIN_BEFORE_M = 0.9
+JOIN_OFFSET_M = 0.12
+JOIN_PHI_RAD = math.radians(15.0)
 
 
 def check_mode(mode: str) -> str:
@@ -325,6 +338,14 @@ class AssistedSource:
                 extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
                          "door_phase": phase, "_door": door}  # fmt: skip
                 return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
+            ds, de, dphi = door_coordinates(door)
+            if (
+                self._passage.phase == "approach"
+                and ds <= -JOIN_BEFORE_M
+                and abs(de) <= JOIN_OFFSET_M
+                and abs(dphi) <= JOIN_PHI_RAD
+            ):
+                self._passage.phase = "pass"
             if self._passage.phase in ("approach", "align", "pass") and self._person_clears(door, p, front):
                 # the person already drives cleanly through: no approach pose, no turn in place; should
                 # their arc stop clearing, the passage follows the centre line from here
