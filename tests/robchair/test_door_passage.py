@@ -153,3 +153,20 @@ def test_assist_still_guides_a_push_that_would_hit_the_office_doorway_jamb() -> 
     phases = [r.get("door_phase") for r in assist.reports]
     assert phases[0] == "approach"  # turned toward the line first (then a straight push may clear)
     assert not assist.contact and assist.poses[-1][0] > 6.0 + 0.26 + 0.2
+
+
+def test_assist_joins_the_office_doorway_line_without_braking_onto_the_approach_pose() -> None:
+    """Office episode 7, typical user: 1.5 m before the doorway, 6 cm off its centre line and heading
+    7 degrees toward it, a straight push would hit the post (``off`` is stopped there). ``assist``
+    aimed at the approach pose, arrived there askew, braked to 0.1 m/s and turned in place. Near the
+    line and along it, it follows the line at once: through without the turn, never below 0.4 m/s
+    once up to speed."""
+    start = (4.48, 0.063, math.radians(-6.9))
+    off = _office_doorway_drive("off", start)
+    assist = _office_doorway_drive("assist", start)
+    assert off.stops and off.poses[-1][0] < 6.0
+    assert not assist.contact and not assist.stops
+    phases = [r.get("door_phase") for r in assist.reports]
+    assert "align" not in phases and "approach" not in phases
+    through = next(k for k, p in enumerate(assist.poses) if p[0] > 6.0 + 0.26 + 0.2)
+    assert min(v for v, _ in assist.applied[30:through]) >= 0.4
