@@ -81,12 +81,15 @@ GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage'
 # user's push): 1.48 + 0.26 + 0.2 m to go at 0.49 m/s is 4.0 s
 CLEAR_HORIZON_S = 5.0
 # ``assist`` follows the doorway's centre line at once (the passage's ``pass`` law, no approach pose and
-# no turn in place) from a chair at least JOIN_BEFORE_M before the doorway's plane, within JOIN_OFFSET_M
-# of the line and JOIN_PHI_RAD of its normal: the line law (``lookahead_m`` 0.25 m) joins the line
-# within about 0.5 m. Aiming at the approach pose instead brings the chair there askew (office episode
-# 7, typical user: 7 degrees), where the person's straight push does not clear the jambs and the
-# passage brakes and turns in place
+# no turn in place) from a chair JOIN_BEFORE_M to JOIN_FROM_M before the doorway's plane, within
+# JOIN_OFFSET_M of the line and JOIN_PHI_RAD of its normal: the line law (``lookahead_m`` 0.25 m) joins
+# the line within about 0.5 m. Aiming at the approach pose instead brings the chair there askew (office
+# episode 7, typical user: 7 degrees), where the person's straight push does not clear the jambs and
+# the passage brakes and turns in place. Not from farther: there the line law, blended with a tremor
+# user's swings by the window, snaked along the corridor and reached the doorway 30 degrees askew
+# (office episode 1, tremor user: 6.4 s slower)
 JOIN_BEFORE_M = 0.9
+JOIN_FROM_M = 1.6
 JOIN_OFFSET_M = 0.12
 JOIN_PHI_RAD = math.radians(15.0)
 
@@ -341,15 +344,17 @@ class AssistedSource:
             ds, de, dphi = door_coordinates(door)
             if (
                 self._passage.phase == "approach"
-                and ds <= -JOIN_BEFORE_M
+                and -JOIN_FROM_M <= ds <= -JOIN_BEFORE_M
                 and abs(de) <= JOIN_OFFSET_M
                 and abs(dphi) <= JOIN_PHI_RAD
             ):
                 self._passage.phase = "pass"
             if self._passage.phase in ("approach", "align", "pass") and self._person_clears(door, p, front):
                 # the person already drives cleanly through: no approach pose, no turn in place; should
-                # their arc stop clearing, the passage follows the centre line from here
-                self._passage.phase = "pass"
+                # their arc stop clearing, the passage follows the centre line from here (from within
+                # JOIN_FROM_M; from farther it approaches again: see JOIN_FROM_M)
+                if ds >= -JOIN_FROM_M:
+                    self._passage.phase = "pass"
                 extra = {"door_width_m": door.width, "door_phase": "clear", "_door": door}
                 return p.v, p.w, "pass", f"the person's arc clears a {door.width:.2f} m doorway", extra
             vg, wg, phase = self._passage.twist(door, p.v, self.dt, front, behind)
