@@ -12,7 +12,11 @@ It sits in the one drive loop (:class:`robchair.runtime.Runtime`) between the pe
 - ``assist``: the admissible twist nearest the person's over a short horizon
   (:func:`robchair.assistance.window.search`, a dynamic-window search); near a doorway the person
   points at, the doorway passage's twist (:class:`robchair.assistance.passage.Passage`, back-off
-  included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it;
+  included) when it keeps clear for ``GUIDE_HORIZON_S``, else the window guided by it. The person's
+  own twist passes unchanged when, held, it takes the chair through the doorway with the safety
+  layer's margin (:meth:`AssistedSource._person_clears`), and a chair already near the centre line
+  and along it follows the line at once (``JOIN_*``) instead of braking onto the approach pose and
+  turning there: a clean push is not slowed by the passage;
 - ``door``: ``assist``, and when a doorway (:func:`robchair.assistance.doorway.find_doorways`) lies
   where the person's command points, the chair follows the doorway's centre line at the person's
   speed (at most ``door_speed``) and hands control back once its rear edge is through, or once the
@@ -48,11 +52,12 @@ from typing import Any
 import numpy as np
 
 from robchair.assistance.doorway import Doorway, DoorwayParams, find_doorways
-from robchair.assistance.passage import Passage, PassageParams, PointMemory, refine
+from robchair.assistance.passage import Passage, PassageParams, PointMemory, door_coordinates, refine
 from robchair.assistance.window import Footprint, WindowParams, arc_clearance, first_per_cell, search
 from robchair.platform.config import bounds, check_dataclass
 from robchair.platform.errors import ConfigError
 from robchair.platform.kinematics import Pose2D
+from robchair.platform.safety import SafetyLimits
 from robchair.platform.spec import RobChairSpec
 from robchair.sources import Command, CommandSource, Observation
 
@@ -69,6 +74,24 @@ NEW_DOOR_M = 1.0
 # 156 degrees, half behind the chair, turned toward it and never reached the doorway ahead
 MAX_ENGAGE_PHI_RAD = math.radians(120.0)
 GUIDE_HORIZON_S = 0.5  # s: how far ahead ``assist`` checks the doorway passage's twist before taking it
+# s: ``assist`` lets the person's own twist through a doorway when, held, it brings the rear edge
+# ``door_through_m`` past the doorway's plane within this, the safety layer's corridor around and ahead
+# of the footprint clear of every point (:meth:`AssistedSource._person_clears`). The approach pose is
+# 1.0 m before the plane and the approach brakes onto it from 0.48 m before it at 0.49 m/s (the typical
+# user's push): 1.48 + 0.26 + 0.2 m to go at 0.49 m/s is 4.0 s
+CLEAR_HORIZON_S = 5.0
+# ``assist`` follows the doorway's centre line at once (the passage's ``pass`` law, no approach pose and
+# no turn in place) from a chair JOIN_BEFORE_M to JOIN_FROM_M before the doorway's plane, within
+# JOIN_OFFSET_M of the line and JOIN_PHI_RAD of its normal: the line law (``lookahead_m`` 0.25 m) joins
+# the line within about 0.5 m. Aiming at the approach pose instead brings the chair there askew (office
+# episode 7, typical user: 7 degrees), where the person's straight push does not clear the jambs and
+# the passage brakes and turns in place. Not from farther: there the line law, blended with a tremor
+# user's swings by the window, snaked along the corridor and reached the doorway 30 degrees askew
+# (office episode 1, tremor user: 6.4 s slower)
+JOIN_BEFORE_M = 0.9
+JOIN_FROM_M = 1.6
+JOIN_OFFSET_M = 0.12
+JOIN_PHI_RAD = math.radians(15.0)
 
 
 def check_mode(mode: str) -> str:
@@ -214,6 +237,7 @@ class AssistedSource:
                                             lookahead_m=self.config.door_lookahead_m)  # fmt: skip
         self._passage = Passage(self.passage_params, self.footprint, self.max_yaw_rate)
         self._memory = PointMemory(round(self.passage_params.memory_s * rate_hz))
+        self._stopping = SafetyLimits().stopping_distance  # the safety layer's (default margin, brake)
         self.last: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
 
@@ -317,6 +341,22 @@ class AssistedSource:
                 extra = {"door_width_m": door.width, "door_distance_m": math.hypot(door.cx, door.cy),
                          "door_phase": phase, "_door": door}  # fmt: skip
                 return v, w, "door", f"{phase}: a {door.width:.2f} m doorway", extra
+            ds, de, dphi = door_coordinates(door)
+            if (
+                self._passage.phase == "approach"
+                and -JOIN_FROM_M <= ds <= -JOIN_BEFORE_M
+                and abs(de) <= JOIN_OFFSET_M
+                and abs(dphi) <= JOIN_PHI_RAD
+            ):
+                self._passage.phase = "pass"
+            if self._passage.phase in ("approach", "align", "pass") and self._person_clears(door, p, front):
+                # the person already drives cleanly through: no approach pose, no turn in place; should
+                # their arc stop clearing, the passage follows the centre line from here (from within
+                # JOIN_FROM_M; from farther it approaches again: see JOIN_FROM_M)
+                if ds >= -JOIN_FROM_M:
+                    self._passage.phase = "pass"
+                extra = {"door_width_m": door.width, "door_phase": "clear", "_door": door}
+                return p.v, p.w, "pass", f"the person's arc clears a {door.width:.2f} m doorway", extra
             vg, wg, phase = self._passage.twist(door, p.v, self.dt, front, behind)
             if vg <= 0.0 or self._guide_clear(vg, wg, pts):
                 # backing off (checked against the points seen behind), turning in place, or clear for
@@ -338,6 +378,33 @@ class AssistedSource:
         if v == 0.0 and w == 0.0:
             return v, w, "stop", "no admissible twist within the horizon", extra
         return v, w, "window", f"person's twist clears {clear_p:.2f} m: nearest admissible twist", extra
+
+    def _person_clears(self, d: Doorway, p: Command, pts: np.ndarray) -> bool:
+        """Whether the person's twist, held, takes the chair through the doorway ``d`` (``base_link``).
+
+        Held until the rear edge is ``door_through_m`` past the doorway's plane (at most
+        ``CLEAR_HORIZON_S``; a longer way is not judged), the footprint widened by the safety layer's
+        corridor margin (``PassageParams.corridor_margin_m`` a side) and stretched ahead by its
+        stopping distance at the person's speed keeps clear of every point ``pts`` (N, 2): the body
+        passes both jambs with the margin and the safety layer never stops it on the way. Sampled
+        every 4 cm of travel.
+        """
+        if p.v <= 0.0:
+            return False
+        s, _, phi = door_coordinates(d)
+        if abs(phi) >= math.pi / 3:
+            return False
+        fp = self.footprint
+        arc = (self.config.door_through_m - fp.rear_x - s) / math.cos(phi)
+        if arc <= 0.0 or arc > p.v * CLEAR_HORIZON_S:
+            return False
+        ahead = self._stopping(p.v)
+        margin = self.passage_params.corridor_margin_m
+        box = Footprint(fp.centre_x + 0.5 * ahead, fp.half_depth + 0.5 * ahead, fp.half_width + margin)
+        reach = arc + box.front_x + box.half_width
+        near = pts[np.einsum("ij,ij->i", pts, pts) <= reach * reach].astype(np.float32)
+        times = np.linspace(0.0, arc / p.v, max(2, math.ceil(arc / 0.04) + 1))
+        return float(arc_clearance(box, np.array([p.v]), np.array([p.w]), times, near)[0]) > 0.0
 
     def _guide_clear(self, v: float, w: float, pts: np.ndarray) -> bool:
         """Whether holding ``(v, w)`` for ``GUIDE_HORIZON_S`` keeps the window's minimum clearance."""

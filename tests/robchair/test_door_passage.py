@@ -114,3 +114,59 @@ def test_door_passes_office_episode_28_ignoring_a_gap_half_behind_the_chair() ->
 
     ep = episode_set(28, (0.8, 0.9), "office", ["door"], "tremor")["door"]
     assert ep["success"] and ep["collisions"] == 0
+
+
+def _office_doorway_drive(mode: str, start: tuple[float, float, float], cycles: int = 120):  # type: ignore[no-untyped-def]
+    """Office episode 73's floor (a 0.849 m doorway, its plane at x = 6.0 on the line y = 0), a person
+    pushing straight ahead at the typical user's 0.49 m/s from ``start``."""
+    from robchair.commands.assist_eval import office_scenario
+
+    sc = office_scenario(73, (0.8, 0.9))
+    assert sc["door_width"] == pytest.approx(0.849, abs=1e-3)
+    return drive(sc["world"], mode, Scripted(lambda k: Command(0.49, 0.0, deadman=True)), start, cycles)
+
+
+def test_assist_does_not_slow_a_clean_push_through_the_office_doorway() -> None:
+    """Office episode 73, typical user: ``assist`` took 1.112x the time of ``off`` (the approach braked
+    onto its pose 1.0 m before the doorway, turned in place there and passed at door_speed) although
+    the person already drove through it cleanly. A straight push 1.6 m before the doorway, 2 cm off its
+    centre line: the held arc clears both jambs with the safety layer's margin, so ``assist`` applies
+    the person's command cycle for cycle as ``off`` does."""
+    start = (4.4, 0.02, 0.0)
+    off = _office_doorway_drive("off", start)
+    assist = _office_doorway_drive("assist", start)
+    assert not off.contact and not assist.contact and not off.stops and not assist.stops
+    assert off.poses[-1][0] > 6.0 + 0.26 + 0.2  # the rear is through: off passes on its own
+    np.testing.assert_allclose(np.array(assist.applied), np.array(off.applied), atol=1e-9)
+    assert assist.poses[-1][0] == pytest.approx(off.poses[-1][0], abs=1e-9)
+    assert any(r.get("door_phase") == "clear" for r in assist.reports)  # the doorway was seen
+
+
+def test_assist_still_guides_a_push_that_would_hit_the_office_doorway_jamb() -> None:
+    """The same push 0.12 m off the centre line would put a jamb within the corridor margin (the
+    doorway's 0.10 m a side): it is not let through as clear at first; the passage turns it toward the
+    line (``off`` is stopped at the post by the safety layer, ``assist`` passes with no contact)."""
+    start = (4.4, 0.12, 0.0)
+    off = _office_doorway_drive("off", start, 200)
+    assist = _office_doorway_drive("assist", start, 200)
+    assert off.stops and off.poses[-1][0] < 6.0
+    phases = [r.get("door_phase") for r in assist.reports]
+    assert phases[0] == "approach"  # turned toward the line first (then a straight push may clear)
+    assert not assist.contact and assist.poses[-1][0] > 6.0 + 0.26 + 0.2
+
+
+def test_assist_joins_the_office_doorway_line_without_braking_onto_the_approach_pose() -> None:
+    """Office episode 7, typical user: 1.5 m before the doorway, 6 cm off its centre line and heading
+    7 degrees toward it, a straight push would hit the post (``off`` is stopped there). ``assist``
+    aimed at the approach pose, arrived there askew, braked to 0.1 m/s and turned in place. Near the
+    line and along it, it follows the line at once: through without the turn, never below 0.4 m/s
+    once up to speed."""
+    start = (4.48, 0.063, math.radians(-6.9))
+    off = _office_doorway_drive("off", start)
+    assist = _office_doorway_drive("assist", start)
+    assert off.stops and off.poses[-1][0] < 6.0
+    assert not assist.contact and not assist.stops
+    phases = [r.get("door_phase") for r in assist.reports]
+    assert "align" not in phases and "approach" not in phases
+    through = next(k for k, p in enumerate(assist.poses) if p[0] > 6.0 + 0.26 + 0.2)
+    assert min(v for v, _ in assist.applied[30:through]) >= 0.4
