@@ -8,6 +8,10 @@ layer's caps; the assistance stage (:class:`robchair.assistance.AssistedSource`)
 that follows the command within the safety layer's accelerations and its braking deceleration, its
 laser (the ``laser_link`` mount; Hokuyo URG-04LX: 240 degrees, 683 beams, 5.6 m) scanning the walls
 every 50 ms cycle. It is a kinematic model (no PyBullet): cheap enough for hundreds of episodes.
+The safety layer gets what it gets on the chair: the corridor distance ahead from the scan, and for its
+swept-footprint check the obstacle points all around the chair (:class:`LocalMemory`: the scans' returns
+kept on a 2.5 cm grid in ``odom`` within :data:`MEMORY_RADIUS_M`, the planar analogue of the zoom map's
+fine cells that :meth:`robchair.perception.Perception.obstacle_points_base` gives the runtime).
 
 Metrics per episode (:func:`run_episode`): success, time, collisions, safety stops, minimum
 clearance; agreement (mean cosine of the person's and the applied (v, w), each scaled to the limits)
@@ -30,11 +34,43 @@ import numpy as np
 from robchair.assistance.stage import AssistedSource, cosine
 from robchair.perception_queries import Corridor
 from robchair.platform.kinematics import Pose2D
-from robchair.platform.safety import SafetyInputs, SafetyLayer, SafetyLimits
+from robchair.platform.safety import Footprint, SafetyInputs, SafetyLayer, SafetyLimits
 from robchair.platform.spec import RobChairSpec
 from robchair.sources import CommandSource, JoystickSource, Observation
 
 LASER_ANGLES = np.deg2rad(np.linspace(-120.0, 120.0, 683))
+
+
+#: how far around the chair :class:`LocalMemory` keeps the returns it saw (m): the zoom map's reach
+MEMORY_RADIUS_M = 3.0
+#: the memory's cell (m): the zoom map's fine cells (5 cm grid, zoom factor 2)
+MEMORY_CELL_M = 0.025
+
+
+class LocalMemory:
+    """The laser returns seen so far around the chair, for the safety layer's swept-footprint check.
+
+    Returns are kept once per :data:`MEMORY_CELL_M` cell in ``odom`` and dropped beyond
+    :data:`MEMORY_RADIUS_M` of the chair; :meth:`update` gives them in ``base_link``, so walls beside
+    and behind the chair, outside the laser's 240 degrees, still count when the chair turns in place.
+    """
+
+    def __init__(self) -> None:
+        self._cells: np.ndarray = np.zeros((0, 2), dtype=np.int64)
+
+    def update(self, scan_base: np.ndarray, x: float, y: float, theta: float) -> np.ndarray:
+        """Add a scan ``scan_base`` (N, 2, ``base_link``, m) taken at the pose ``(x, y, theta)`` (m, rad);
+        the kept returns (M, 2) in ``base_link`` at that pose, m (cell centres)."""
+        c, s = math.cos(theta), math.sin(theta)
+        q = np.asarray(scan_base, dtype=float)
+        odom = np.stack([x + c * q[:, 0] - s * q[:, 1], y + s * q[:, 0] + c * q[:, 1]], axis=1)
+        cells = np.floor(odom[np.isfinite(odom).all(axis=1)] / MEMORY_CELL_M).astype(np.int64)
+        cells = np.unique(np.concatenate([self._cells, cells]), axis=0)
+        w = (cells + 0.5) * MEMORY_CELL_M
+        near = np.hypot(w[:, 0] - x, w[:, 1] - y) <= MEMORY_RADIUS_M
+        self._cells, w = cells[near], w[near]
+        d = w - (x, y)
+        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
 
 
 @dataclass
@@ -105,7 +141,9 @@ def drive(chair: PlanarChair, stage: AssistedSource, cycles: int, rate_hz: float
         ``reports`` the stage's :attr:`AssistedSource.last` per cycle, ``stops`` the stop reasons,
         ``contact`` whether the footprint touched a wall, ``clearance_m`` its smallest clearance.
     """
-    safety = SafetyLayer(chair.limits)
+    safety = SafetyLayer(chair.limits, wheel_separation=chair.spec.wheel_separation,
+                         footprint=Footprint.from_spec(chair.spec))
+    memory = LocalMemory()
     corridor = Corridor.from_spec(chair.spec)
     dt = 1.0 / rate_hz
     holder: dict[str, np.ndarray] = {}
@@ -117,7 +155,9 @@ def drive(chair: PlanarChair, stage: AssistedSource, cycles: int, rate_hz: float
         holder["p"] = pts
         stamp = round(k * dt * 1e9)
         cmd = stage.command(Observation(stamp, Pose2D(chair.x, chair.y, chair.theta), None, (), None))
-        inputs = SafetyInputs(stamp, map_distance_m=corridor.distance_ahead(pts), deadman=cmd.deadman)
+        around = memory.update(pts, chair.x, chair.y, chair.theta)
+        inputs = SafetyInputs(stamp, map_distance_m=corridor.distance_ahead(pts), deadman=cmd.deadman,
+                              obstacles_xy=around)
         dec = safety.filter(cmd.v, cmd.w, inputs, dt)
         chair.move(dec.v, dec.w, dt)
         clear = chair.clearance()

@@ -294,35 +294,48 @@ def test_rebuilt_assist_eval_contact_is_avoided_with_the_swept_check(
     # issue 22's `robchair assist-eval` episodes that ended in contact (out6b: switch on random floors,
     # off: the right footrest swung into the doorway's wall turning in place; tremor on the office,
     # shield: the right side brushed the door post on an arc). Rebuilt with the eval's own episode
-    # (assist_eval.scenario + evaluation.run_episode); the check is fed the episode's laser scan, the
-    # points evaluation.drive has each cycle (it does not pass them to SafetyInputs yet)
+    # (assist_eval.scenario + evaluation.run_episode): evaluation.drive feeds the swept check the points
+    # around the chair (LocalMemory); with that feed taken away the contact comes back
     import robchair.assistance.evaluation as ev
     from robchair.commands.assist_eval import scenario
     from sim.user import preset
 
     sc = scenario(index, (0.8, 0.9), env)
+    spec_ = load_spec()
 
     def episode():
         return ev.run_episode(sc["world"], spec_, sc["start"], sc["route"], mode, preset(user), seed=index)
 
-    spec_ = load_spec()
-    before = episode()
-    assert before["collisions"] == 1  # the eval as it is: the contact
+    fed = episode()
+    assert fed["collisions"] == 0
+    assert fed["min_clearance_m"] > 0.0
 
-    last: dict[str, np.ndarray] = {}
-    scan = ev.PlanarChair.scan
+    def unfed(stamp, **kw):
+        kw["obstacles_xy"] = None
+        return SafetyInputs(stamp, **kw)
 
-    def scan_and_keep(self):
-        last["pts"] = scan(self)
-        return last["pts"]
+    monkeypatch.setattr(ev, "SafetyInputs", unfed)
+    assert episode()["collisions"] == 1  # the eval as it was: the contact
 
-    monkeypatch.setattr(ev.PlanarChair, "scan", scan_and_keep)
-    monkeypatch.setattr(
-        ev, "SafetyInputs", lambda stamp, **kw: SafetyInputs(stamp, obstacles_xy=last["pts"], **kw)
-    )
-    after = episode()
-    assert after["collisions"] == 0
-    assert after["min_clearance_m"] > 0.0
+
+def test_local_memory_keeps_walls_out_of_the_lasers_view() -> None:
+    # a return seen ahead is still there, in base_link, after the chair turned its back to it; returns
+    # farther than the memory's radius are dropped; placement checked by hand (cell centres, 2.5 cm)
+    from robchair.assistance.evaluation import MEMORY_CELL_M, MEMORY_RADIUS_M, LocalMemory
+
+    mem = LocalMemory()
+    first = mem.update(np.array([[1.0, 0.0], [0.0, 0.5]]), 2.0, 1.0, 0.0)
+    assert np.allclose(np.sort(first, axis=0), np.sort(np.array([[1.0125, 0.0125], [0.0125, 0.5125]]), axis=0))
+    # turned by 180 deg at the same place, nothing in this scan: the two returns now lie behind / right
+    now = mem.update(np.zeros((0, 2)), 2.0, 1.0, math.pi)
+    assert np.allclose(np.sort(now, axis=0), np.sort(np.array([[-1.0125, -0.0125], [-0.0125, -0.5125]]), axis=0))
+    # driven away beyond the radius: forgotten, for good
+    assert len(mem.update(np.zeros((0, 2)), 2.0 + MEMORY_RADIUS_M + 1.5, 1.0, 0.0)) == 0
+    assert len(mem.update(np.zeros((0, 2)), 2.0, 1.0, 0.0)) == 0
+    # one point per cell however often it is seen
+    for _ in range(3):
+        kept = mem.update(np.array([[0.31, 0.31], [0.31 + MEMORY_CELL_M / 4, 0.31]]), 0.0, 0.0, 0.0)
+    assert len(kept) == 1
 
 
 def test_the_coarse_pass_decides_as_the_fine_poses_alone(spec, fp) -> None:
