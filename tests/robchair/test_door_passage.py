@@ -170,3 +170,27 @@ def test_assist_joins_the_office_doorway_line_without_braking_onto_the_approach_
     assert "align" not in phases and "approach" not in phases
     through = next(k for k, p in enumerate(assist.poses) if p[0] > 6.0 + 0.26 + 0.2)
     assert min(v for v, _ in assist.applied[30:through]) >= 0.4
+
+
+def test_assist_joins_the_doorway_line_only_from_within_join_from_m(monkeypatch) -> None:
+    # office episode 1, tremor user, assist (robchair assist-eval --env office --user tremor --mode assist):
+    # joining the centre line from farther than JOIN_FROM_M let the line law, blended with the tremor's
+    # swings, snake along the corridor and reach the doorway askew; measured 14.65 s to the goal with the
+    # rule, 22.55 s without it (JOIN_FROM_M lifted here)
+    import robchair.assistance.evaluation as ev
+    import robchair.assistance.stage as stage
+    from robchair.commands.assist_eval import scenario
+    from sim.user import preset
+
+    sc = scenario(1, (0.8, 0.9), "office")
+
+    def episode():
+        spec = load_spec()
+        return ev.run_episode(sc["world"], spec, sc["start"], sc["route"], "assist", preset("tremor"), seed=1)
+
+    with_rule = episode()
+    assert with_rule["success"] and with_rule["collisions"] == 0
+    monkeypatch.setattr(stage, "JOIN_FROM_M", 100.0)
+    without = episode()
+    assert without["time_s"] > with_rule["time_s"] + 4.0
+    assert with_rule["time_s"] < 17.0

@@ -325,10 +325,11 @@ def test_local_memory_keeps_walls_out_of_the_lasers_view() -> None:
 
     mem = LocalMemory()
     first = mem.update(np.array([[1.0, 0.0], [0.0, 0.5]]), 2.0, 1.0, 0.0)
-    assert np.allclose(np.sort(first, axis=0), np.sort(np.array([[1.0125, 0.0125], [0.0125, 0.5125]]), axis=0))
+    seen = np.array([[1.0125, 0.0125], [0.0125, 0.5125]])
+    assert np.allclose(np.sort(first, axis=0), np.sort(seen, axis=0))
     # turned by 180 deg at the same place, nothing in this scan: the two returns now lie behind / right
     now = mem.update(np.zeros((0, 2)), 2.0, 1.0, math.pi)
-    assert np.allclose(np.sort(now, axis=0), np.sort(np.array([[-1.0125, -0.0125], [-0.0125, -0.5125]]), axis=0))
+    assert np.allclose(np.sort(now, axis=0), np.sort(-seen, axis=0))
     # driven away beyond the radius: forgotten, for good
     assert len(mem.update(np.zeros((0, 2)), 2.0 + MEMORY_RADIUS_M + 1.5, 1.0, 0.0)) == 0
     assert len(mem.update(np.zeros((0, 2)), 2.0, 1.0, 0.0)) == 0
