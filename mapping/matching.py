@@ -43,6 +43,7 @@ per-frame bounds (an outlier). Rejections are counted by reason.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -51,6 +52,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mapping._deps import announce_compilation
 from mapping.errors import MappingError
 from mapping.vhv import VHVMap, as_points
 
@@ -593,3 +595,6 @@ def _gauss_newton(local, centre, near, anchor, normal, origin, cs, reach, max_it
     stats[0] = n_in
     stats[1] = sq
     stats[2] = it
+
+
+announce_compilation(sys.modules[__name__], "scan matching kernels")

@@ -29,12 +29,14 @@ The coarse level may be the caller's own map (any map with the grid ``spec``, ``
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mapping._deps import announce_compilation
 from mapping.errors import MappingError
 from mapping.grid import GridSpec
 from mapping.vhv import InsertStats, Structures, VHVMap, as_points
@@ -319,3 +321,7 @@ def _scatter(fkey, hz, n, fill, hs):  # type: ignore[no-untyped-def]
         c = fkey[k]
         hs[fill[c]] = hz[k]
         fill[c] += 1
+
+
+# first run after an install or a change here: say what is being compiled
+announce_compilation(sys.modules[__name__], "zoom map kernels")

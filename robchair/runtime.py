@@ -205,6 +205,7 @@ class Runtime:
         self._stage = "observer"
         for ob in self.observers:
             ob.episode_start(self)
+        self._next_ns = clock.now_ns()  # cycle 0's period starts after the observers' setup (a bag opened)
 
     def step(self, command: Command | None = None) -> CycleResult:
         """Run one cycle (sense, decide, safety, write, observers, wait for the next cycle's time).

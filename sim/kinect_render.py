@@ -59,8 +59,8 @@ def render_raycast(
     The per-pixel work runs in compiled kernels that release the GIL, so a capture thread
     overlaps the simulation thread.
     """
-    from sim._kinect_kernels import camera_ray_buffer, hits_to_image
     from sim._raster_kernels import raster_depth
+    from sim._ray_kernels import camera_ray_buffer, hits_to_image
 
     t = np.asarray(t_world_cam, dtype=np.float64)
     if t.shape != (4, 4) or not np.all(np.isfinite(t)):
@@ -200,7 +200,7 @@ def register_depth(
         ``(points_c, source)``: (H, W, 3) points in the colour camera frame (NaN where no depth
         sample covers the pixel) and (H, W) flat index of the depth pixel each came from (-1).
     """
-    from sim._kinect_kernels import splat
+    from sim._ray_kernels import splat
 
     ic = reg.intrinsics
     flat = points_d.reshape(-1, 3)

@@ -18,6 +18,10 @@ while the other worker still has short ones to take, and no worker waits alone o
 end. ``ROBCHAIR_TEST_DURATIONS=FILE python -m pytest`` writes a new record of the run (setup + call +
 teardown per test, the tests of at least :data:`RECORDED_S` seconds) to ``FILE``.
 
+On a cold kernel cache (a fresh clone's first run) a worker compiles a numba kernel only after it
+holds that kernel's lock file, and the other worker, needing it too, waits and loads it from the cache
+(:mod:`tests.numba_compile_lock`): every kernel is compiled once for the run, not once per worker.
+
 The rest is already per process: network ports are asked of the system (port 0), serial lines are new
 ptys, and numba writes its kernel cache atomically (a file written beside, then renamed).
 
@@ -39,6 +43,11 @@ from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
+
+if os.environ.get("PYTEST_XDIST_WORKER"):  # each cached numba kernel compiled once for all workers
+    from tests.numba_compile_lock import install
+
+    install()
 
 settings.register_profile("robchair", deadline=None)
 settings.register_profile("mutation", deadline=None, suppress_health_check=[HealthCheck.too_slow])

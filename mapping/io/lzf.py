@@ -150,6 +150,15 @@ def _compress_into(src: np.ndarray, out: np.ndarray) -> int:  # pragma: no cover
 MAX_EXPANSION = 88
 
 
+def _announce() -> None:
+    """Say on stderr, on the first compressed cloud after an install, that the LZF kernels compile."""
+    import sys
+
+    from mapping._deps import announce_compilation
+
+    announce_compilation(sys.modules[__name__], "LZF kernels")
+
+
 def _as_u8(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
     if isinstance(data, np.ndarray):
         return np.ascontiguousarray(data).view(np.uint8).ravel()
@@ -183,6 +192,7 @@ def lzf_decompress(data: bytes | bytearray | memoryview | np.ndarray, expected_s
         if expected_size == 0:
             return b""
         raise PointCloudFormatError(f"LZF: empty stream but {expected_size} bytes expected")
+    _announce()
     n = int(_decompress_into(src, out))
     if n == _ERR_OUTPUT_FULL:
         raise PointCloudFormatError(f"LZF: stream expands to more than the declared {expected_size} bytes")
@@ -206,5 +216,6 @@ def lzf_compress(data: bytes | bytearray | memoryview | np.ndarray) -> bytes:
     if src.size == 0:
         return b""
     out = np.empty(src.size + src.size // _MAX_LIT + 16, dtype=np.uint8)
+    _announce()
     n = int(_compress_into(src, out))
     return out[:n].tobytes()

@@ -38,6 +38,8 @@ class DiagnosticsObserver(Observer):
     def __init__(self, period_s: float = 1.0, recorder: RunRecorder | None = None) -> None:
         self.period_ns = round(float(period_s) * 1e9)
         self.recorder = recorder
+        if recorder is not None:  # its serialiser made now, before the loop's clock starts
+            recorder.bag.precompile(["diagnostic_msgs/msg/DiagnosticArray"])
         self.samples = 0
         self.last: Any = None
         self._next_ns: int | None = None

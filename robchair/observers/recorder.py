@@ -72,6 +72,9 @@ DEFAULT_VOXEL_M = 0.05  # when the run's map has no grid to take the cell size f
 CLOUD_TOPIC = "/kinect/points"
 SONAR_CLOUD_TOPIC = "/sonar/points"
 SCAN_TOPIC = "/scan"
+#: the message types of every topic :class:`RunTopics` may write (their serialisers are made up front)
+RUN_TYPES = ("nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/Range",
+             "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")  # fmt: skip
 #: The no-return rays of each cloud on CLOUD_TOPIC (module docstring); the name ``robchair map`` looks for.
 NO_RETURN_TOPIC = CLOUD_TOPIC + "/no_return"
 POSE_HISTORY = 256  # cycles of written odometry kept to place a delivered frame at its capture stamp
@@ -383,6 +386,7 @@ class RunRecorder(Observer):
             raise ConfigError(f"bag clouds {clouds!r}: expected one of {', '.join(BAG_CLOUDS)}")
         self.bag = BagWriter(path, storage)
         self.scheme = RunTopics(*BAG_CLOUDS[clouds])
+        self.bag.precompile(list(RUN_TYPES))  # before the loop's clock starts, not in its first cycle
 
     @property
     def counts(self) -> dict[str, int]:

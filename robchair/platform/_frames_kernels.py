@@ -8,8 +8,12 @@ thread and the loop overlap.
 
 from __future__ import annotations
 
+import sys
+
 import numba
 import numpy as np
+
+from mapping._deps import announce_compilation
 
 
 @numba.njit(cache=True, nogil=True)
@@ -21,3 +25,7 @@ def transform_points_f32(m, pts):  # type: ignore[no-untyped-def]  # pragma: no 
         for i in range(3):
             out[k, i] = m[i, 0] * x + m[i, 1] * y + m[i, 2] * z + m[i, 3]
     return out
+
+
+# first run after an install or a change here: say what is being compiled
+announce_compilation(sys.modules[__name__], "point transform kernel")

@@ -40,3 +40,47 @@ def test_cached_kernels_say_nothing_and_missing_ones_are_announced_once(tmp_path
     announce_compilation(missing, "test kernels")
     announce_compilation(missing, "test kernels")
     assert capsys.readouterr().err.count("compiling test kernels") == 1
+
+
+def _cached_kernels_and_announces(path: Path) -> tuple[list[str], bool]:
+    """The functions of ``path`` compiled by numba with ``cache=True``, and whether it calls
+    :func:`announce_compilation`."""
+    import ast
+
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    kernels = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef):
+            for dec in node.decorator_list:
+                cached = isinstance(dec, ast.Call) and any(
+                    k.arg == "cache" and isinstance(k.value, ast.Constant) and k.value.value is True
+                    for k in dec.keywords
+                )
+                name = ast.unparse(dec.func) if isinstance(dec, ast.Call) else ""
+                if cached and name.split(".")[-1] in ("njit", "jit"):
+                    kernels.append(node.name)
+    announces = any(
+        isinstance(n, ast.Call) and ast.unparse(n.func).split(".")[-1] == "announce_compilation"
+        for n in ast.walk(tree)
+    )
+    return kernels, announces
+
+
+def test_every_module_with_cached_kernels_says_when_it_compiles_them() -> None:
+    """A first run is silent for no kernel: each module of the packages that defines a numba kernel
+    cached on disk calls :func:`announce_compilation` (at import or before the first call)."""
+    silent = {}
+    for package in ("mapping", "sim", "robchair", "hw"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            kernels, announces = _cached_kernels_and_announces(path)
+            if kernels and not announces:
+                silent[str(path.relative_to(ROOT))] = kernels
+    assert silent == {}, f"modules that compile kernels without saying so on a first run: {silent}"
+
+
+def test_the_kernel_scan_finds_the_kernels_it_checks() -> None:
+    """The scan above sees the suite's kernel modules (it would pass vacuously on a scan that finds none)."""
+    kernels, announces = _cached_kernels_and_announces(ROOT / "sim" / "_kinect_kernels.py")
+    assert "finish" in kernels and announces
+    kernels, _ = _cached_kernels_and_announces(ROOT / "mapping" / "io" / "lzf.py")
+    assert kernels == ["_decompress_into", "_compress_into"]
