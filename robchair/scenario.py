@@ -150,7 +150,7 @@ def run_scenario(
     write: bool = True,
     sensors: bool = True,
     mapping_thread: bool = True,
-    raycast_threads: int = 0,
+    raycast_threads: int = 1,
     ground_truth_map: bool = True,
     pipeline: bool = True,
     sonar_hz: float | None = None,
@@ -179,7 +179,8 @@ def run_scenario(
         write: write the run folder at all (False: return the result only).
         sensors: simulate the Kinect and sonars (False: physics, motors and route following only).
         mapping_thread: insert frames into the maps on a second thread.
-        raycast_threads: Embree threads of the ray caster (0 = all cores).
+        raycast_threads: Embree threads of the ray caster (0 = all cores; default 1: on 2 cores the
+            capture threads overlap frames, and TBB's spinning workers cost more than they gain).
         ground_truth_map: also build the map placed with ground-truth poses.
         pipeline: capture Kinect frames on background threads.
         sonar_hz: sonar reading rate; None = as fast as the model's ranging time allows.

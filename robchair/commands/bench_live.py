@@ -146,7 +146,7 @@ def measure(mode: str, scenario: str, duration: float, seed: int, map_kind: str)
     window = CpuWindow(client)
     try:
         res = run_scenario(scenario, duration=duration, sensor="kinect2", seed=seed, progress=False,
-                           write=False, mapping_thread=True, pipeline=True, sonar_hz=20.0, raycast_threads=2,
+                           write=False, mapping_thread=True, pipeline=True, sonar_hz=20.0, raycast_threads=1,
                            ground_truth_map=False, map_kind=map_kind,
                            observers=[live, window] if live is not None else [window])  # fmt: skip
     finally:
