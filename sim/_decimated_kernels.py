@@ -5,8 +5,10 @@ central differences (:func:`sim.kinect_render.organized_normals`), the angle bet
 pixel's ray, the model's axial sigma at that depth and angle
 (:func:`sim.kinect_models.fankhauser2015_axial_sigma_m`,
 :func:`sim.kinect_models.nguyen2012_axial_sigma_m`), the draw and the device's quantisation
-(:func:`sim.kinect_models.quantize_depth`), with the same floating-point operations in the same order
-as those numpy functions (the tests compare the two).
+(:func:`sim.kinect_models.quantize_depth`): the same formulas as those numpy functions, a few ulp apart
+where the kernel saves work (one square root for the normal's angle, ``z * sqrt(z)`` for ``z**1.5``,
+no-return pixels skipped), which moves a depth across a rounding edge in well under 0.1 % of the
+pixels (the tests compare the two).
 """
 
 from __future__ import annotations
