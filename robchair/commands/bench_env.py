@@ -123,9 +123,10 @@ def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
     return time.perf_counter() - t0, time.process_time() - c0, stops
 
 
-def _vec_run(envs: Any, steps: int, seed: int) -> tuple[float, float, list[float] | None]:
+def _vec_run(envs: Any, steps: int, seed: int) -> tuple[float, float, list[float] | None, list[int] | None]:
     """``steps`` vector steps (every worker one agent step each; finished ones autoreset): wall seconds,
-    the parent's CPU seconds, and each worker's CPU seconds (None where ``/proc`` cannot tell)."""
+    the parent's CPU seconds, each worker's CPU seconds and its thread count at the end (None where
+    ``/proc`` cannot tell)."""
     envs.reset(seed=seed)
     actions = _actions(envs.action_space, steps, seed)
     pids = [proc.pid for proc in getattr(envs, "processes", ())]
@@ -136,7 +137,19 @@ def _vec_run(envs: Any, steps: int, seed: int) -> tuple[float, float, list[float
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     w1 = _cpu_of(pids)
     workers = [b - a for a, b in zip(w0, w1, strict=True)] if w0 is not None and w1 is not None else None
-    return wall, cpu, workers
+    return wall, cpu, workers, _threads_of(pids)
+
+
+def _threads_of(pids: list[int]) -> list[int] | None:
+    """Threads of each process (Linux ``/proc/<pid>/task``); None without ``/proc`` or a pid. An env
+    worker that runs more than one thread (numba, OpenBLAS, Embree/TBB or capture pools) competes
+    with the other workers for the cores."""
+    if not pids:
+        return None
+    try:
+        return [len(os.listdir(f"/proc/{pid}/task")) for pid in pids]
+    except OSError:
+        return None
 
 
 def _cpu_of(pids: list[int]) -> list[float] | None:
@@ -207,6 +220,7 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
             "parent_cpu_ms_per_vector_step": [1e3 * r[1] / steps for r in vec_runs],
             "worker_cpu_ms_per_step": [None if r[2] is None else [1e3 * c / steps for c in r[2]]
                                        for r in vec_runs],
+            "worker_threads": vec_runs[-1][3],
         }  # fmt: skip
     else:
         import gymnasium
@@ -283,11 +297,23 @@ def _run(args: argparse.Namespace) -> int:
             r["one_core_steps_per_s"] = 1e3 / cms if cms > 0 else None
             line += f" {cms:12.2f} {1e3 / cms if cms > 0 else float('nan'):15.1f}"
         print(line)
-    for r in rows:
+    one_cpu = {
+        c["id"]: r.get("median_cpu_ms_per_step")
+        for c, r in zip(CONFIGS, rows, strict=True)
+        if "id" in c and "workers" not in c
+    }
+    for c, r in zip(CONFIGS, rows, strict=True):
         if "median_parent_cpu_ms_per_vector_step" in r:
             wk = r.get("median_worker_cpu_ms_per_step")
             wall = statistics.median(r["wall_ms_per_vector_step"])
             each = f"{wk:.2f} ms CPU per agent step" if wk is not None else "(CPU not measured)"
+            base_cpu = one_cpu.get(c["id"])
+            if wk is not None and base_cpu:
+                # > 1: a worker burns more CPU per step than the env alone (spinning or competing threads)
+                r["worker_cpu_vs_one_env"] = wk / base_cpu
+                each += f" ({wk / base_cpu:.2f}x one env's)"
+            if r.get("worker_threads"):
+                each += f", threads per worker {r['worker_threads']}"
             print(f"{r['config']}: per vector step {wall:.2f} ms wall, parent "
                   f"{r['median_parent_cpu_ms_per_vector_step']:.2f} ms CPU, each worker {each}")  # fmt: skip
     print_targets(rows)

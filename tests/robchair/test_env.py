@@ -573,6 +573,7 @@ def test_odometry_pose_source_stays_close_to_ground_truth_over_a_short_drive():
 def test_bench_env_writes_one_row_per_configuration_against_the_physics_only_baseline(tmp_path, capsys):
     import argparse
     import json
+    import os
     import re
 
     from robchair.commands import bench_env
@@ -592,6 +593,11 @@ def test_bench_env_writes_one_row_per_configuration_against_the_physics_only_bas
     out = capsys.readouterr().out
     assert "light, 2 Async workers" in out
     assert result["rows"][-1]["speedup_vs_one_env"] > 0
+    for r in result["rows"]:
+        if r["config"].endswith("2 Async workers") and os.path.isdir("/proc/self/task"):
+            # each worker's threads and its CPU per step over one env's: oversubscription shows here
+            assert len(r["worker_threads"]) == 2 and min(r["worker_threads"]) >= 1
+            assert r["worker_cpu_vs_one_env"] > 0
     # every target gets its line with the verdict, whatever the machine's speed (no target asserted here)
     targets = {**bench_env.TARGET_RATIO_PHYSICS, **bench_env.TARGET_SPEEDUP}
     for name, goal in targets.items():
