@@ -39,7 +39,6 @@ a run into a run folder (the recording observers, ``metrics.json``) is :func:`ro
 from __future__ import annotations
 
 import logging
-import math
 import time
 import weakref
 from collections.abc import Sequence
@@ -66,6 +65,7 @@ from robchair.platform.safety import (
 from robchair.platform.spec import RobChairSpec
 from robchair.route import PurePursuit
 from robchair.runtime_config import RuntimeConfig, check_duration_s
+from robchair.runtime_helpers import _has_servo, _min_or, _planar
 from robchair.sources import Command, CommandSource, Observation
 
 __all__ = ["LoopAborted", "Runtime"]
@@ -581,23 +581,3 @@ class Runtime:
         trips = getattr(self.backend.motors, "watchdog_trips", None)
         if isinstance(trips, int):  # the controller counts its own trips (simulated chair)
             res.watchdog_trips = max(res.watchdog_trips, trips)
-
-
-def _has_servo(array: Any) -> bool:
-    """Whether a sonar array can turn (a simulated array says so; a driver array has a ``servo``)."""
-    flag = getattr(array, "has_servo", None)
-    if flag is not None:
-        return bool(flag)
-    return getattr(array, "servo", None) is not None and hasattr(array, "set_servo_deg")
-
-
-def _planar(t: np.ndarray) -> tuple[float, float, float]:
-    """(x, y, yaw) of a planar (4, 4) transform."""
-    return float(t[0, 3]), float(t[1, 3]), math.atan2(float(t[1, 0]), float(t[0, 0]))
-
-
-def _min_or(a: float | None, b: float | None) -> float | None:
-    """min of two optional values (None = no value)."""
-    if a is None:
-        return b
-    return a if b is None else min(a, b)
