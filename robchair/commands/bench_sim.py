@@ -85,6 +85,25 @@ CONFIGS: tuple[dict[str, Any], ...] = (
 )
 
 
+#: Simulated seconds of the untimed warm-up run of each loop (new and old) before the timed rows. Long
+#: enough that every kernel a timed run calls has been compiled or loaded: with 0.1 s, on a cold numba
+#: cache six mapping and matching kernels (the first match, the dynamic decay) compiled inside the first
+#: timed row (office_corridor; :func:`compiled_during` records them).
+WARMUP_S = 1.0
+
+
+def compiled_during(fn: Any) -> tuple[Any, list[str]]:
+    """``(fn(), names)``: the result of ``fn()`` and the numba kernels compiled while it ran
+    (qualified names, in order; numba's own overloads they pulled in left out; empty when every
+    kernel came from memory or the disk cache)."""
+    from numba.core import event
+
+    with event.install_recorder("numba:compile") as rec:
+        out = fn()
+    funcs = [e.data["dispatcher"].py_func for _, e in rec.buffer if e.is_start]
+    return out, [f.__qualname__ for f in funcs if not f.__module__.startswith("numba.")]
+
+
 def _pin(n: int) -> set[int] | None:
     """Pin this process to ``n`` CPUs; return the previous set (None where affinity is unsupported)."""
     if not hasattr(os, "sched_setaffinity"):
@@ -116,16 +135,18 @@ def measure(
     else:
         before = _pin(config["cpus"])
         try:
-            m = run_scenario(scenario, map_kind=map_kind, **kw).metrics()
+            m, compiled = compiled_during(lambda: run_scenario(scenario, map_kind=map_kind, **kw).metrics())
         finally:
             if before is not None:
                 os.sched_setaffinity(0, before)
+        m["compiled_in_run"] = compiled
     frames = m["frames"]["kinect_frames"] if old is not None else m["frames"]["depth_frames"]
     main = m["wall_time_s"]["components"]
     sim_s = max(m["sim_time_s"], 1e-9)
     layers = {f"map {k} ms/s": 1e3 * v / sim_s for k, v in (m.get("mapping_s_by_layer") or {}).items()}
     return {
         **layers,
+        "compiled_in_run": m.get("compiled_in_run", []),
         "rtf": m["real_time_factor"],
         "sim_time_s": m["sim_time_s"],
         "loop_wall_s": m["wall_time_s"]["loop"],
@@ -242,10 +263,10 @@ def _measure_all(
 
     load0 = os.getloadavg()
     # warm-up (imports, numba kernels, Open3D): not timed
-    measure(CONFIGS[0], args.scenario, 0.1)
+    measure(CONFIGS[0], args.scenario, WARMUP_S)
     if old is not None:
         try:
-            measure(CONFIGS[0], args.scenario, 0.1, old=old)
+            measure(CONFIGS[0], args.scenario, WARMUP_S, old=old)
         except RuntimeError as exc:
             print(f"baseline: revision {old.rev.sha[:10]} did not run ({exc}); measuring the new loop only")
             old = None
@@ -264,6 +285,11 @@ def _measure_all(
         rows.append({"config": cfg, "median": med, "runs": runs, "baseline_median": old_med,
                      "baseline_runs": old_runs})  # fmt: skip
     load1 = os.getloadavg()
+    for r in rows:
+        late = sorted({k for x in r["runs"] for k in x.get("compiled_in_run", [])})
+        if late:
+            print(f"warning: {r['config']['name']}: {len(late)} numba kernel(s) compiled inside a timed run "
+                  f"(its RTF includes the compile time): {', '.join(late)}")  # fmt: skip
     cols = ("RTF", "old RTF", "new/old", "kinect ms/fr", "map ms/fr", "sonar ms/arr", "physics ms/s")
     head = f"{'configuration':28s} " + " ".join(f"{c:>{max(7, len(c))}s}" for c in cols)
     print(
