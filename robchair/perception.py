@@ -60,7 +60,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Any
 
 import numpy as np
@@ -225,6 +225,7 @@ class Perception(FrameInserter):
         # the maps beside the main one (odometry, ground truth, layers) on a second mapping thread
         self._layer_pool = ThreadPoolExecutor(1, thread_name_prefix="perception-layers") if threaded else None
         self._pending: deque[Future[None]] = deque()
+        self._layer_futs: deque[Future[None]] = deque()  # frames on the layer thread (perception_layers)
         self._inflight: deque[tuple[Any, dict[str, np.ndarray], list[np.ndarray], Pose2D]] = deque()
         self._lock = threading.Lock()
         self._depth: tuple[float | None, Pose2D] | None = None  # (distance at capture, pose at capture)
@@ -358,8 +359,13 @@ class Perception(FrameInserter):
         handles its own exceptions (on the mapping thread they would be lost)."""
         pool = self._pool
         if pool is not None:
+
+            def after_layers() -> None:
+                wait(list(self._layer_futs))  # the maps beside the main one catch up first (not popped:
+                fn()  # their errors surface in the loop as before)
+
             try:
-                pool.submit(fn)
+                pool.submit(after_layers)
                 return
             except RuntimeError:  # shut down meanwhile: the maps are final
                 pass
@@ -542,13 +548,14 @@ class Perception(FrameInserter):
         """Deliver the frames still being captured and wait for every map insertion."""
         while self._inflight:
             self._deliver()
-        while self._pending:
-            self._pending.popleft().result()
+        self.wait_for_maps()
 
     def wait_for_maps(self) -> None:
-        """Wait for the map insertions already submitted (frames still being captured stay in flight)."""
+        """Wait for the map insertions already submitted (frames still being captured stay in flight),
+        those of the maps beside the main one too."""
         while self._pending:
             self._pending.popleft().result()
+        self._drain_layers()  # the mapping thread is idle now: nothing is appended meanwhile
 
     def occupancy_2d(self, which: PointMap | None = None, unknown: int = -1) -> np.ndarray:
         """Three-valued 2D map (int8, grid shape) of the height band in a map (default the main one).

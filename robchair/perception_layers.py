@@ -18,8 +18,9 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -37,6 +38,9 @@ from robchair.platform.kinematics import Pose2D
 # Only what was hit for at most DYNAMIC_MAX_DWELL_S decays (a person passes a cell within a second or
 # two): a wall first seen free at grazing incidence keeps being hit as long as it is in view.
 DYNAMIC_DECAY_S = 0.5
+#: Frames the maps beside the main one (odometry, ground truth, layers) may be behind it on their thread:
+#: the mapping thread does not wait for them after each frame, so the two threads overlap across frames.
+LAYER_LAG = 3
 DYNAMIC_VOID_PROBABILITY = 0.15
 DYNAMIC_MAX_DWELL_S = 2.0
 NO_RETURN_MIN_HEIGHT_M = 0.5  # a no-return pixel clears its ray only if this high (world z) at the range
@@ -124,6 +128,7 @@ class FrameInserter:
     _camera_range: float | None
     _rays: dict[tuple[str, int, int], np.ndarray]
     _layer_pool: ThreadPoolExecutor | None
+    _layer_futs: deque[Future[None]]
     _lock: threading.Lock
     _after_frame: dict[int, tuple[np.ndarray, float | None, Pose2D, np.ndarray | None]]
     layer_s: dict[str, float]
@@ -178,7 +183,7 @@ class FrameInserter:
         fut = pool.submit(self._insert_each, others, placer, stamp) if pool is not None and others else None
         self._insert_each(main, placer, stamp)
         if fut is not None:
-            fut.result()
+            self._layers_behind(fut)
         elif others:
             self._insert_each(others, placer, stamp)
         if self.matcher is not None or self.zoom is not None:
@@ -187,6 +192,23 @@ class FrameInserter:
             t = np.array(self.matcher.t_map_odom) if self.matcher is not None else np.eye(4)
             with self._lock:
                 self._after_frame[seq] = (t, d, pose, xy)
+
+    def _layers_behind(self, fut: Future[None]) -> None:
+        """Keep the layer thread's frame ``fut`` without waiting for it, up to :data:`LAYER_LAG` frames.
+
+        Only the mapping thread calls this (it is the one that submits): the frame is done when the main
+        map and the zoom are, and the maps beside them catch up on their own thread, in order. The
+        readers of those maps wait for them first (:meth:`_drain_layers`)."""
+        self._layer_futs.append(fut)
+        while len(self._layer_futs) > LAYER_LAG:
+            self._layer_futs.popleft().result()  # an error of a layer's insert surfaces with this frame
+
+    def _drain_layers(self) -> None:
+        """Wait for every frame handed to the layer thread (the maps beside the main one are complete).
+
+        Called where no frame is being submitted: on the mapping thread, or once its queue is empty."""
+        while self._layer_futs:
+            self._layer_futs.popleft().result()
 
     def _insert_each(
         self, jobs: list[tuple[str, Any, np.ndarray, str]], placer: _Placer, stamp: float
