@@ -71,6 +71,7 @@ from robchair.perception_layers import (
     MapLayer,
     PointMap,
     _Done,
+    layer_pool,
     load_kernels,
     run_evidence_params,
 )
@@ -223,7 +224,7 @@ class Perception(FrameInserter):
         self._frames.update(frames or {})
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="perception-map") if threaded else None
         # the maps beside the main one (odometry, ground truth, layers) on a second mapping thread
-        self._layer_pool = ThreadPoolExecutor(1, thread_name_prefix="perception-layers") if threaded else None
+        self._layer_pool = layer_pool() if threaded else None
         self._pending: deque[Future[None]] = deque()
         self._layer_futs: deque[Future[None]] = deque()  # frames on the layer thread (perception_layers)
         self._inflight: deque[tuple[Any, dict[str, np.ndarray], list[np.ndarray], Pose2D]] = deque()

@@ -8,6 +8,8 @@ is ``test_perception_matching``'s.
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 from typing import Any
 
@@ -17,7 +19,7 @@ import pytest
 from hw.interfaces import DepthFrame
 from mapping.synthetic import render_scene
 from robchair.perception import Perception
-from robchair.perception_layers import LAYER_LAG
+from robchair.perception_layers import LAYER_LAG, LAYER_NICE
 from robchair.platform.frames import se3_planar
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import load_spec
@@ -139,4 +141,22 @@ def test_an_error_in_a_layer_insert_surfaces_in_the_loop(clouds) -> None:
             p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
         p.flush()
     with pytest.raises(RuntimeError):
+        p.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
+def test_the_layer_thread_runs_at_a_lower_priority_than_the_loop(clouds) -> None:
+    gated = GatedMap(None, threading.Event())
+    p = _perception(gated)
+    try:
+        assert p._layer_pool is not None and p._pool is not None
+        loop = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        layer = p._layer_pool.submit(
+            lambda: os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        ).result()
+        main = p._pool.submit(lambda: os.getpriority(os.PRIO_PROCESS, threading.get_native_id())).result()
+        assert layer == min(loop + LAYER_NICE, 19) and main == loop
+        assert LAYER_NICE > 0
+    finally:
+        gated.gate.set()
         p.close()
