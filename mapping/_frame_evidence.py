@@ -8,6 +8,7 @@ in :mod:`mapping._evidence_kernels`; the update of the stored intervals with thi
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -163,3 +164,27 @@ class FrameEvidence:
             bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
         )
         return fkey, flo, fhi, int(passages)
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    """One frame's evidence, ready for ``ProbabilisticVHV.insert_prepared`` (from ``prepare_frame``).
+
+    Attributes:
+        layout: ``(spec, tolerance, params)`` of the map that prepared it; only a map of the same
+            layout takes it.
+        evidence: ``FrameEvidence._evidence``'s dict: counts, and the occupied slabs (``okey``,
+            ``olo``, ``ohi``: int64 cell keys, int32 lattice bounds) and merged free intervals
+            (``fkey``, ``flo``, ``fhi``), sorted by key then bound; read-only.
+        points_in: points of the frame (``(N, 3)`` rows given).
+        free_only: of them (or of the free-only targets), how many gave free space only.
+        origin: sensor origin, world metres (None: no free space).
+        prepare_ms: wall milliseconds the preparation took.
+    """
+
+    layout: tuple[Any, ...]
+    evidence: dict[str, Any]
+    points_in: int
+    free_only: int
+    origin: tuple[float, float, float] | None
+    prepare_ms: float
