@@ -71,7 +71,8 @@ def _prepare(m: ProbabilisticVHV, f: dict):  # type: ignore[no-untyped-def]
 def _state(m: ProbabilisticVHV) -> dict:
     used = m._used
     # the live slots of the pool (dead ones hold whatever was there), cell by cell
-    live = np.concatenate([np.arange(s, s + c) for s, c in zip(m._cstart, m._ccount) if c] or [[]]).astype(int)
+    runs = [np.arange(s, s + c) for s, c in zip(m._cstart, m._ccount) if c]
+    live = np.concatenate(runs or [np.empty(0, np.int64)])
     return {
         "cstart": m._cstart, "ccount": m._ccount, "ccap": m._ccap,
         "plo": m._plo[live], "phi": m._phi[live], "pl": m._pl[live], "pt": m._pt[live],
