@@ -200,6 +200,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         method: Method = "auto",
         max_range: float | None = None,
         no_return_ends: ArrayLike | None = None,
+        defer_fans: bool = False,
     ) -> PreparedFrame:
         """The evidence one frame would add (its VHV structures, occupied slabs and merged free
         intervals), computed without reading or changing the stored map; :meth:`insert_prepared` adds it.
@@ -212,6 +213,8 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         Args:
             points, sensor_origin, method, max_range: as for :meth:`insert`.
             no_return_ends: ``(M, 3)`` world points, as for :meth:`insert_frame` (needs ``sensor_origin``).
+            defer_fans: leave the free intervals (the fans, most of the work) to the frame's
+                ``mark_fans`` / ``extract_free`` (or to ``insert_prepared``), e.g. for another thread.
 
         Returns:
             A :class:`mapping._frame_evidence.PreparedFrame` for this map (or one of the same grid,
@@ -222,11 +225,12 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         """
         t0 = time.perf_counter()
         if no_return_ends is None:
-            return self._prepare(points, self._check_origin(sensor_origin), method, max_range, t0)
+            origin = self._check_origin(sensor_origin)
+            return self._prepare(points, origin, method, max_range, t0, defer_fans)
         if sensor_origin is None:
             raise MappingError("prepare_frame no_return_ends: the free space needs the sensor_origin")
         o, mr, ends = self._check_ends(sensor_origin, max_range, no_return_ends)
-        return self._prepare_with_free(points, o, mr, ends, t0)
+        return self._prepare_with_free(points, o, mr, ends, t0, defer_fans)
 
     def insert_prepared(self, prepared: PreparedFrame, stamp: float | None = None) -> EvidenceStats:
         """Add a frame prepared by :meth:`prepare_frame`: the dynamic decay at ``stamp``, the update of
@@ -246,6 +250,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
                 "(prepare it with this map's prepare_frame)"
             )
         self._advance(stamp)
+        prepared.extract_free()
         return self._apply(prepared)
 
     def _layout(self) -> tuple[Any, ...]:
@@ -258,6 +263,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         method: str,
         max_range: float | None,
         t0: float,
+        defer: bool = False,
     ) -> PreparedFrame:
         """``insert``'s evidence of ``points`` (``origin`` checked), without the map's clock or store."""
         pts = as_points(points)
@@ -276,7 +282,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             # fell outside the grid, nothing needs cutting and the pass over the points is saved.
             built = self._build(pts, method)
             if built[4] == 0 and self._within(built[0], built[1], built[2], origin, mr):
-                return self._prepared(pts, n_in, None, origin, method, t0, 0, built)
+                return self._prepared(pts, n_in, None, origin, method, t0, 0, built, defer)
             n_trunc = int(E.count_beyond(pts, *origin, mr))
             if n_trunc:
                 kept = np.empty_like(pts)
@@ -284,8 +290,8 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
                 E.split_beyond(pts, *origin, mr, kept, truncated)
                 pts = kept
             elif built is not None:
-                return self._prepared(pts, n_in, None, origin, method, t0, 0, built)
-        return self._prepared(pts, n_in, truncated, origin, method, t0, n_trunc)
+                return self._prepared(pts, n_in, None, origin, method, t0, 0, built, defer)
+        return self._prepared(pts, n_in, truncated, origin, method, t0, n_trunc, None, defer)
 
     def _prepare_with_free(
         self,
@@ -294,6 +300,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         max_range: float,
         free_targets: NDArray[np.float64],
         t0: float,
+        defer: bool = False,
     ) -> PreparedFrame:
         """``insert``'s evidence plus free-only targets (already at the range's end)."""
         stats_origin = self._check_origin(origin)
@@ -310,7 +317,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             E.split_beyond(pts, *stats_origin, max_range, kept, truncated)
             pts = kept
             targets = np.concatenate([truncated, free_targets])
-        return self._prepared(pts, n_in, targets, stats_origin, "auto", t0, n_trunc)
+        return self._prepared(pts, n_in, targets, stats_origin, "auto", t0, n_trunc, None, defer)
 
     def _prepared(
         self,
@@ -322,8 +329,9 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         t0: float,
         n_free_only: int,
         built: tuple[Any, ...] | None = None,
+        defer: bool = False,
     ) -> PreparedFrame:
-        ev = self._evidence(pts, free_only, origin, method, built)
+        ev = self._evidence(pts, free_only, origin, method, built, defer)
         ms = (time.perf_counter() - t0) * 1e3
         return PreparedFrame(self._layout(), ev, n_in, n_free_only, origin, ms)
 

@@ -120,3 +120,23 @@ def test_insert_prepared_checks_the_map_and_the_stamp():
         m.insert_prepared(_prepare(m, frames[1]), stamp=0.5)
     with pytest.raises(MappingError, match="needs the sensor_origin"):
         m.prepare_frame(frames[0]["points"], no_return_ends=np.zeros((1, 3)))
+
+
+def test_frames_whose_fans_are_deferred_give_the_same_map_whichever_phase_is_left_to_the_insert():
+    frames = _frames()
+    serial, deferred = _map(), _map()
+    for f in frames:
+        _insert(serial, f)
+    kw = [{k: f[k] for k in ("max_range", "no_return_ends") if k in f} for f in frames]
+    prepared = [deferred.prepare_frame(f["points"], f["sensor_origin"], defer_fans=True, **k)
+                for f, k in zip(frames, kw)]  # fmt: skip
+    assert not any(p.complete for p in prepared)
+    for k, p in enumerate(prepared):
+        if k % 3 >= 1:
+            p.mark_fans()  # on the pipeline's third stage
+        if k % 3 == 2:
+            p.extract_free()
+            assert p.complete
+    for p, f in zip(prepared, frames):
+        deferred.insert_prepared(p, stamp=f["stamp"])
+    _assert_same(serial, deferred)
