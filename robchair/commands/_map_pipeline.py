@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -165,7 +165,7 @@ def read_frames(
 
 def run_stages(
     items: Iterable[Any], stages: list[Callable[[Any], Any]], depth: int = QUEUE_DEPTH
-) -> Iterator[Any]:
+) -> Generator[Any, None, None]:
     """``stages[-1](... stages[0](item))`` of every item, in order, each stage on its own thread.
 
     The first stage's thread also iterates ``items``. Yields in the caller's thread; an exception of a
