@@ -17,6 +17,10 @@ without TF is mapped in its message frame, as recorded. Without --size the grid 
 extent, so a bag is read twice (once for the extent) unless its clouds fit in MAX_KEPT_POINTS points,
 which are then kept from the first pass. A warning (and summary.json's band_check) says when 90 % or
 more of the points lie outside the 2D band.
+
+The build runs as a pipeline of threads (reading, placing and measuring the clouds; their structures;
+their fans of free space; the map's update), frame after frame in order: the maps equal those of
+--serial-build (one thread).
 """
 
 from __future__ import annotations
