@@ -8,6 +8,8 @@ in :mod:`mapping._evidence_kernels`; the update of the stored intervals with thi
 from __future__ import annotations
 
 import math
+import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -70,8 +72,12 @@ class FrameEvidence:
         origin: tuple[float, float, float] | None,
         method: str,
         built: tuple[Any, ...] | None = None,
+        defer: bool = False,
     ) -> dict[str, Any]:
-        """One frame's occupied slabs and merged free intervals (lattice units), without touching the map."""
+        """One frame's occupied slabs and merged free intervals (lattice units), without touching the map.
+
+        With ``defer`` the free intervals are left to a :class:`FanJob` (``"fans"``; None when there are
+        none): ``fkey``/``flo``/``fhi`` are empty until its ``extract`` fills them in."""
         from mapping import _evidence_kernels as E
         from mapping.vhv import _build_compiled, _build_numpy
 
@@ -89,6 +95,7 @@ class FrameEvidence:
         flo = np.empty(0, np.int32)
         fhi = np.empty(0, np.int32)
         passages = 0
+        job = None
         if origin is not None:
             tkey, tbot, ttop = key, bot, top
             if free_only is not None and free_only.shape[0]:
@@ -102,7 +109,10 @@ class FrameEvidence:
                 tbot = np.concatenate([bot, b2[ok2]])
                 ttop = np.concatenate([top, t2[ok2]])
             if tkey.shape[0]:
-                fkey, flo, fhi, passages = self._free_evidence(tkey, tbot, ttop, origin, okey, olo, ohi)
+                job = self._fan_job(tkey, tbot, ttop, origin, okey, olo, ohi)
+                if not defer:
+                    fkey, flo, fhi, passages = job.extract()
+                    job = None
         return {
             "n_nonfinite": int(n_nf),
             "n_outside": int(n_out),
@@ -117,9 +127,10 @@ class FrameEvidence:
             "fkey": fkey,
             "flo": flo,
             "fhi": fhi,
+            "fans": job,
         }
 
-    def _free_evidence(
+    def _fan_job(
         self,
         key: NDArray[np.int64],
         bot: NDArray[np.float64],
@@ -128,13 +139,11 @@ class FrameEvidence:
         okey: NDArray[np.int64],
         olo: NDArray[np.int32],
         ohi: NDArray[np.int32],
-    ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], int]:
-        """The frame's merged free intervals (fans of every target structure), see the module docs."""
-        from mapping import _evidence_kernels as E
-
+    ) -> FanJob:
+        """The frame's merged free intervals to compute (fans of every target structure), see the module
+        docs: the table's box and bins."""
         spec = self.spec
         nx, ny = spec.shape
-        (ou, ov), cs = spec.origin, spec.cell_size
         su, sv, sh = (float(c) for c in spec.to_grid_frame(np.asarray(origin)))
         si, sj = (int(c) for c in spec.world_to_index(su, sv))
         ti = key // ny
@@ -152,14 +161,114 @@ class FrameEvidence:
         words_budget = max(1, int(self.params.max_table_bytes) // (8 * ni * nj))
         m = max(1, math.ceil(span / (64 * words_budget)))
         nbins = math.ceil(span / m)
-        nw = (nbins + 63) // 64
-        bits = np.zeros(ni * nj * nw, np.uint64)
-        passages = E.fan_bits(
-            key, bot, top, ny, cs, ou, ov, su, sv, sh, i0, j0, ni, nj, nw, inv_r, b0, m, nbins, bits
-        )
         erode = math.ceil(self._margin / (m * r) - 1e-9)
         gap = math.floor(self._gap / (m * r) + 1e-9)
+        return FanJob(key, bot, top, okey, olo, ohi, spec, (su, sv, sh), (i0, j0, ni, nj), inv_r, b0, m,
+                      nbins, erode, gap)  # fmt: skip
+
+
+@dataclass
+class FanJob:
+    """The free intervals of one frame still to compute: its fans marked in a (cell, height bin) bit
+    table (:meth:`mark`), then the merged runs read out of it (:meth:`extract`). Fields as the kernels
+    :func:`mapping._evidence_kernels.fan_bits` and ``extract_free`` take them."""
+
+    key: NDArray[np.int64]
+    bot: NDArray[np.float64]
+    top: NDArray[np.float64]
+    okey: NDArray[np.int64]
+    olo: NDArray[np.int32]
+    ohi: NDArray[np.int32]
+    spec: GridSpec
+    sensor: tuple[float, float, float]
+    box: tuple[int, int, int, int]
+    inv_r: float
+    b0: int
+    m: int
+    nbins: int
+    erode: int
+    gap: int
+    bits: NDArray[np.uint64] | None = None
+    passages: int = 0
+
+    def mark(self) -> None:
+        """Mark every fan in the table (once)."""
+        if self.bits is not None:
+            return
+        from mapping import _evidence_kernels as E
+
+        ny = self.spec.shape[1]
+        (ou, ov), cs = self.spec.origin, self.spec.cell_size
+        i0, j0, ni, nj = self.box
+        nw = (self.nbins + 63) // 64
+        self.bits = np.zeros(ni * nj * nw, np.uint64)
+        self.passages = int(
+            E.fan_bits(self.key, self.bot, self.top, ny, cs, ou, ov, *self.sensor, i0, j0, ni, nj, nw,
+                       self.inv_r, self.b0, self.m, self.nbins, self.bits)
+        )  # fmt: skip
+
+    def extract(self) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], int]:
+        """(key, lo, hi, passages): the merged free intervals (marking the fans first if needed)."""
+        from mapping import _evidence_kernels as E
+
+        self.mark()
+        i0, j0, ni, nj = self.box
+        nw = (self.nbins + 63) // 64
         fkey, flo, fhi = E.extract_free(
-            bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, okey, olo, ohi
-        )
-        return fkey, flo, fhi, int(passages)
+            self.bits, i0, j0, ni, nj, nw, self.nbins, self.spec.shape[1], self.b0, self.m, self.gap,
+            self.erode, self.okey, self.olo, self.ohi,
+        )  # fmt: skip
+        self.bits = None
+        return fkey, flo, fhi, self.passages
+
+
+@dataclass
+class PreparedFrame:
+    """One frame's evidence, ready for ``ProbabilisticVHV.insert_prepared`` (from ``prepare_frame``).
+
+    A frame prepared with ``defer_fans`` still has its free intervals to compute: :meth:`mark_fans`
+    then :meth:`extract_free` do it (on any thread, once each; ``insert_prepared`` does what is left).
+
+    Attributes:
+        layout: ``(spec, tolerance, params)`` of the map that prepared it; only a map of the same
+            layout takes it.
+        evidence: ``FrameEvidence._evidence``'s dict: counts, and the occupied slabs (``okey``,
+            ``olo``, ``ohi``: int64 cell keys, int32 lattice bounds) and merged free intervals
+            (``fkey``, ``flo``, ``fhi``), sorted by key then bound; read-only.
+        points_in: points of the frame (``(N, 3)`` rows given).
+        free_only: of them (or of the free-only targets), how many gave free space only.
+        origin: sensor origin, world metres (None: no free space).
+        prepare_ms: wall milliseconds the preparation took (every phase done so far).
+    """
+
+    layout: tuple[Any, ...]
+    evidence: dict[str, Any]
+    points_in: int
+    free_only: int
+    origin: tuple[float, float, float] | None
+    prepare_ms: float
+
+    @property
+    def complete(self) -> bool:
+        """True when the free intervals are computed."""
+        return self.evidence["fans"] is None
+
+    def mark_fans(self) -> None:
+        """Mark the fans of the frame's targets (the first half of the free intervals' work)."""
+        job = self.evidence["fans"]
+        if job is not None:
+            t0 = time.perf_counter()
+            job.mark()
+            self.prepare_ms += (time.perf_counter() - t0) * 1e3
+
+    def extract_free(self) -> None:
+        """Compute the merged free intervals (marking the fans first if needed)."""
+        job = self.evidence["fans"]
+        if job is None:
+            return
+        t0 = time.perf_counter()
+        fkey, flo, fhi, passages = job.extract()
+        ev = self.evidence
+        ev.update(fkey=fkey, flo=flo, fhi=fhi, fans=None, free_intervals=int(fkey.shape[0]),
+                  fan_passages=passages)  # fmt: skip
+        self.prepare_ms += (time.perf_counter() - t0) * 1e3

@@ -62,7 +62,21 @@ def update_cells(  # type: ignore[no-untyped-def]
     """
     no = okey.shape[0]
     nf = fkey.shape[0]
+    # room for the worst case of every touched cell, counted first: growing (and copying) the outputs
+    # inside the sweep cost more than this pass over the touched cells' counts
     cap = 2 * (no + nf) + 1024
+    a = 0
+    b = 0
+    while a < no or b < nf:
+        if b >= nf or (a < no and okey[a] <= fkey[b]):
+            key = okey[a]
+        else:
+            key = fkey[b]
+        while a < no and okey[a] == key:
+            a += 1
+        while b < nf and fkey[b] == key:
+            b += 1
+        cap += 2 * np.int64(ccount[key]) + 2
     tkey = np.empty(no + nf, np.int64)
     toff = np.empty(no + nf + 1, np.int64)
     tlo = np.empty(cap, np.int32)

@@ -83,14 +83,22 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mapping._evidence_views import EvidenceViews, _structures_from
-from mapping._frame_evidence import FrameEvidence
+from mapping._frame_evidence import FrameEvidence, PreparedFrame
 from mapping._interval_store import IntervalStore
 from mapping.errors import MappingError
 from mapping.evidence import EvidenceIntervals, EvidenceParams, EvidenceStats
 from mapping.grid import GridSpec
 from mapping.vhv import Method, Structures, VHVMap, as_points
 
-__all__ = ["EvidenceIntervals", "EvidenceParams", "EvidenceStats", "MapKind", "ProbabilisticVHV", "make_map"]
+__all__ = [
+    "EvidenceIntervals",
+    "EvidenceParams",
+    "EvidenceStats",
+    "MapKind",
+    "PreparedFrame",
+    "ProbabilisticVHV",
+    "make_map",
+]
 
 #: Map kinds of :func:`make_map`.
 MapKind = Literal["probabilistic", "thesis"]
@@ -183,6 +191,81 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         t0 = time.perf_counter()
         origin = self._check_origin(sensor_origin)
         self._advance(stamp)
+        return self._apply(self._prepare(points, origin, method, max_range, t0))
+
+    def prepare_frame(
+        self,
+        points: ArrayLike,
+        sensor_origin: ArrayLike | None = None,
+        method: Method = "auto",
+        max_range: float | None = None,
+        no_return_ends: ArrayLike | None = None,
+        defer_fans: bool = False,
+    ) -> PreparedFrame:
+        """The evidence one frame would add (its VHV structures, occupied slabs and merged free
+        intervals), computed without reading or changing the stored map; :meth:`insert_prepared` adds it.
+
+        ``insert(points, sensor_origin, method, max_range, stamp)`` equals ``insert_prepared(
+        prepare_frame(points, sensor_origin, method, max_range), stamp)`` bit for bit, and with
+        ``no_return_ends`` it equals :meth:`insert_frame`. Frames may be prepared ahead of their insert,
+        on another thread (the compiled kernels release the GIL); only the inserts must come in order.
+
+        Args:
+            points, sensor_origin, method, max_range: as for :meth:`insert`.
+            no_return_ends: ``(M, 3)`` world points, as for :meth:`insert_frame` (needs ``sensor_origin``).
+            defer_fans: leave the free intervals (the fans, most of the work) to the frame's
+                ``mark_fans`` / ``extract_free`` (or to ``insert_prepared``), e.g. for another thread.
+
+        Returns:
+            A :class:`mapping._frame_evidence.PreparedFrame` for this map (or one of the same grid,
+            tolerance and params).
+
+        Raises:
+            PointsError, MappingError: as :meth:`insert` and :meth:`insert_frame`.
+        """
+        t0 = time.perf_counter()
+        if no_return_ends is None:
+            origin = self._check_origin(sensor_origin)
+            return self._prepare(points, origin, method, max_range, t0, defer_fans)
+        if sensor_origin is None:
+            raise MappingError("prepare_frame no_return_ends: the free space needs the sensor_origin")
+        o, mr, ends = self._check_ends(sensor_origin, max_range, no_return_ends)
+        return self._prepare_with_free(points, o, mr, ends, t0, defer_fans)
+
+    def insert_prepared(self, prepared: PreparedFrame, stamp: float | None = None) -> EvidenceStats:
+        """Add a frame prepared by :meth:`prepare_frame`: the dynamic decay at ``stamp``, the update of
+        the stored intervals and the map's counters (``build_ms`` covers the preparation too).
+
+        Args:
+            prepared: from :meth:`prepare_frame` of this map or of one with the same grid, tolerance
+                and params.
+            stamp: capture time of the cloud, seconds (see :meth:`insert`).
+
+        Raises:
+            MappingError: a frame prepared for another grid, tolerance or params; a bad stamp.
+        """
+        if not isinstance(prepared, PreparedFrame) or prepared.layout != self._layout():
+            raise MappingError(
+                "insert_prepared: the frame was prepared for another grid, tolerance or params "
+                "(prepare it with this map's prepare_frame)"
+            )
+        self._advance(stamp)
+        prepared.extract_free()
+        return self._apply(prepared)
+
+    def _layout(self) -> tuple[Any, ...]:
+        return (self.spec, self.tolerance, self.params)
+
+    def _prepare(
+        self,
+        points: ArrayLike,
+        origin: tuple[float, float, float] | None,
+        method: str,
+        max_range: float | None,
+        t0: float,
+        defer: bool = False,
+    ) -> PreparedFrame:
+        """``insert``'s evidence of ``points`` (``origin`` checked), without the map's clock or store."""
         pts = as_points(points)
         n_in = int(pts.shape[0])
         truncated = None
@@ -199,7 +282,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             # fell outside the grid, nothing needs cutting and the pass over the points is saved.
             built = self._build(pts, method)
             if built[4] == 0 and self._within(built[0], built[1], built[2], origin, mr):
-                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
+                return self._prepared(pts, n_in, None, origin, method, t0, 0, built, defer)
             n_trunc = int(E.count_beyond(pts, *origin, mr))
             if n_trunc:
                 kept = np.empty_like(pts)
@@ -207,14 +290,19 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
                 E.split_beyond(pts, *origin, mr, kept, truncated)
                 pts = kept
             elif built is not None:
-                return self._counted(pts, n_in, None, origin, method, t0, 0, built)
-        return self._counted(pts, n_in, truncated, origin, method, t0, n_trunc)
+                return self._prepared(pts, n_in, None, origin, method, t0, 0, built, defer)
+        return self._prepared(pts, n_in, truncated, origin, method, t0, n_trunc, None, defer)
 
-    def _insert_with_free(
-        self, points: ArrayLike, origin: ArrayLike, max_range: float, free_targets: NDArray[np.float64]
-    ) -> EvidenceStats:
-        """``insert`` plus free-only targets (already at the range's end)."""
-        t0 = time.perf_counter()
+    def _prepare_with_free(
+        self,
+        points: ArrayLike,
+        origin: ArrayLike,
+        max_range: float,
+        free_targets: NDArray[np.float64],
+        t0: float,
+        defer: bool = False,
+    ) -> PreparedFrame:
+        """``insert``'s evidence plus free-only targets (already at the range's end)."""
         stats_origin = self._check_origin(origin)
         pts = as_points(points)
         n_in = int(pts.shape[0])
@@ -229,7 +317,23 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             E.split_beyond(pts, *stats_origin, max_range, kept, truncated)
             pts = kept
             targets = np.concatenate([truncated, free_targets])
-        return self._counted(pts, n_in, targets, stats_origin, "auto", t0, n_trunc)
+        return self._prepared(pts, n_in, targets, stats_origin, "auto", t0, n_trunc, None, defer)
+
+    def _prepared(
+        self,
+        pts: NDArray[np.floating],
+        n_in: int,
+        free_only: NDArray[np.float64] | None,
+        origin: tuple[float, float, float] | None,
+        method: str,
+        t0: float,
+        n_free_only: int,
+        built: tuple[Any, ...] | None = None,
+        defer: bool = False,
+    ) -> PreparedFrame:
+        ev = self._evidence(pts, free_only, origin, method, built, defer)
+        ms = (time.perf_counter() - t0) * 1e3
+        return PreparedFrame(self._layout(), ev, n_in, n_free_only, origin, ms)
 
     def _counted(
         self,
@@ -240,9 +344,14 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         method: str,
         t0: float,
         n_free_only: int,
-        built: tuple[Any, ...] | None = None,
     ) -> EvidenceStats:
-        stats = self._insert(pts, free_only, origin, method, built)
+        return self._apply(self._prepared(pts, n_in, free_only, origin, method, t0, n_free_only))
+
+    def _apply(self, prepared: PreparedFrame) -> EvidenceStats:
+        """Decay, update the store with a prepared frame's evidence and count it."""
+        t1 = time.perf_counter()
+        stats = self._insert(prepared.evidence)
+        n_in, n_free_only, origin = prepared.points_in, prepared.free_only, prepared.origin
         n_ins = n_in - stats["n_nonfinite"] - stats["n_outside"] - (n_free_only if n_in else 0)
         self.frames += 1
         self.points_inserted += n_ins
@@ -255,7 +364,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             points_dropped_nonfinite=stats["n_nonfinite"],
             points_outside_grid=stats["n_outside"],
             points_inserted=n_ins,
-            build_ms=(time.perf_counter() - t0) * 1e3,
+            build_ms=prepared.prepare_ms + (time.perf_counter() - t1) * 1e3,
             frame_structures=stats["frame_structures"],
             method=stats["method"],
             free_intervals=stats["free_intervals"],
@@ -296,6 +405,15 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             raise MappingError("insert_frame sensor_origin=None: the free space needs the sensor position")
         if no_return_ends is None:
             return self.insert(points_world, sensor_origin=sensor_origin, max_range=max_range, stamp=stamp)
+        t0 = time.perf_counter()
+        o, mr, ends = self._check_ends(sensor_origin, max_range, no_return_ends)
+        self._advance(stamp)
+        return self._apply(self._prepare_with_free(points_world, o, mr, ends, t0))
+
+    def _check_ends(
+        self, sensor_origin: ArrayLike, max_range: float | None, no_return_ends: ArrayLike
+    ) -> tuple[tuple[float, float, float], float, NDArray[np.float64]]:
+        """``insert_frame``'s checked origin, range (inf: none) and finite no-return ends."""
         ends = np.asarray(no_return_ends, dtype=np.float64)
         if ends.ndim != 2 or ends.shape[1] != 3:
             raise MappingError(f"insert_frame no_return_ends: expected (M, 3), got shape {ends.shape}")
@@ -305,8 +423,7 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         mr = math.inf if max_range is None else float(max_range)
         if not (mr > 0 and not math.isnan(mr)):
             raise MappingError(f"insert_frame max_range={max_range!r}: expected a number of metres > 0")
-        self._advance(stamp)
-        return self._insert_with_free(points_world, o, mr, ends)
+        return o, mr, ends
 
     def insert_free(
         self, targets: ArrayLike, sensor_origin: ArrayLike, stamp: float | None = None
@@ -391,22 +508,16 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             raise MappingError(f"sensor_origin={sensor_origin!r}: expected finite (x, y, z) in metres")
         return float(o[0]), float(o[1]), float(o[2])
 
-    def _insert(
-        self,
-        pts: NDArray[np.floating],
-        free_only: NDArray[np.float64] | None,
-        origin: tuple[float, float, float] | None,
-        method: str,
-        built: tuple[Any, ...] | None = None,
-    ) -> dict[str, Any]:
-        ev = self._evidence(pts, free_only, origin, method, built)
-        ev["decayed"] = self._decay()
+    def _insert(self, ev: dict[str, Any]) -> dict[str, Any]:
+        """Decay, then update the store with one frame's evidence (``_evidence``'s dict, not changed)."""
+        out = dict(ev)
+        out["decayed"] = self._decay()
         ncells = 0
         if ev["okey"].shape[0] or ev["fkey"].shape[0]:
             ncells = self._update(ev["okey"], ev["olo"], ev["ohi"], ev["fkey"], ev["flo"], ev["fhi"])
         self._cache.clear()
-        ev["cells_updated"] = ncells
-        return ev
+        out["cells_updated"] = ncells
+        return out
 
     def frame_evidence(
         self, points: ArrayLike, sensor_origin: ArrayLike, max_range: float | None = None

@@ -8,8 +8,9 @@ second of wall time (the target: at least 10x real time):
 
 * **build**: reading the bag, placing every cloud through TF and inserting it into the map (the
   command's ``read_and_build`` seconds in summary.json): what "builds its map" means here;
-* **inserts**: the map's inserts alone (summary.json ``build_ms``: the clouds and their no-return rays),
-  and their share of the build and of the whole command (what is left to the rest of the command);
+* **inserts**: the map's inserts alone (summary.json ``build_ms``: the clouds and their no-return rays;
+  on the command's build pipeline, the wall time of the pass that inserts the frames), and their share
+  of the build and of the whole command (what is left to the rest of the command);
 * **whole command**: the process from start to exit (interpreter, imports, building, every output).
 * **build, CPU time**: the build's CPU seconds (summary.json ``read_and_build_cpu``), which a machine
   shared with other work inflates less than the wall time.

@@ -17,6 +17,10 @@ without TF is mapped in its message frame, as recorded. Without --size the grid 
 extent, so a bag is read twice (once for the extent) unless its clouds fit in MAX_KEPT_POINTS points,
 which are then kept from the first pass. A warning (and summary.json's band_check) says when 90 % or
 more of the points lie outside the 2D band.
+
+The build runs as a pipeline of threads (reading, placing and measuring the clouds; their structures;
+their fans of free space; the map's update), frame after frame in order: the maps equal those of
+--serial-build (one thread).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from robchair.commands import map_tf
+from robchair.commands import _map_pipeline, map_tf
 
 if TYPE_CHECKING:
     from mapping.grid import GridSpec
@@ -122,6 +126,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--sample", action="store_true", help="map the built-in synthetic sample cloud")
     p.add_argument(
         "--no-pictures", action="store_true", help="do not draw the PNG pictures (the other outputs stay)"
+    )
+    p.add_argument(
+        "--serial-build",
+        action="store_true",
+        help="build each map on one thread (default: reading, the frames' evidence and the map's update "
+        "run as a pipeline of threads; the maps are the same)",
     )
     map_tf.add_arguments(p)
     p.set_defaults(func=_run)
@@ -287,17 +297,21 @@ def _measure(points: Any, origin: Any, min_range: float, axis: str, band: tuple[
     return (pts[~close] if n else pts), n, out
 
 
-def _placed_frames(frames: Any, placement: Any, sensor_origin: Any) -> Any:
-    """(frame, sensor origin) of each frame, placed in the fixed frame when ``placement`` is set
-    (frames outside the TF range are left out there and counted)."""
-    for frame in frames:
+def _measured_frames(frames: Any, placement: Any, args: argparse.Namespace) -> Any:
+    """(frame, sensor origin, points, n_close, measures) of each frame (:func:`_measure`), placed in
+    the fixed frame when ``placement`` is set (frames outside the TF range are left out there and
+    counted); read, placed and measured on threads of their own unless ``--serial-build``."""
+    sensor_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
+    band = _band(args)
+
+    def place(frame: Any) -> Any:
         origin = sensor_origin if sensor_origin is not None else frame.sensor_origin
-        if placement is None:
-            yield frame, origin
-            continue
-        placed = placement.place(frame, origin)
-        if placed is not None:
-            yield placed
+        return (frame, origin) if placement is None else placement.place(frame, origin)
+
+    def measure(frame: Any, origin: Any) -> Any:
+        return _measure(frame.points, origin, args.min_range, args.axis, band)
+
+    return _map_pipeline.read_frames(frames, place, measure, args.serial_build)
 
 
 def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: Any = None) -> dict[str, Any]:
@@ -324,11 +338,9 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         # (frame summaries only are kept, so a long bag does not have to fit in memory).
         extent = _Extent(args.axis)
         kept: list[Any] | None = []
-        user_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
         bar = tqdm(iter(source), **{**bar_kw, "desc": f"{label} (extent)"})
         n_kept = 0
-        for frame, origin in _placed_frames(bar, placement, user_origin):
-            measured = _measure(frame.points, origin, args.min_range, args.axis, band_m)
+        for frame, origin, *measured in _measured_frames(bar, placement, args):
             extent.add(measured[0], origin, measured[2], defer=kept is not None)
             if kept is not None:
                 kept.append((frame, origin, *measured))
@@ -341,48 +353,36 @@ def _map_one(source: Any, args: argparse.Namespace, progress: bool, placement: A
         if placement is not None and frames is None:
             placement.reset()
     m = map_tf.make_map(spec, args)
-    stamped = args.map_kind == "probabilistic"  # evidence decays in time: each cloud at its stamp
-    build_ms = 0.0
     sensor_origin = tuple(args.sensor_origin) if args.sensor_origin is not None else None
-    frame_id, stamp_ns = "", 0
-    sensor_origin_used = sensor_origin
-    warmed: set[str] = set()
-    dropped_close = 0
-    band = map_tf.BandCheck(band_m, spec.columns[2])
-    no_return = map_tf.NoReturn(spec.columns[2], getattr(source, "no_return_topic", None))
-    pairs: Any = frames
-    if pairs is None:
-        pairs = ((f, o, None, 0, None) for f, o in _placed_frames(iter(source), placement, sensor_origin))
-    for frame, origin, points, n_close, measures in tqdm(pairs, **bar_kw):
-        if points is None:
-            points, n_close, measures = _measure(frame.points, origin, args.min_range, args.axis, band_m)
-        band.add_measures(measures)
-        dropped_close += n_close
-        if str(points.dtype) not in warmed:
-            _warm_up(spec, args, points, origin)
-            warmed.add(str(points.dtype))
-        kw = {"stamp": frame.stamp_ns * 1e-9} if stamped and frame.stamp_ns >= 1e9 * m.now else {}
-        if frame.no_return is not None and len(frame.no_return):
-            stats = no_return.insert(m, points, frame.no_return, origin, kw)
-        else:
-            stats = m.insert(points, sensor_origin=origin, **kw)
-        build_ms += stats.build_ms
-        sensor_origin_used = origin if placement is None else None  # a moving sensor has no one origin
-        frame_id = frame.frame_id or frame_id
-        stamp_ns = max(stamp_ns, int(frame.stamp_ns))
+    totals = _map_pipeline.BuildTotals(
+        band=map_tf.BandCheck(band_m, spec.columns[2]),
+        no_return=map_tf.NoReturn(spec.columns[2], getattr(source, "no_return_topic", None)),
+        sensor_origin=sensor_origin,
+    )
+    pairs = frames if frames is not None else _measured_frames(iter(source), placement, args)
+    with tqdm(**bar_kw) as bar:
+        _map_pipeline.build(
+            m,
+            pairs,
+            lambda points, origin: _warm_up(spec, args, points, origin),
+            totals,
+            placed=placement is not None,
+            serial=args.serial_build,
+            bar=bar,
+        )
     return {
         "map": m,
         "read_and_build_s": time.perf_counter() - t_start,
         "read_and_build_cpu_s": time.process_time() - cpu_start,
         "label": label,
         "grid_size_source": how,
-        "build_ms": build_ms,
-        "points_dropped_min_range": dropped_close,
-        "sensor_origin": sensor_origin_used,
-        "frame_id": frame_id or "map",
-        "stamp_ns": stamp_ns,
-        "band_check": band,
-        "no_return": no_return,
+        "build_ms": totals.build_ms,
+        "points_dropped_min_range": totals.dropped_close,
+        "sensor_origin": totals.sensor_origin,
+        "frame_id": totals.frame_id or "map",
+        "stamp_ns": totals.stamp_ns,
+        "band_check": totals.band,
+        "no_return": totals.no_return,
     }
 
 

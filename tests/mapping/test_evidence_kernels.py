@@ -168,7 +168,7 @@ def _ref_extract_free(bits, i0, j0, ni, nj, nw, nbins, ny, b0, m, gap, erode, ok
 # ---------------------------------------------------------------- cases
 def _random_case(rng: np.random.Generator) -> tuple[Any, ...]:
     """Structures in random cells of a small grid, a random sensor (inside or outside the box), a
-    random coarsening ``m`` and table depth, like ``ProbabilisticVHV._free_evidence`` lays them out."""
+    random coarsening ``m`` and table depth, like ``ProbabilisticVHV._fan_job`` lays them out."""
     cs = float(rng.choice([0.05, 0.1, 0.13]))
     nx, ny = int(rng.integers(8, 60)), int(rng.integers(8, 60))
     ou, ov = -(nx // 2), -(ny // 2)
