@@ -84,3 +84,35 @@ def test_the_kernel_scan_finds_the_kernels_it_checks() -> None:
     assert "finish" in kernels and announces
     kernels, _ = _cached_kernels_and_announces(ROOT / "mapping" / "io" / "lzf.py")
     assert kernels == ["_decompress_into", "_compress_into"]
+
+
+_KERNEL_MODULE = """
+import sys
+import numba
+from mapping._deps import announce_compilation
+
+
+@numba.njit(cache=True)
+def kernel(x):
+    return x + {n}
+
+
+announce_compilation(sys.modules[__name__], "{name} kernels")
+"""
+
+
+def test_a_module_is_announced_again_when_its_kernels_compile_after_another_modules(tmp_path) -> None:
+    """Module a is announced at import, then b; a's kernel compiles next, so a's message comes again (the
+    screen names what compiles). With the cache filled a second run says nothing."""
+    for n, name in enumerate(("alpha", "beta")):
+        (tmp_path / f"{name}_kernels_mod.py").write_text(_KERNEL_MODULE.format(n=n, name=name))
+    code = "import alpha_kernels_mod as a, beta_kernels_mod as b\na.kernel(1)\nb.kernel(1)"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": f"{tmp_path}:{ROOT}"}
+    run = [sys.executable, "-c", code]
+    kw = {"env": env, "capture_output": True, "text": True, "timeout": 120, "check": True, "cwd": tmp_path}
+    first = subprocess.run(run, **kw)  # type: ignore[call-overload]
+    said = [line.split(" (")[0] for line in first.stderr.splitlines() if line.startswith("compiling")]
+    assert said == ["compiling alpha kernels", "compiling beta kernels", "compiling alpha kernels",
+                    "compiling beta kernels"]  # fmt: skip
+    again = subprocess.run(run, **kw)  # type: ignore[call-overload]
+    assert "compiling" not in again.stderr
