@@ -71,7 +71,8 @@ def announce_compilation(module: ModuleType, what: str) -> None:
     call, e.g. when the first frame is mapped): once a module has been announced, the message is said
     again when the compilation of one of its kernels starts and the last message was another module's,
     so that the line on screen names what is compiling (a numba compile-event listener, see
-    :func:`_say_again_when_compiling`).
+    :func:`_say_again_when_compiling`). For the same reason a module announced while another module's
+    kernel is compiling is said when its own first kernel starts, not at once.
     """
     name = module.__name__
     if name in _announced:
@@ -87,10 +88,13 @@ def announce_compilation(module: ModuleType, what: str) -> None:
             indexes.append(os.path.exists(index))
     if indexes and not any(indexes):
         message = f"compiling {what} (first run only, cached afterwards)..."
-        print(message, file=sys.stderr, flush=True)
         _first_compiles[name] = message
-        _last_said[0] = name
         _say_again_when_compiling()
+        if _compiling[0] in (None, name):
+            _last_said[0] = name
+            print(message, file=sys.stderr, flush=True)
+        # else another module's kernel is compiling (on another thread; numba compiles one kernel at a
+        # time): the line on screen is right until this module's first kernel starts and is announced
 
 
 _listening: list[bool] = [False]
@@ -105,7 +109,6 @@ def _say_again_when_compiling() -> None:
     if _listening[0]:
         return
     _listening[0] = True
-    import sys
     import threading
 
     from numba.core import event
@@ -115,15 +118,28 @@ def _say_again_when_compiling() -> None:
     class _SayAgain(event.Listener):  # type: ignore[misc]
         def on_start(self, ev: Any) -> None:
             depth.n = getattr(depth, "n", 0) + 1
-            if depth.n != 1:
-                return
-            py_func = getattr(ev.data.get("dispatcher"), "py_func", None)
-            name = getattr(py_func, "__module__", None)
-            if name in _first_compiles and name != _last_said[0]:
-                _last_said[0] = name
-                print(_first_compiles[name], file=sys.stderr, flush=True)
+            if depth.n == 1:
+                py_func = getattr(ev.data.get("dispatcher"), "py_func", None)
+                _compile_started(str(getattr(py_func, "__module__", "")))
 
         def on_end(self, ev: Any) -> None:
             depth.n = getattr(depth, "n", 1) - 1
+            if depth.n == 0:
+                _compiling[0] = None
 
     event.register("numba:compile", _SayAgain())
+
+
+# the module whose kernel is compiling (outermost compilation; numba compiles one at a time), or None
+_compiling: list[str | None] = [None]
+
+
+def _compile_started(name: str) -> None:
+    """A kernel of module ``name`` starts compiling: say its module's message if the last one was another
+    module's (and the module was announced as compiled for the first time)."""
+    import sys
+
+    _compiling[0] = name
+    if name in _first_compiles and name != _last_said[0]:
+        _last_said[0] = name
+        print(_first_compiles[name], file=sys.stderr, flush=True)

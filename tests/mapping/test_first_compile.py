@@ -42,6 +42,26 @@ def test_cached_kernels_say_nothing_and_missing_ones_are_announced_once(tmp_path
     assert capsys.readouterr().err.count("compiling test kernels") == 1
 
 
+def test_a_module_announced_while_another_compiles_is_said_when_its_own_kernel_starts(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    """The Kinect thread compiles its kernels while the loop announces the wheel kernels (which wait for
+    numba's compiler): the screen keeps the Kinect line until a wheel kernel starts, then names it."""
+    from mapping import _deps
+
+    monkeypatch.setattr(_deps, "_compiling", ["another_module_compiling"])
+    monkeypatch.setattr(_deps, "_last_said", ["another_module_compiling"])
+    waiting = _module_with_index("waiting_kernels_for_test", tmp_path / "absent.nbi")
+    announce_compilation(waiting, "waiting kernels")
+    assert capsys.readouterr().err == ""
+    _deps._compile_started("another_module_compiling")  # its next kernel: still the same line
+    assert capsys.readouterr().err == ""
+    _deps._compile_started("waiting_kernels_for_test")
+    assert capsys.readouterr().err.startswith("compiling waiting kernels (first run only")
+    _deps._compile_started("waiting_kernels_for_test")
+    assert capsys.readouterr().err == ""
+
+
 def _cached_kernels_and_announces(path: Path) -> tuple[list[str], bool]:
     """The functions of ``path`` compiled by numba with ``cache=True``, and whether it calls
     :func:`announce_compilation`."""
