@@ -54,6 +54,9 @@ def require(module: str, purpose: str) -> Any:
 
 
 _announced: set[str] = set()
+# modules announced as compiled for the first time -> their message; the module of the last message said
+_first_compiles: dict[str, str] = {}
+_last_said: list[str] = [""]
 
 
 def announce_compilation(module: ModuleType, what: str) -> None:
@@ -63,6 +66,13 @@ def announce_compilation(module: ModuleType, what: str) -> None:
     run after an install pays (tens of seconds for the mapping kernels). A kernel has been cached when
     its index file exists; a module none of whose kernels has one is compiled for the first time (a run
     that finds some indexes compiles only the kernels it had not used before, and says nothing).
+
+    A module is often announced (at import) long before some of its kernels compile (at their first
+    call, e.g. when the first frame is mapped): once a module has been announced, the message is said
+    again when the compilation of one of its kernels starts and the last message was another module's,
+    so that the line on screen names what is compiling (a numba compile-event listener, see
+    :func:`_say_again_when_compiling`). For the same reason a module announced while another module's
+    kernel is compiling is said when its own first kernel starts, not at once.
     """
     name = module.__name__
     if name in _announced:
@@ -77,4 +87,59 @@ def announce_compilation(module: ModuleType, what: str) -> None:
         if isinstance(index, str):
             indexes.append(os.path.exists(index))
     if indexes and not any(indexes):
-        print(f"compiling {what} (first run only, cached afterwards)...", file=sys.stderr, flush=True)
+        message = f"compiling {what} (first run only, cached afterwards)..."
+        _first_compiles[name] = message
+        _say_again_when_compiling()
+        if _compiling[0] in (None, name):
+            _last_said[0] = name
+            print(message, file=sys.stderr, flush=True)
+        # else another module's kernel is compiling (on another thread; numba compiles one kernel at a
+        # time): the line on screen is right until this module's first kernel starts and is announced
+
+
+_listening: list[bool] = [False]
+
+
+def _say_again_when_compiling() -> None:
+    """Register (once per process) a listener of numba's ``numba:compile`` events that repeats a
+    first-compiled module's message when one of its kernels starts compiling after another module's
+    message. numba fires the event only for a real compilation (not for a kernel loaded from the
+    cache), so a run with a filled cache says nothing; nested compilations (the kernels and numba
+    internals a kernel calls) are ignored."""
+    if _listening[0]:
+        return
+    _listening[0] = True
+    import threading
+
+    from numba.core import event
+
+    depth = threading.local()
+
+    class _SayAgain(event.Listener):  # type: ignore[misc]
+        def on_start(self, ev: Any) -> None:
+            depth.n = getattr(depth, "n", 0) + 1
+            if depth.n == 1:
+                py_func = getattr(ev.data.get("dispatcher"), "py_func", None)
+                _compile_started(str(getattr(py_func, "__module__", "")))
+
+        def on_end(self, ev: Any) -> None:
+            depth.n = getattr(depth, "n", 1) - 1
+            if depth.n == 0:
+                _compiling[0] = None
+
+    event.register("numba:compile", _SayAgain())
+
+
+# the module whose kernel is compiling (outermost compilation; numba compiles one at a time), or None
+_compiling: list[str | None] = [None]
+
+
+def _compile_started(name: str) -> None:
+    """A kernel of module ``name`` starts compiling: say its module's message if the last one was another
+    module's (and the module was announced as compiled for the first time)."""
+    import sys
+
+    _compiling[0] = name
+    if name in _first_compiles and name != _last_said[0]:
+        _last_said[0] = name
+        print(_first_compiles[name], file=sys.stderr, flush=True)

@@ -42,6 +42,26 @@ def test_cached_kernels_say_nothing_and_missing_ones_are_announced_once(tmp_path
     assert capsys.readouterr().err.count("compiling test kernels") == 1
 
 
+def test_a_module_announced_while_another_compiles_is_said_when_its_own_kernel_starts(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    """The Kinect thread compiles its kernels while the loop announces the wheel kernels (which wait for
+    numba's compiler): the screen keeps the Kinect line until a wheel kernel starts, then names it."""
+    from mapping import _deps
+
+    monkeypatch.setattr(_deps, "_compiling", ["another_module_compiling"])
+    monkeypatch.setattr(_deps, "_last_said", ["another_module_compiling"])
+    waiting = _module_with_index("waiting_kernels_for_test", tmp_path / "absent.nbi")
+    announce_compilation(waiting, "waiting kernels")
+    assert capsys.readouterr().err == ""
+    _deps._compile_started("another_module_compiling")  # its next kernel: still the same line
+    assert capsys.readouterr().err == ""
+    _deps._compile_started("waiting_kernels_for_test")
+    assert capsys.readouterr().err.startswith("compiling waiting kernels (first run only")
+    _deps._compile_started("waiting_kernels_for_test")
+    assert capsys.readouterr().err == ""
+
+
 def _cached_kernels_and_announces(path: Path) -> tuple[list[str], bool]:
     """The functions of ``path`` compiled by numba with ``cache=True``, and whether it calls
     :func:`announce_compilation`."""
@@ -84,3 +104,35 @@ def test_the_kernel_scan_finds_the_kernels_it_checks() -> None:
     assert "finish" in kernels and announces
     kernels, _ = _cached_kernels_and_announces(ROOT / "mapping" / "io" / "lzf.py")
     assert kernels == ["_decompress_into", "_compress_into"]
+
+
+_KERNEL_MODULE = """
+import sys
+import numba
+from mapping._deps import announce_compilation
+
+
+@numba.njit(cache=True)
+def kernel(x):
+    return x + {n}
+
+
+announce_compilation(sys.modules[__name__], "{name} kernels")
+"""
+
+
+def test_a_module_is_announced_again_when_its_kernels_compile_after_another_modules(tmp_path) -> None:
+    """Module a is announced at import, then b; a's kernel compiles next, so a's message comes again (the
+    screen names what compiles). With the cache filled a second run says nothing."""
+    for n, name in enumerate(("alpha", "beta")):
+        (tmp_path / f"{name}_kernels_mod.py").write_text(_KERNEL_MODULE.format(n=n, name=name))
+    code = "import alpha_kernels_mod as a, beta_kernels_mod as b\na.kernel(1)\nb.kernel(1)"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": f"{tmp_path}:{ROOT}"}
+    run = [sys.executable, "-c", code]
+    kw = {"env": env, "capture_output": True, "text": True, "timeout": 120, "check": True, "cwd": tmp_path}
+    first = subprocess.run(run, **kw)  # type: ignore[call-overload]
+    said = [line.split(" (")[0] for line in first.stderr.splitlines() if line.startswith("compiling")]
+    assert said == ["compiling alpha kernels", "compiling beta kernels", "compiling alpha kernels",
+                    "compiling beta kernels"]  # fmt: skip
+    again = subprocess.run(run, **kw)  # type: ignore[call-overload]
+    assert "compiling" not in again.stderr

@@ -55,6 +55,10 @@ Modules: :mod:`~robchair.platform.control.plant` (the second-order plant),
 :mod:`~robchair.platform.control.traces` (trace files), :mod:`~robchair.platform.control.design`
 (pole placement, margins), :mod:`~robchair.platform.control.discrete` (the sampled loop) and
 :mod:`~robchair.platform.control.rootlocus` (root locus through python-control).
+
+Importing this package does not import python-control: the functions that use it import it (it costs
+~1.7 s, most of it scipy.signal and matplotlib), so the simulator, which runs :class:`DiscretePID` on
+:class:`DiscretePlant` with the gains of :func:`pid_gains`, starts without it.
 """
 
 from __future__ import annotations
@@ -69,6 +73,7 @@ from robchair.platform.control.design import (
     design_pid,
     designed_poles,
     evaluate_gains,
+    pid_gains,
     pid_tf,
     pole_mismatch,
     pole_placement_gains,
@@ -130,6 +135,7 @@ __all__ = [
     "identify_from_trace",
     "normalise_trace",
     "open_loop_poles_and_zeros",
+    "pid_gains",
     "pid_tf",
     "pole_mismatch",
     "pole_placement_gains",

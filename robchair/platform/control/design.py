@@ -1,15 +1,21 @@
-"""PID design by pole placement (SPEC 5, erratum 2), checked with python-control: poles, margins, steps."""
+"""PID design by pole placement (SPEC 5, erratum 2), checked with python-control: poles, margins, steps.
+
+python-control is imported by the functions that use it, not with the module (it costs ~1.7 s, most of it
+scipy.signal and matplotlib): :func:`pid_gains`, the gains alone, is what the simulator needs.
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control as ct
 import numpy as np
 
 from robchair.platform.control.plant import ControlError, SecondOrderPlant
+
+if TYPE_CHECKING:
+    import control as ct
 
 THESIS_XI_W = 1.0
 THESIS_OMEGA_W = 3.3  # rad/s
@@ -101,6 +107,8 @@ class PIDDesign:
 
 def pid_tf(kp: float, ki: float, kd: float, tau_d: float = 0.0) -> ct.TransferFunction:
     """Parallel PID as a transfer function; a derivative filter when ``tau_d > 0``."""
+    import control as ct
+
     if tau_d > 0:
         # (kp + ki/s + kd s/(tau s + 1)) over the common denominator s (tau s + 1)
         num = [kp * tau_d + kd, kp + ki * tau_d, ki]
@@ -117,6 +125,8 @@ def reference_tf(
     derivative_on_measurement: bool = True,
 ) -> ct.TransferFunction:
     """Reference-to-speed transfer function of the loop, for either placement of the derivative."""
+    import control as ct
+
     g = plant.tf()
     c = pid_tf(kp, ki, kd, tau_d)
     if not derivative_on_measurement:
@@ -162,12 +172,29 @@ def design_pid(
     """
     if p is None:
         p = THESIS_P_FACTOR * xi_w * omega_w
+    kp, ki, kd = pid_gains(plant, xi_w, omega_w, p)
+    designed = designed_poles(xi_w, omega_w, p)
+    return _evaluate(kp, ki, kd, plant, xi_w, omega_w, p, designed, derivative_on_measurement)
+
+
+def pid_gains(
+    plant: SecondOrderPlant,
+    xi_w: float = THESIS_XI_W,
+    omega_w: float = THESIS_OMEGA_W,
+    p: float | None = None,
+) -> tuple[float, float, float]:
+    """(K_p, K_i, K_d) of :func:`design_pid` for the same arguments, without its python-control checks
+    (closed-loop poles, margins, step metrics): what the simulator needs to run the loop.
+
+    Raises:
+        ControlError: A design parameter is not a finite positive number.
+    """
+    if p is None:
+        p = THESIS_P_FACTOR * xi_w * omega_w
     for name, v in (("xi_w", xi_w), ("omega_w", omega_w), ("p", p)):
         if not (math.isfinite(v) and v > 0):
             raise ControlError(f"{name} = {v!r}: expected a finite number > 0 (a stable closed-loop pole)")
-    kp, ki, kd = pole_placement_gains(plant, xi_w, omega_w, p)
-    designed = designed_poles(xi_w, omega_w, p)
-    return _evaluate(kp, ki, kd, plant, xi_w, omega_w, p, designed, derivative_on_measurement)
+    return pole_placement_gains(plant, xi_w, omega_w, p)
 
 
 def designed_poles(xi_w: float, omega_w: float, p: float) -> np.ndarray:
@@ -188,6 +215,8 @@ def evaluate_gains(
 
     ``designed_poles`` are then the achieved ones, and xi_w, omega_w, p are NaN.
     """
+    import control as ct
+
     cl = ct.feedback(pid_tf(kp, ki, kd) * plant.tf(), 1)
     achieved = _sort_poles(np.asarray(ct.poles(cl)))
     nan = float("nan")
@@ -205,6 +234,8 @@ def _evaluate(
     designed: np.ndarray,
     derivative_on_measurement: bool = True,
 ) -> PIDDesign:
+    import control as ct
+
     g = plant.tf()
     loop = pid_tf(kp, ki, kd) * g
     cl = ct.feedback(loop, 1)
@@ -270,6 +301,8 @@ def _sort_poles(p: np.ndarray) -> np.ndarray:
 def _step_metrics(sys: ct.LTI) -> StepMetrics:
     """step_info on a time grid long enough for the slowest pole to settle (python-control's automatic
     horizon can stop before a slow closed loop reaches 90 %)."""
+    import control as ct
+
     poles = np.asarray(ct.poles(sys))
     decay = float(np.min(-poles.real)) if poles.size else 1.0
     if not decay > 0:

@@ -1,17 +1,22 @@
-"""Discrete time: the sampled PID and the exactly discretised plant the simulator and emulator run."""
+"""Discrete time: the sampled PID and the exactly discretised plant the simulator and emulator run.
+
+Only :func:`sampled_loop` needs python-control (imported there): :class:`DiscretePlant` discretises with
+scipy's matrix exponential, so a simulation does not pay python-control's import (~1.7 s).
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control as ct
 import numpy as np
 import numpy.typing as npt
 
-from robchair.platform.control.design import PIDDesign, _sort_poles
 from robchair.platform.control.plant import ControlError, SecondOrderPlant
+
+if TYPE_CHECKING:
+    from robchair.platform.control.design import PIDDesign
 
 CONTROLLER_RATE_HZ = 1000.0
 """Default sample rate (Hz) of the discrete PID and plant used by the simulator and emulators."""
@@ -48,6 +53,10 @@ def sampled_loop(
     tau_d). This is the check the thesis recommends after each change of the non-dominant pole p: a
     continuous design is stable for any p > 0, but a large p (a large K_d) destabilises the *sampled* loop.
     """
+    import control as ct
+
+    from robchair.platform.control.design import _sort_poles
+
     if not (math.isfinite(dt) and dt > 0):
         raise ControlError(f"dt = {dt!r}: expected a sample time > 0 s")
     pz = ct.c2d(plant.tf(), dt, method="zoh")
@@ -58,6 +67,22 @@ def sampled_loop(
     with np.errstate(divide="ignore"):
         s_eq = np.log(zp) / dt
     return SampledLoop(dt=dt, z_poles=zp, s_equivalent=_sort_poles(s_eq), max_abs_z=float(np.max(np.abs(zp))))
+
+
+def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation of x' = A x + B u over ``dt`` s: (A_d, B_d), shapes (n, n)
+    and (n, m) for A (n, n) and B (n, m).
+
+    The upper rows of expm([[A, B], [0, 0]] dt), the computation ``scipy.signal.cont2discrete`` does
+    for ``control.c2d(..., method="zoh")`` (the same matrix, so the same result bit for bit), with only
+    ``scipy.linalg`` imported.
+    """
+    from scipy.linalg import expm
+
+    n, m = a.shape[0], b.shape[1]
+    em = np.vstack((np.hstack((a, b)), np.hstack((np.zeros((m, n)), np.zeros((m, m))))))
+    ms = expm(dt * em)[:n, :]
+    return ms[:, :n], ms[:, n:]
 
 
 class DiscretePID:
@@ -206,17 +231,15 @@ class DiscretePlant:
             raise ControlError(f"DiscretePlant dt = {dt!r}: expected a sample time > 0 s")
         self.plant = plant
         self.dt = float(dt)
-        sysc = plant.ss()
-        ac, bc, cc = (np.asarray(m, dtype=float) for m in (sysc.A, sysc.B, sysc.C))
+        ac, bc, cc = plant.state_matrices()
         n = ac.shape[0]
         # Augment with q' = y so the ZOH discretisation also gives the exact integral of the output.
         a_aug = np.zeros((n + 1, n + 1))
         a_aug[:n, :n] = ac
         a_aug[n, :n] = cc.ravel()
         b_aug = np.concatenate([bc.ravel(), [0.0]])[:, None]
-        c_aug = np.concatenate([cc.ravel(), [0.0]])[None, :]
-        sysd = ct.c2d(ct.ss(a_aug, b_aug, c_aug, 0.0), dt, method="zoh")
-        ad, bd = np.asarray(sysd.A, dtype=float), np.asarray(sysd.B, dtype=float).ravel()
+        ad, bd = zoh(a_aug, b_aug, dt)
+        bd = bd.ravel()
         self.A = ad[:n, :n]
         self.B = bd[:n]
         self.C = cc.ravel()
@@ -232,7 +255,7 @@ class DiscretePlant:
         self._q0, self._q1 = float(self._q_row[0]), float(self._q_row[1])
         self.integral = 0.0
         # Steady state per unit input of the continuous realisation: x_ss = -A^-1 B.
-        self._x_per_u = -np.linalg.solve(np.asarray(sysc.A, float), np.asarray(sysc.B, float).ravel())
+        self._x_per_u = -np.linalg.solve(ac, bc.ravel())
         self.reset()
 
     @property

@@ -1,18 +1,25 @@
 """The identified wheel-motor plant: a second-order transfer function and its analytic step response.
 
 Units: command RPM in, motor-shaft RPM out (see :mod:`robchair.platform.control`).
+
+python-control is imported where a method needs it (:meth:`SecondOrderPlant.tf`,
+:meth:`~SecondOrderPlant.ss`), not with the module: it pulls in scipy.signal and matplotlib (~1.7 s), which
+the simulator, which only needs :meth:`~SecondOrderPlant.state_matrices`, does not use.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control as ct
 import numpy as np
 import numpy.typing as npt
 
 from robchair.platform.errors import RobChairError
+
+if TYPE_CHECKING:
+    import control as ct
 
 
 class ControlError(RobChairError, ValueError):
@@ -85,11 +92,27 @@ class SecondOrderPlant:
 
     def tf(self) -> ct.TransferFunction:
         """The plant as a python-control transfer function."""
+        import control as ct
+
         return ct.tf([self.b0], [1.0, self.a1, self.a0])
 
     def ss(self) -> ct.StateSpace:
         """The plant as a python-control state-space system (one input, one output)."""
+        import control as ct
+
         return ct.tf2ss(self.tf())
+
+    def state_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C) of x' = A x + B u, y = C x, shapes (2, 2), (2, 1), (1, 2): the controllable canonical
+        form A = [[-a1, -a0], [1, 0]], B = [[1], [0]], C = [[0, b0]].
+
+        The realisation :meth:`ss` gives (python-control's ``tf2ss`` without slycot is scipy's, which
+        builds exactly these matrices, element for element), without importing python-control.
+        """
+        a = np.array([[-self.a1, -self.a0], [1.0, 0.0]])
+        b = np.array([[1.0], [0.0]])
+        c = np.array([[0.0, self.b0]])
+        return a, b, c
 
     def step(self, t: npt.ArrayLike) -> np.ndarray:
         """Analytic unit-step response at times ``t`` (s); zero for t < 0."""
