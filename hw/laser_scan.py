@@ -7,6 +7,7 @@ Both the real driver (:mod:`hw.hokuyo`) and the simulated laser (:mod:`sim.laser
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,22 @@ def valid_mask(scan: LaserScan) -> npt.NDArray[np.bool_]:
         return np.isfinite(r) & (r >= scan.range_min) & (r <= scan.range_max)  # type: ignore[no-any-return]
 
 
+@functools.lru_cache(maxsize=8)
+def beam_trig(
+    angle_min: float, angle_increment: float, n_beams: int
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """``(cos, sin)`` (N,) of the beam angles of :meth:`LaserScan.angles` (read-only).
+
+    One pair per scan geometry, computed once: a scanner repeats its geometry every scan, and the
+    682 cosines and sines were a fifth of :func:`scan_to_points`.
+    """
+    a = angle_min + angle_increment * np.arange(n_beams, dtype=np.float64)  # as LaserScan.angles
+    c, s = np.cos(a), np.sin(a)
+    c.flags.writeable = False
+    s.flags.writeable = False
+    return c, s
+
+
 def scan_to_points(scan: LaserScan, *, keep_invalid: bool = False) -> npt.NDArray[np.float64]:
     """Beam end points in the scan's own frame (REP-103: x forward, y left, z = 0 in the scan plane), m.
 
@@ -37,10 +54,10 @@ def scan_to_points(scan: LaserScan, *, keep_invalid: bool = False) -> npt.NDArra
     Returns:
         float64 points; to put them in the world, apply ``T_world_sensor`` (perception stage).
     """
-    a = scan.angles()
+    cos_a, sin_a = beam_trig(scan.angle_min, scan.angle_increment, scan.n_beams)
     r = scan.ranges.astype(np.float64)
     with np.errstate(invalid="ignore"):  # inf x cos(90 deg) = NaN: such beams are dropped or NaN below
-        pts = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)], axis=-1)
+        pts = np.stack([r * cos_a, r * sin_a, np.zeros_like(cos_a)], axis=-1)
     ok = valid_mask(scan)
     if keep_invalid:
         pts[~ok] = np.nan

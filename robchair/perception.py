@@ -581,6 +581,13 @@ class Perception(FrameInserter):
         Unknown is not occupied (for a probabilistic map: an interval overlapping the band at or above
         the occupancy threshold; for the thesis map: a structure overlapping the band).
         """
+        from mapping.derived import occupancy_2d
+        from mapping.vhv import VHVMap
+
+        m = which if which is not None else self.map
+        if isinstance(m, VHVMap) and getattr(m, "occupancy_2d", None) is None:  # the thesis map: its
+            self.flush()  # codes are 100 exactly where a structure overlaps the band; that grid itself
+            return occupancy_2d(m, self.band[0], self.band[1])
         return np.asarray(self.occupancy_2d(which) == 100)
 
     def free_2d(self, which: PointMap | None = None, unknown_is_free: bool = False) -> np.ndarray:

@@ -75,6 +75,7 @@ class SimChair:
         self.captures_in_flight: list[Future[DepthFrame]] = []
         self.capture_pool: ThreadPoolExecutor | None = None
         self.world = World()
+        self._restarts = 0  # with the physics step, names an instant (sonar casts, mirror syncs)
         try:
             self.scene = load_scene(scene) if isinstance(scene, str | Path) else scene
             self.bodies = (
@@ -105,9 +106,7 @@ class SimChair:
                 self.mirror = MeshMirror(
                     self.world.client, exclude_bodies=(self.robot.body,), nthreads=raycast_threads
                 )
-                # scripted people move only in step(): one sync per physics step serves every sensor
-                world = self.world
-                self.mirror.step_counter = lambda: world.steps
+                self.mirror.step_counter = self._mirror_stamp
                 self.mirror.bodies_fixed = True  # scene bodies are created once, never replaced
             if sensor is not None:
                 from sim.kinect import KinectSim
@@ -127,7 +126,8 @@ class SimChair:
 
             self.sonar_group = SonarGroup(self.sonars)
             self._sonar_mounts = list(self.sonars)
-            self._restarts = 0  # with the physics step, names the instant the sonar group's casts hold
+            # the sonar mounts' world poses at the instant named (physics step, restarts)
+            self._sonar_now: tuple[Any, dict[str, np.ndarray]] | None = None
             if laser:
                 from sim.laser import LaserSim
 
@@ -196,8 +196,27 @@ class SimChair:
         The first array read at a physics step casts every array's beams in one batched call
         (:class:`sim.sonar.SonarGroup`); the others read theirs from it.
         """
-        now = self.robot.link_transforms(self._sonar_mounts)  # every array's mount in one query
-        return self.sonar_group.raw(mount, now[mount], (self.world.steps, self._restarts), lambda: now)
+        stamp = (self.world.steps, self._restarts)
+        kept = self._sonar_now
+        if kept is not None and kept[0] == stamp:  # nothing moved since the instant's first read
+            now = kept[1]
+        else:
+            now = self.robot.link_transforms(self._sonar_mounts)  # every array's mount in one query
+            self._sonar_now = (stamp, now)
+        return self.sonar_group.raw(mount, now[mount], stamp, lambda: now)
+
+    def _mirror_stamp(self) -> Any:
+        """What names the state of the ray-casting mirror's world (its ``step_counter``).
+
+        Scripted people move only in :meth:`step`, so the physics step names it (one sync per step
+        serves every sensor). Without them every scene body is static (mass 0, never teleported) and
+        the chair, the only body that moves, is left out of the mirror: the mirror's world changes
+        only when :meth:`restart` replaces the chair's body, so the restart count names it and the
+        mirror is synced once per episode instead of re-reading every body's pose each step.
+        """
+        if self.bodies.moving:
+            return self.world.steps
+        return -1 - self._restarts  # never equal to a step count
 
     def kinect_pose(self) -> np.ndarray:
         """World <- kinect_link (ground truth, from the physics)."""
@@ -247,6 +266,7 @@ class SimChair:
         for motor in (self.robot.left, self.robot.right):
             motor.reset()
         self.robot.set_motor_rpm(0.0, 0.0)
+        self._sonar_now = None  # moved without a physics step: the mounts' poses are read again
 
     def restart(self, pose: Pose2D | tuple[float, float, float]) -> None:
         """Restart the simulation at time 0 with the chair at rest at ``pose`` (x, y, yaw in ``map``).

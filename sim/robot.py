@@ -291,7 +291,7 @@ class SimRobot:
 
         pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=self.client)
         pos, orn = p.multiplyTransforms(pos, orn, *self._inertial_inv)
-        if not (np.isfinite(pos).all() and np.isfinite(orn).all()):
+        if not all(map(math.isfinite, (*pos, *orn))):  # plain floats: no arrays for 7 numbers
             raise SimulationDivergedError(
                 f"the chair's pose became non-finite at t = {self.world.time:.4f} s (position {pos})"
             )

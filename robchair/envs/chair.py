@@ -110,7 +110,9 @@ class EpisodeClock:
         w = self.chair.world
         target = -(-int(t_ns) * w.physics_hz // 1_000_000_000)
         if w.steps < target:
-            self.contacts |= self.chair.step_collecting_contacts(target - w.steps, self.motors.apply_due)
+            # a set point waits only from set_speeds_rpm to its due step: without one no step looks
+            before = self.motors.apply_due if self.motors.pending is not None else None
+            self.contacts |= self.chair.step_collecting_contacts(target - w.steps, before)
 
 
 class EpisodeSonarArray(SimSonarArray):

@@ -464,8 +464,9 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         cycle = self.runtime.step(command)
         rt = self.runtime
         self._map = p.map
-        self._occ = p.occupied_2d()
-        self._codes = p.occupancy_2d() if self.map_kind == "probabilistic" else None
+        three = self.map_kind == "probabilistic"  # one pass over the map: occupied where the code is 100
+        self._codes = p.occupancy_2d() if three else None
+        self._occ = self._codes == 100 if self._codes is not None else p.occupied_2d()
         self.obs_builder.take_readings(rt.last_sonars, rt.last_scan, rt.last_depth_frame)
         return cycle, set(clock.contacts)
 

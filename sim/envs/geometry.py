@@ -59,13 +59,25 @@ def egocentric_values(
     cell: float,
     behind: float,
     fill: float = 0.0,
+    *,
+    compiled: bool = True,
 ) -> npt.NDArray[Any]:
     """Like :func:`egocentric_patch` for any per-cell values (``fill`` outside the grid)."""
+    return _crop(values, grid, pose, shape, cell, behind, fill, values.dtype, compiled)
+
+
+def _crop(values: Any, grid: GridSpec, pose: Pose2D, shape: tuple[int, int], cell: float, behind: float,
+          fill: float, dtype: Any, compiled: bool) -> npt.NDArray[Any]:  # fmt: skip
+    """``compiled``: one pass (:mod:`sim.envs._patch_kernels`); False: numpy (the tests' reference)."""
     x, y = patch_cell_centres(shape, cell, behind)
+    if compiled and values.ndim == 2 and all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta)):
+        from sim.envs._patch_kernels import crop
+
+        return crop(values, x, y, (pose.x, pose.y, pose.theta), grid.inv_cell_size, grid.origin, fill, dtype)
     c, s = math.cos(pose.theta), math.sin(pose.theta)
     i, j = grid.world_to_index(pose.x + c * x - s * y, pose.y + s * x + c * y)
     inside = grid.contains_index(i, j)
-    out = np.full(shape, fill, dtype=values.dtype)
+    out = np.full(shape, fill, dtype=dtype)
     out[inside] = values[i[inside], j[inside]]
     return out
 
@@ -77,6 +89,8 @@ def egocentric_patch(
     shape: tuple[int, int] = PATCH_SHAPE,
     cell: float = PATCH_CELL,
     behind: float = PATCH_BEHIND,
+    *,
+    compiled: bool = True,
 ) -> npt.NDArray[np.uint8]:
     """Crop the world-frame occupancy grid into the robot's frame (nearest cell, outside the grid = 0).
 
@@ -92,13 +106,7 @@ def egocentric_patch(
         ``shape`` uint8 array, 1 = occupied; ``[i, j]`` is the cell at robot-frame
         ``x = -behind + (i + 0.5) cell``, ``y = (j + 0.5 - shape[1] / 2) cell``.
     """
-    x, y = patch_cell_centres(shape, cell, behind)
-    c, s = math.cos(pose.theta), math.sin(pose.theta)
-    i, j = grid.world_to_index(pose.x + c * x - s * y, pose.y + s * x + c * y)
-    inside = grid.contains_index(i, j)
-    out = np.zeros(shape, dtype=np.uint8)
-    out[inside] = occupancy[i[inside], j[inside]]
-    return out
+    return _crop(np.asarray(occupancy), grid, pose, shape, cell, behind, 0, np.uint8, compiled)
 
 
 def decimated_depth_noise(

@@ -64,3 +64,26 @@ def test_ros_message_round_trips_through_cdr_serialization(ros2):
     assert back.ranges.dtype == np.float32
     np.testing.assert_array_equal(back.ranges, s.ranges)  # inf and NaN survive
     assert back.intensities is None
+
+
+def test_points_of_a_scan_geometry_reuse_its_beam_trig_and_equal_the_angles_formula_bit_for_bit():
+    """scan_to_points computes the cosines and sines of a scan geometry once (hw.laser_scan.beam_trig)
+    and gives the points of the per-scan formula over LaserScan.angles(), bit for bit."""
+    from hw.laser_scan import beam_trig
+
+    rng = np.random.default_rng(2)
+    n, inc = 682, 2 * np.pi / 1024
+    beam_trig.cache_clear()
+    for _ in range(5):
+        r = rng.uniform(0.0, 4.5, n).astype(np.float32)
+        r[rng.random(n) < 0.1] = np.inf
+        s = LaserScan(stamp_ns=0, angle_min=-(n - 1) / 2 * inc, angle_max=(n - 1) / 2 * inc,
+                      angle_increment=inc, time_increment=0.0, scan_time=0.1, range_min=0.02,
+                      range_max=4.0, ranges=r)  # fmt: skip
+        a, rr = s.angles(), r.astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            ref = np.stack([rr * np.cos(a), rr * np.sin(a), np.zeros_like(a)], axis=-1)
+        ok = (r >= 0.02) & (r <= 4.0)
+        np.testing.assert_array_equal(scan_to_points(s, keep_invalid=True)[ok], ref[ok])
+        np.testing.assert_array_equal(scan_to_points(s), ref[ok])
+    assert beam_trig.cache_info().misses == 1

@@ -129,3 +129,95 @@ def test_all_sonar_mounts_in_one_query_equal_each_links_own_query(chair):
         np.testing.assert_array_equal(got[m], chair.robot.link_transform(m))
     with pytest.raises(SimError, match="no link 'nowhere'"):
         chair.robot.link_transforms(["nowhere"])
+
+
+def test_the_arrays_of_one_instant_read_the_mount_poses_once(chair, monkeypatch):
+    """SimChair.sonar_raw keeps the mounts' poses of the instant's first read for the other arrays (one
+    getLinkStates per physics step, not one per array); a step or a teleport reads them again, and
+    the echoes are the ones a fresh query gives."""
+    from sim.chair import SONAR_MOUNTS
+
+    calls: list[str] = []
+    real = chair.robot.link_transforms
+
+    def counted(names):  # type: ignore[no-untyped-def]
+        calls.append("query")
+        return real(names)
+
+    monkeypatch.setattr(chair.robot, "link_transforms", counted)
+    chair.teleport((0.3, 0.2, 0.4))
+    chair.step(3)
+    got = [chair.sonar_raw(m).copy() for m in SONAR_MOUNTS]
+    assert len(calls) == 1
+    for m, g in zip(SONAR_MOUNTS, got, strict=True):
+        np.testing.assert_array_equal(g, _separate(chair, m))
+    chair.step(1)
+    chair.sonar_raw(SONAR_MOUNTS[1])
+    assert len(calls) == 2
+    chair.teleport((-1.0, 0.5, 2.0))  # moved at the same physics step: read again, cast again
+    casts = chair.sonar_group.casts
+    got = chair.sonar_raw(SONAR_MOUNTS[0])
+    assert len(calls) == 3 and chair.sonar_group.casts == casts + 1
+    np.testing.assert_array_equal(got, _separate(chair, SONAR_MOUNTS[0]))
+
+
+def test_a_static_scene_is_mirrored_once_per_episode_and_a_full_sync_finds_nothing_changed(chair):
+    """Without walking people every scene body is static and the chair is left out of the mirror:
+    the mirror's stamp is the restart count, so stepping and reading the sonars re-reads no body's
+    pose (the per-step sync re-read every body), a full sync forced afterwards changes nothing (the
+    scene built once is the one a per-step sync would have built), and a restart syncs once."""
+    from sim.chair import SONAR_MOUNTS
+
+    m = chair.mirror
+    assert not chair.bodies.moving
+    chair.sonar_raw(SONAR_MOUNTS[0])
+    reads: list[int] = []
+    real = m._link_poses
+
+    def counted(body, links):  # type: ignore[no-untyped-def]
+        reads.append(body)
+        return real(body, links)
+
+    m._link_poses = counted
+    try:
+        rebuilds = m.rebuilds
+        for _ in range(4):
+            chair.step(3)
+            chair.sonar_raw(SONAR_MOUNTS[0])
+        assert reads == []
+        m._synced_stamp = None  # what the per-step sync did: re-read every body
+        assert m.sync() is False and reads and m.rebuilds == rebuilds
+        reads.clear()
+        chair.restart((0.5, 0.5, 0.0))
+        chair.step(2)
+        chair.sonar_raw(SONAR_MOUNTS[0])
+        chair.step(2)
+        chair.sonar_raw(SONAR_MOUNTS[0])
+        assert 0 < len(reads) <= len(chair.bodies.ids) + 1  # one sync after the restart, not two
+        assert chair.robot.body in m.exclude_bodies
+    finally:
+        del m._link_poses
+
+
+def test_with_walking_people_the_mirror_follows_every_physics_step():
+    """Scripted people move at every physics step: there the mirror's stamp is the step count."""
+    from sim.chair import SimChair
+    from sim.scene import load_scenario
+
+    sc = load_scenario("outdoor_people")
+    c = SimChair(scene=sc.scene, start=sc.start, sensor=None, sonars=True, raycast_threads=1)
+    try:
+        assert c.bodies.moving
+        s0 = c.mirror.step_counter()
+        c.step(2)
+        assert c.mirror.step_counter() == s0 + 2 == c.world.steps
+        rebuilds = c.mirror.rebuilds
+        c.sonar_raw(SONAR_MOUNTS_LEFT)
+        c.step(1)
+        c.sonar_raw(SONAR_MOUNTS_LEFT)
+        assert c.mirror.rebuilds == rebuilds + 2  # the people moved: rebuilt at each step
+    finally:
+        c.close()
+
+
+SONAR_MOUNTS_LEFT = "sonar_array_left"
