@@ -75,7 +75,7 @@ from robchair.perception_layers import (
     load_kernels,
     run_evidence_params,
 )
-from robchair.perception_queries import Corridor, _min_opt, _travelled
+from robchair.perception_queries import Corridor, _min_opt, _travelled, points_in_base
 from robchair.perception_sonar import _zone_tables, explained_arc, sonar_obstacle_points
 from robchair.platform.frames import se3_planar, transform_points
 from robchair.platform.kinematics import Pose2D
@@ -398,23 +398,10 @@ class Perception(FrameInserter):
         returns in the band, and each sonar array's last fused arc (placed at the pose of its reading).
         Empty (0, 2) when there is none.
         """
-        parts = []
-        c, s = math.cos(pose.theta), math.sin(pose.theta)
         arcs = list(self._sonar_arc.values())
         if self._zoom_xy is not None:
             arcs.append(self._zoom_xy)  # (N, 2) in base_link at the pose of the frame that placed them
-        if self._scan_world is not None and len(self._scan_world):
-            q = self._scan_world - (pose.x, pose.y)
-            parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
-        for arc, p0 in arcs:
-            # base_link at the reading (or frame) -> odom -> base_link now
-            c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
-            wx, wy = (
-                p0.x + c0 * arc[:, 0] - s0 * arc[:, 1] - pose.x,
-                p0.y + s0 * arc[:, 0] + c0 * arc[:, 1] - pose.y,
-            )
-            parts.append(np.stack([c * wx + s * wy, c * wy - s * wx], 1))
-        return np.concatenate(parts) if parts else np.zeros((0, 2))
+        return points_in_base(pose, self._scan_world, arcs)
 
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""

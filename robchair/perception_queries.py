@@ -2,7 +2,8 @@
 
 :class:`Corridor` is the strip the chair sweeps driving forward, and the distance from its front edge
 to the nearest point inside it; :func:`_travelled` carries a distance measured at an earlier pose to the
-current one, :func:`_min_opt` takes the nearer of two optional distances. Used by
+current one, :func:`_min_opt` takes the nearer of two optional distances, :func:`points_in_base` places
+obstacle points taken at earlier poses in ``base_link`` now. Used by
 :meth:`robchair.perception.Perception.depth_distance_m` and the zoom's corridor distance.
 """
 
@@ -65,3 +66,28 @@ def _min_opt(a: float | None, b: float | None) -> float | None:
     if a is None:
         return b
     return a if b is None else min(a, b)
+
+
+def points_in_base(
+    pose: Pose2D, odom_xy: np.ndarray | None, arcs: list[tuple[np.ndarray, Pose2D]]
+) -> np.ndarray:
+    """Points placed at the odometry ``pose`` in ``base_link``: (N, 2), m (empty (0, 2): none).
+
+    ``odom_xy`` (M, 2) are in ``odom`` (the last laser scan's returns); each of ``arcs`` is
+    ``(points (K, 2) in base_link at the pose p0 they were taken at, p0)``: placed through ``odom``
+    to the chair's pose now (a sonar arc at its reading, the zoom's cells at their frame).
+    """
+    parts = []
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    if odom_xy is not None and len(odom_xy):
+        q = odom_xy - (pose.x, pose.y)
+        parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
+    for arc, p0 in arcs:
+        # base_link at the reading (or frame) -> odom -> base_link now
+        c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
+        wx, wy = (
+            p0.x + c0 * arc[:, 0] - s0 * arc[:, 1] - pose.x,
+            p0.y + s0 * arc[:, 0] + c0 * arc[:, 1] - pose.y,
+        )
+        parts.append(np.stack([c * wx + s * wy, c * wy - s * wx], 1))
+    return np.concatenate(parts) if parts else np.zeros((0, 2))
