@@ -43,6 +43,14 @@ CONFIGS: tuple[dict[str, Any], ...] = (
     {"name": "Navigation-v0", "id": "RobChair/Navigation-v0", "kwargs": {}},
     {"name": "light, 2 Async workers", "id": "RobChair/Navigation-v1", "kwargs": {}, "workers": 2},
     {"name": "Kinect, 2 Async workers", "id": "RobChair/NavigationKinect-v1", "kwargs": {}, "workers": 2},
+    # the machine's ceiling for two workers: two processes each stepping its own env, nothing between them
+    {"name": "light, 2 independent processes", "id": "RobChair/Navigation-v1", "kwargs": {}, "processes": 2},
+    {
+        "name": "Kinect, 2 independent processes",
+        "id": "RobChair/NavigationKinect-v1",
+        "kwargs": {},
+        "processes": 2,
+    },
 )
 
 
@@ -123,6 +131,46 @@ def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
     return time.perf_counter() - t0, time.process_time() - c0, stops
 
 
+def _own_env(env_id: str, kwargs: dict[str, Any], steps: int, seed: int, start: Any, out: Any) -> None:
+    """One independent process of :func:`_independent_runs`: make the env, warm it up, wait at
+    ``start`` (a barrier shared with the other processes), run, put ``(wall s, CPU s)`` on ``out``."""
+    import gymnasium
+
+    import sim.envs  # noqa: F401  (registers the ids)
+
+    with _v1_ids():
+        env = gymnasium.make(env_id, **kwargs)
+    try:
+        _env_run(env, 5, seed)
+        start.wait()
+        wall, cpu, _ = _env_run(env, steps, seed)
+        out.put((wall, cpu))
+    finally:
+        env.close()
+
+
+def _independent_runs(config: dict[str, Any], steps: int, seed: int) -> list[tuple[float, float]]:
+    """``(wall s, CPU s)`` of each of ``config["processes"]`` processes that step their own env at the
+    same time (forked, as Gymnasium's Async workers are; started together at a barrier)."""
+    import multiprocessing as mp
+
+    n = int(config["processes"])
+    ctx = mp.get_context("fork")
+    start, out = ctx.Barrier(n), ctx.Queue()
+    procs = [ctx.Process(target=_own_env, args=(config["id"], config["kwargs"], steps, seed + k, start, out))
+             for k in range(n)]  # fmt: skip
+    for p in procs:
+        p.start()
+    try:
+        res = [out.get(timeout=600) for _ in procs]
+    finally:
+        for p in procs:
+            p.join(timeout=60)
+            if p.is_alive():
+                p.kill()
+    return res
+
+
 def _vec_run(envs: Any, steps: int, seed: int) -> tuple[float, float, list[float] | None, list[int] | None]:
     """``steps`` vector steps (every worker one agent step each; finished ones autoreset): wall seconds,
     the parent's CPU seconds, each worker's CPU seconds and its thread count at the end (None where
@@ -194,6 +242,17 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
     cpu: list[float] | None = None
     vec_cpu: dict[str, Any] | None = None
     safety_stops: int | None = None
+    if config.get("processes"):
+        ind = [_independent_runs(config, steps, seed + k) for k in range(repeats)]
+        # steps/s of all processes together: every process's steps over the slowest one's wall time
+        secs = [max(w for w, _ in run) / len(run) for run in ind]
+        per = [1e3 * c / steps for run in ind for _, c in run]
+        out0: dict[str, Any] = {
+            "process_cpu_ms_per_step": per,
+            "median_process_cpu_ms_per_step": statistics.median(per),
+        }
+        rates = [steps / s for s in secs]
+        return {"steps_per_s": rates, "median_steps_per_s": statistics.median(rates), **out0}
     if config.get("physics_only"):
         _physics_only(5, seed)  # warm-up
         runs = [_physics_only(steps, seed + k) for k in range(repeats)]
@@ -280,14 +339,14 @@ def _run(args: argparse.Namespace) -> int:
     single = {
         c["id"]: r["median_steps_per_s"]
         for c, r in zip(CONFIGS, rows, strict=True)
-        if "id" in c and "workers" not in c
+        if "id" in c and "workers" not in c and "processes" not in c
     }
     for c, r in zip(CONFIGS, rows, strict=True):
         m = r["median_steps_per_s"]
         r["real_time_factor"] = m / AGENT_HZ
         r["ratio_to_physics_only"] = m / base
         line = f"{r['config']:32s} {m:9.1f} {m / AGENT_HZ:6.2f} {m / base:16.3f}"
-        if "workers" in c and c["id"] in single:
+        if ("workers" in c or "processes" in c) and c["id"] in single:
             r["speedup_vs_one_env"] = m / single[c["id"]]
             line += f" {r['speedup_vs_one_env']:12.2f}"
         else:
@@ -300,9 +359,15 @@ def _run(args: argparse.Namespace) -> int:
     one_cpu = {
         c["id"]: r.get("median_cpu_ms_per_step")
         for c, r in zip(CONFIGS, rows, strict=True)
-        if "id" in c and "workers" not in c
+        if "id" in c and "workers" not in c and "processes" not in c
     }
     for c, r in zip(CONFIGS, rows, strict=True):
+        if "median_process_cpu_ms_per_step" in r and one_cpu.get(c["id"]):
+            f = r["median_process_cpu_ms_per_step"] / one_cpu[c["id"]]
+            r["process_cpu_vs_one_env"] = f
+            print(f"{r['config']}: each process {r['median_process_cpu_ms_per_step']:.2f} ms CPU per step, "
+                  f"{f:.2f}x one env's alone (the same work slowed by the other process: here 2 workers "
+                  f"can give at most {2 / f:.2f}x one env, however cheap the vector env)")  # fmt: skip
         if "median_parent_cpu_ms_per_vector_step" in r:
             wk = r.get("median_worker_cpu_ms_per_step")
             wall = statistics.median(r["wall_ms_per_vector_step"])
