@@ -12,6 +12,12 @@ Configurations, all measured in the same run with the same seed and the same ran
 * ``light, 2 Async workers`` and ``Kinect, 2 Async workers``: the same ids in a
   :class:`gymnasium.vector.AsyncVectorEnv` of two worker processes; steps/s counts the agent steps of
   both workers, and the last column gives the speed-up over one env of the same id.
+* ``light, 2 independent processes`` and ``Kinect, ...``: two forked processes, each stepping its own
+  env, started together: the machine's ceiling for two workers (no vector env between them);
+* ``light, 1 ms idle per step``: the light env with a 1 ms sleep before each step (the sleep is in the
+  wall time, not the CPU time). An Async worker sleeps in its pipe between steps; on a VM an env step
+  after a sleep can cost more CPU than one back to back (caches, a vCPU given away), and this row's
+  CPU over the light row's says how much of an Async worker's extra CPU that is.
 
 Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup, one
 warm-up episode and the drawing of the seeded random actions excluded; episodes that end are reset inside
@@ -51,6 +57,8 @@ CONFIGS: tuple[dict[str, Any], ...] = (
         "kwargs": {},
         "processes": 2,
     },
+    # an Async worker sleeps in its pipe between steps: the same env with a short sleep before each step
+    {"name": "light, 1 ms idle per step", "id": "RobChair/Navigation-v1", "kwargs": {}, "idle_s": 1e-3},
 )
 
 
@@ -115,14 +123,17 @@ def _office() -> Any:
     return load_scene(SCENES / "office.toml")
 
 
-def _env_run(env: Any, steps: int, seed: int) -> tuple[float, float, int]:
+def _env_run(env: Any, steps: int, seed: int, idle_s: float = 0.0) -> tuple[float, float, int]:
     """Wall and CPU seconds for ``steps`` agent steps of ``env`` with seeded random actions, and the
-    number of steps in which the safety layer stopped the chair (``info["safety"]``)."""
+    number of steps in which the safety layer stopped the chair (``info["safety"]``). ``idle_s`` > 0:
+    sleep that many seconds before each step (in the wall time, not in the CPU time)."""
     env.reset(seed=seed)
     actions = _actions(env.action_space, steps, seed)
     stops = 0
     t0, c0 = time.perf_counter(), time.process_time()
     for action in actions:
+        if idle_s > 0.0:
+            time.sleep(idle_s)
         _, _, terminated, truncated, info = env.step(action)
         reason = (info.get("safety") or {}).get("reason")
         stops += bool(reason) and not str(reason).startswith("limited")
@@ -290,7 +301,8 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
             env = gymnasium.make(config["id"], **config["kwargs"])
         try:
             _env_run(env, 5, seed)  # warm-up: numba kernels, Embree scene
-            env_runs = [_env_run(env, steps, seed + k) for k in range(repeats)]
+            idle = float(config.get("idle_s", 0.0))
+            env_runs = [_env_run(env, steps, seed + k, idle) for k in range(repeats)]
         finally:
             env.close()
         secs, cpu = [r[0] for r in env_runs], [r[1] for r in env_runs]
@@ -311,6 +323,12 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
         per_worker = [c for run in vec_cpu["worker_cpu_ms_per_step"] if run is not None for c in run]
         out["median_worker_cpu_ms_per_step"] = statistics.median(per_worker) if per_worker else None
     return out
+
+
+def _one_env(config: dict[str, Any]) -> bool:
+    """True for a configuration that steps one env back to back (the baseline of the "vs one env"
+    column and of the CPU ratios); not for workers, processes or idle-before-each-step rows."""
+    return "id" in config and not any(k in config for k in ("workers", "processes", "idle_s"))
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -336,11 +354,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(head)
     print("-" * len(head))
-    single = {
-        c["id"]: r["median_steps_per_s"]
-        for c, r in zip(CONFIGS, rows, strict=True)
-        if "id" in c and "workers" not in c and "processes" not in c
-    }
+    single = {c["id"]: r["median_steps_per_s"] for c, r in zip(CONFIGS, rows, strict=True) if _one_env(c)}
     for c, r in zip(CONFIGS, rows, strict=True):
         m = r["median_steps_per_s"]
         r["real_time_factor"] = m / AGENT_HZ
@@ -357,9 +371,7 @@ def _run(args: argparse.Namespace) -> int:
             line += f" {cms:12.2f} {1e3 / cms if cms > 0 else float('nan'):15.1f}"
         print(line)
     one_cpu = {
-        c["id"]: r.get("median_cpu_ms_per_step")
-        for c, r in zip(CONFIGS, rows, strict=True)
-        if "id" in c and "workers" not in c and "processes" not in c
+        c["id"]: r.get("median_cpu_ms_per_step") for c, r in zip(CONFIGS, rows, strict=True) if _one_env(c)
     }
     for c, r in zip(CONFIGS, rows, strict=True):
         if "median_process_cpu_ms_per_step" in r and one_cpu.get(c["id"]):
@@ -368,6 +380,11 @@ def _run(args: argparse.Namespace) -> int:
             print(f"{r['config']}: each process {r['median_process_cpu_ms_per_step']:.2f} ms CPU per step, "
                   f"{f:.2f}x one env's alone (the same work slowed by the other process: here 2 workers "
                   f"can give at most {2 / f:.2f}x one env, however cheap the vector env)")  # fmt: skip
+        if c.get("idle_s") and r.get("median_cpu_ms_per_step") and one_cpu.get(c["id"]):
+            f = r["median_cpu_ms_per_step"] / one_cpu[c["id"]]
+            r["idle_cpu_vs_one_env"] = f
+            print(f"{r['config']}: {r['median_cpu_ms_per_step']:.2f} ms CPU per step, {f:.2f}x back to back "
+                  "(an Async worker sleeps in its pipe between steps and pays this too)")  # fmt: skip
         if "median_parent_cpu_ms_per_vector_step" in r:
             wk = r.get("median_worker_cpu_ms_per_step")
             wall = statistics.median(r["wall_ms_per_vector_step"])

@@ -47,3 +47,35 @@ def test_the_independent_processes_row_runs_its_envs_at_the_same_time_and_report
         assert 0 < wall < time.perf_counter() - t0 and cpu > 0
     row = bench_env.measure(cfg, 4, 1, 0)
     assert row["median_steps_per_s"] > 0 and len(row["process_cpu_ms_per_step"]) == 2
+
+
+def test_the_idle_row_sleeps_before_every_step_and_is_no_one_env_baseline(monkeypatch) -> None:
+    """An Async worker sleeps in its pipe between steps; the "idle per step" row steps the same env
+    with a sleep before each step (CPU time without the sleep), and is not the one-env baseline of
+    the "vs one env" column or of the CPU ratios."""
+    from robchair.commands import bench_env
+
+    (cfg,) = [c for c in bench_env.CONFIGS if c.get("idle_s")]
+    assert cfg["idle_s"] == 1e-3 and cfg["id"] == "RobChair/Navigation-v1"
+    assert not bench_env._one_env(cfg)
+    assert [c["name"] for c in bench_env.CONFIGS if bench_env._one_env(c) and c["id"] == cfg["id"]] == [
+        "light (Navigation-v1)"
+    ]
+    events: list[object] = []
+
+    class Env:
+        action_space = __import__("gymnasium").spaces.Box(-1.0, 1.0, (2,))
+
+        def reset(self, seed=None):
+            events.append("reset")
+
+        def step(self, action):
+            events.append("step")
+            return None, 0.0, False, False, {}
+
+    monkeypatch.setattr(bench_env.time, "sleep", lambda s: events.append(s))
+    bench_env._env_run(Env(), 3, 0, 1e-3)
+    assert events == ["reset", 1e-3, "step", 1e-3, "step", 1e-3, "step"]
+    events.clear()
+    bench_env._env_run(Env(), 2, 0)
+    assert events == ["reset", "step", "step"]

@@ -461,7 +461,10 @@ def test_bench_env_writes_one_row_per_configuration_against_the_physics_only_bas
         assert r["real_time_factor"] == pytest.approx(r["median_steps_per_s"] / 10)
     out = capsys.readouterr().out
     assert "light, 2 Async workers" in out
-    assert result["rows"][-1]["speedup_vs_one_env"] > 0
+    by_name = {r["config"]: r for r in result["rows"]}
+    assert by_name["Kinect, 2 independent processes"]["speedup_vs_one_env"] > 0
+    assert by_name["light, 1 ms idle per step"]["idle_cpu_vs_one_env"] > 0  # its CPU over back to back
+    assert "light, 1 ms idle per step: " in out
     for r in result["rows"]:
         if r["config"].endswith("2 Async workers") and os.path.isdir("/proc/self/task"):
             # each worker's threads and its CPU per step over one env's: oversubscription shows here
