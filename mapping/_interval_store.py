@@ -76,37 +76,33 @@ class IntervalStore:
         flo: NDArray[np.int32],
         fhi: NDArray[np.int32],
     ) -> int:
-        from mapping import _store_kernels as E
+        from mapping._store_update import update_store
 
-        tkey, toff, tlo, thi, tl, tt = E.update_cells(
-            self._cstart, self._ccount, self._plo, self._phi, self._pl, self._pt,
-            okey, olo, ohi, fkey, flo, fhi,
-            self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
-            self._track, self._now, self._l_void, self._l_occ,
-        )  # fmt: skip
-        extra = int(E.relocation_slots(tkey, toff, self._ccap))
-        if self._used + extra > self._plo.shape[0]:
-            self._grow(self._used + extra)
-        if self._track:
-            if self._n_dyn + tkey.shape[0] > self._dyn_cells.shape[0]:
-                grown = np.empty(2 * (self._n_dyn + tkey.shape[0]), np.int64)
-                grown[: self._n_dyn] = self._dyn_cells[: self._n_dyn]
-                self._dyn_cells = grown
-            n_dyn = E.track_dynamic(
-                tkey, toff, tl, tt, self._max_dwell(), self._l_occ,
+        if self._track and self._n_dyn + okey.shape[0] + fkey.shape[0] > self._dyn_cells.shape[0]:
+            grown = np.empty(2 * (self._n_dyn + okey.shape[0] + fkey.shape[0]), np.int64)
+            grown[: self._n_dyn] = self._dyn_cells[: self._n_dyn]
+            self._dyn_cells = grown
+        a = b = cells = 0
+        while True:
+            a, b, n, used, freed, delta, n_dyn, need = update_store(
+                self._cstart, self._ccount, self._ccap, self._plo, self._phi, self._pl, self._pt,
+                self._used, okey, olo, ohi, fkey, flo, fhi, a, b,
+                self._l_hit, self._l_miss, self._l_min, self._l_max, np.float32(1e-4),
+                self._track, self._now, self._l_void, self._l_occ, self._max_dwell(),
                 self._dyn_flag, self._dyn_due, self._dyn_cells, self._n_dyn,
             )  # fmt: skip
+            cells += int(n)
+            self._used = int(used)
+            self._garbage += int(freed)
+            self._n_intervals += int(delta)
             self._n_dyn = int(n_dyn)
-        used, freed, delta = E.write_back(
-            tkey, toff, tlo, thi, tl, tt, self._cstart, self._ccount, self._ccap,
-            self._plo, self._phi, self._pl, self._pt, self._used,
-        )  # fmt: skip
-        self._used = int(used)
-        self._garbage += int(freed)
-        self._n_intervals += int(delta)
+            if not need:
+                break
+            # a cell moves to the pool's end and the pool is full: grow it, go on from that cell
+            self._grow(self._plo.shape[0] + int(need))
         if self._garbage > 2 * self._n_intervals + (1 << 16):
             self._compact()
-        return int(tkey.shape[0])
+        return cells
 
     def _max_dwell(self) -> float:
         """``dynamic_max_dwell_s`` as a number of seconds (inf: any)."""

@@ -3,6 +3,10 @@
 The update of the stored intervals with one frame's evidence, the pool's bookkeeping (write-back,
 compaction, gather) and the dynamic decay (:mod:`mapping._interval_store`); the frame's evidence
 itself comes from :mod:`mapping._evidence_kernels`, whose module docstring gives the layout and units.
+
+``update_cells``, ``relocation_slots``, ``track_dynamic`` and ``write_back`` are the reference form of the
+update (every touched cell swept into temporaries, then copied back): the store runs the one-pass,
+in-place :func:`mapping._store_update.update_store`, which tests check against them bit for bit.
 """
 
 from __future__ import annotations
