@@ -2,14 +2,16 @@
 pipeline of threads.
 
 The pipeline (the default for a map with ``prepare_frame``, :class:`mapping.probabilistic.ProbabilisticVHV`)
-runs four stages in order, each on its own thread, joined by bounded queues:
+runs five stages in order, each on its own thread, joined by bounded queues:
 
-1. read and decode the next message, place it through TF and measure it (``--min-range``, band);
+1. read and decode the next message, place it through TF and measure it (``--min-range``, band); not
+   a stage of its own when the frames are held in memory from the extent pass;
 2. the frame's evidence: its VHV structures and occupied slabs (``prepare_frame``, which reads nothing
    of the stored map, so it runs ahead of the inserts);
 3. the fans of free space marked in the frame's bit table (``PreparedFrame.mark_fans``);
-4. in the caller's thread, frame after frame: the merged free intervals (``extract_free``), then the
-   store update, the dynamic decay and the counters (``insert_prepared``).
+4. the merged free intervals (``PreparedFrame.extract_free``, of the frame alone too);
+5. in the caller's thread, frame after frame: the store update, the dynamic decay and the counters
+   (``insert_prepared``), the one stage that must run in order.
 
 The compiled kernels release the GIL, so the stages overlap on several cores. Every frame meets the same
 calls in the same order as in the serial loop (``--serial-build``): the maps are identical. An error in
@@ -140,10 +142,15 @@ def build(
         item[1].mark_fans()
         return item
 
+    def extract(item: Any) -> Any:
+        item[1].extract_free()
+        return item
+
+    # frames held in memory need no reading stage; the caller's thread only updates the store
+    stages = [prepare, mark, extract] if isinstance(pairs, list) else [read, prepare, mark, extract]
     t0 = time.perf_counter()
     warm0 = totals.warm_up_s
-    for (frame, origin, _, n_close, measures), prepared in run_stages(pairs, [read, prepare, mark]):
-        prepared.extract_free()
+    for (frame, origin, _, n_close, measures), prepared in run_stages(pairs, stages):
         stats = m.insert_prepared(prepared, **stamp_kw(frame))
         record(frame, origin, n_close, measures, stats, summed=False)
     totals.build_ms += (time.perf_counter() - t0 - (totals.warm_up_s - warm0)) * 1e3

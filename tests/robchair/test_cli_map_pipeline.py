@@ -55,7 +55,7 @@ def test_a_sim_bag_maps_to_the_same_outputs_on_the_pipeline_as_serially(sim_run,
     assert stages == []
     assert main([*common, "--out", str(tmp_path / "pipeline")]) == 0
     # the extent pass, and the build (its first stage reading the bag again when the frames were not kept)
-    assert stages == ["2 stages", "3 stages"] if kept else ["2 stages", "3 stages", "2 stages"]
+    assert stages == ["2 stages", "3 stages"] if kept else ["2 stages", "4 stages", "2 stages"]
     _same_outputs(tmp_path / "serial", tmp_path / "pipeline")
     s = json.loads((tmp_path / "pipeline" / "summary.json").read_text())
     assert (
@@ -113,3 +113,30 @@ def test_a_stage_that_fails_stops_the_pipeline_after_yielding_the_items_before_i
     assert next(gen) == 0
     gen.close()
     assert not [t for t in threading.enumerate() if t.name.startswith("map-stage")]
+
+
+def test_the_callers_thread_only_updates_the_store_the_free_intervals_come_from_a_stage(
+    sim_run, tmp_path, monkeypatch
+):
+    """The in-order stage (the caller's thread) is the store update alone: every frame's fans are
+    marked and its free intervals extracted on stage threads, ahead of it."""
+    from mapping._frame_evidence import PreparedFrame
+
+    threads: dict[str, list[str]] = {"mark_fans": [], "extract_free": []}
+    for name in threads:
+        method = getattr(PreparedFrame, name)
+
+        def recorded(self, _method=method, _name=name):  # type: ignore[no-untyped-def]
+            if self.evidence["fans"] is not None:  # the call that does the work (later ones return)
+                threads[_name].append(threading.current_thread().name)
+            return _method(self)
+
+        monkeypatch.setattr(PreparedFrame, name, recorded)
+    out = tmp_path / "pipeline"
+    argv = ["map", str(sim_run / "bag"), "--map-kind", "probabilistic", "--no-pictures", "--out", str(out)]
+    assert main(argv) == 0
+    frames = json.loads((out / "summary.json").read_text())["frames"]
+    assert len(threads["extract_free"]) >= frames >= 5
+    main_thread = threading.main_thread().name
+    assert all(t.startswith("map-stage") for t in threads["mark_fans"] + threads["extract_free"]), threads
+    assert main_thread not in threads["extract_free"]
