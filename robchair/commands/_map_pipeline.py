@@ -168,13 +168,19 @@ def read_frames(
         frames: the input's frames (iterating reads and decodes them).
         place: ``frame -> (frame, origin)`` in the map's frame, or None to leave the frame out.
         measure: ``(frame, origin) -> (points (N, 3), n_close, measures)``.
-        serial: one thread; else reading, placing and measuring are three stages of :func:`run_stages`.
+        serial: one thread; else reading, placing and measuring are three stages of :func:`run_stages`
+            (the first thread iterates ``frames``: it reads).
     """
 
     def measured(p: Any) -> Any:
         return None if p is None else (p[0], p[1], *measure(p[0], p[1]))
 
-    out = (measured(place(f)) for f in frames) if serial else run_stages(frames, [place, measured])
+    def read(f: Any) -> Any:
+        return f
+
+    # reading (decoding, in Python: the GIL) on a thread of its own, so that placing (numpy's matrix
+    # product, without the GIL) and measuring (a compiled kernel) overlap with it
+    out = (measured(place(f)) for f in frames) if serial else run_stages(frames, [read, place, measured])
     for y in out:
         if y is not None:
             yield y
