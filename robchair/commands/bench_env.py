@@ -331,6 +331,24 @@ def _one_env(config: dict[str, Any]) -> bool:
     return "id" in config and not any(k in config for k in ("workers", "processes", "idle_s"))
 
 
+def _standin_row(rows: list[dict[str, Any]], args: argparse.Namespace) -> dict[str, Any] | None:
+    """Gymnasium's Async ceiling here (:mod:`robchair.commands.bench_env_standin`): a stand-in doing the
+    light env's CPU per step of work, one in-process against two Async workers; printed, and returned
+    for the JSON (None when the light row has no CPU figure)."""
+    from robchair.commands.bench_env_standin import measure_standin
+
+    (light,) = [r for r in rows if r["config"] == "light (Navigation-v1)"]
+    cpu_ms = light.get("median_cpu_ms_per_step")
+    if not cpu_ms:
+        return None
+    with _v1_ids():
+        res = measure_standin("RobChair/Navigation-v1", float(cpu_ms), args.steps, args.repeats, args.seed)
+    print(f"stand-in env (no RobChair: {cpu_ms:.2f} ms of work per step, the light env's spaces): "
+          f"2 Async workers {res['speedup']:.2f}x one in-process, {res['speedup_with_info']:.2f}x with the "
+          "light env's info; Gymnasium's Async vector env allows that much here")  # fmt: skip
+    return res
+
+
 def _run(args: argparse.Namespace) -> int:
     import statistics
 
@@ -398,6 +416,7 @@ def _run(args: argparse.Namespace) -> int:
                 each += f", threads per worker {r['worker_threads']}"
             print(f"{r['config']}: per vector step {wall:.2f} ms wall, parent "
                   f"{r['median_parent_cpu_ms_per_vector_step']:.2f} ms CPU, each worker {each}")  # fmt: skip
+    standin = _standin_row(rows, args)
     print_targets(rows)
     stops = {r["config"]: r["safety_stop_steps"] for r in rows if r.get("safety_stop_steps")}
     if stops:
@@ -410,6 +429,7 @@ def _run(args: argparse.Namespace) -> int:
         "repeats": args.repeats,
         "seed": args.seed,
         "rows": rows,
+        "standin": standin,
     }
     write_results(out, "env", result, load0, load1)
     return 0

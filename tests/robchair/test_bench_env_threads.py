@@ -79,3 +79,33 @@ def test_the_idle_row_sleeps_before_every_step_and_is_no_one_env_baseline(monkey
     events.clear()
     bench_env._env_run(Env(), 2, 0)
     assert events == ["reset", "step", "step"]
+
+
+def test_the_stand_in_env_does_the_asked_work_and_returns_the_light_envs_info() -> None:
+    """The Async ceiling row's stand-in: its work per step scales with the CPU asked (calibrated
+    here), it has the light env's spaces, and it returns the info it was given at every step; two
+    Async workers of it step and the speedups are steps/s over one in-process."""
+    import time
+
+    import gymnasium
+
+    import sim.envs  # noqa: F401
+    from robchair.commands import bench_env_standin as S
+
+    n1, n4 = S.iterations_for(1.0), S.iterations_for(4.0)
+    assert 2.5 < n4 / n1 < 5.5
+    obs, act, info = S.light_template("RobChair/Navigation-v1", 0)
+    assert "safety" in info
+    env = S.StandInEnv(obs, act, n4, info)
+    o, _ = env.reset(seed=0)
+    assert obs.contains(o)
+    c = time.thread_time()
+    for _ in range(5):
+        _, _, term, trunc, got = env.step(act.sample())
+    per = (time.thread_time() - c) / 5
+    assert got is info and not term and not trunc and 1e-3 < per < 0.05
+    res = S.measure_standin("RobChair/Navigation-v1", 1.0, 10, 1, 0)
+    assert res["iterations"] > 0 and res["one_steps_per_s"] > 0
+    assert res["speedup"] == res["async2_steps_per_s"] / res["one_steps_per_s"]
+    assert res["speedup_with_info"] == res["async2_with_info_steps_per_s"] / res["one_steps_per_s"]
+    assert isinstance(gymnasium.vector.AsyncVectorEnv, type)
