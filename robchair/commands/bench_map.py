@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -132,5 +133,17 @@ def _run(args: argparse.Namespace) -> int:
     result["inserts_share"] = share
     print(f"inserts' share: {100 * share['of_build']:.0f} % of the build, "
           f"{100 * share['of_whole_command']:.0f} % of the whole command with pictures")  # fmt: skip
+    cores = cores_needed(m["read_and_build_cpu"], sim_s)
+    result["cores_needed_at_target"] = cores
+    print(f"the build's CPU: {m['read_and_build_cpu']:.2f} s; {TARGET_X:g}x real time is at most "
+          f"{sim_s / TARGET_X:.2f} s of wall time, so this build needs >= {cores} cores even when every "
+          f"stage overlaps perfectly (this machine: {os.cpu_count()})")  # fmt: skip
     write_results(out, "map", result, load0, load1)
     return 0
+
+
+def cores_needed(build_cpu_s: float, sim_s: float) -> int:
+    """Cores a build of ``build_cpu_s`` CPU seconds needs to finish in ``sim_s / TARGET_X`` seconds of
+    wall time with its work spread perfectly over them (a lower bound: the store's updates are serial)."""
+    budget = sim_s / TARGET_X
+    return max(1, math.ceil(build_cpu_s / budget - 1e-9)) if budget > 0 else 0

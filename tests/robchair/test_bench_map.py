@@ -29,3 +29,14 @@ def test_bench_map_prints_each_figure_against_10x_and_the_inserts_share(sim_run,
     share = result["inserts_share"]
     assert 0 < share["of_build"] <= 1 and share["of_whole_command"] < share["of_build"]
     assert f"{100 * share['of_build']:.0f} % of the build" in text
+    cpu = wall["read_and_build_cpu"]
+    cores = result["cores_needed_at_target"]
+    assert cores * sim_s / 10 >= cpu > (cores - 1) * sim_s / 10
+    assert f"needs >= {cores} cores" in text
+
+
+def test_the_cores_a_build_needs_at_10x_are_its_cpu_over_a_tenth_of_real_time() -> None:
+    from robchair.commands.bench_map import cores_needed
+
+    assert cores_needed(4.0, 20.0) == 2 and cores_needed(4.01, 20.0) == 3 and cores_needed(0.5, 20.0) == 1
+    assert cores_needed(7.0, 20.0) == 4 and cores_needed(1.0, 0.0) == 0
