@@ -108,6 +108,7 @@ class RunResult:
     cycles: int = 0
     sim_time_s: float = 0.0
     loop_wall_s: float = 0.0
+    loop_cpu_s: float = 0.0  # the process's CPU seconds (every thread) over the loop
     deadline_misses: int = 0
     max_overrun_s: float = 0.0
     final_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -143,6 +144,7 @@ class RunResult:
             "sim_time_s": self.sim_time_s,
             "real_time_factor": self.sim_time_s / self.loop_wall_s if self.loop_wall_s > 0 else None,
             "wall_time_s": {"loop": self.loop_wall_s},
+            "cpu_time_s": {"loop": self.loop_cpu_s},
             "deadline_misses": self.deadline_misses,
             "max_overrun_s": self.max_overrun_s,
             "final_pose": list(self.final_pose),

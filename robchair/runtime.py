@@ -173,6 +173,7 @@ class Runtime:
         self._halted = False  # zero speeds and the emergency stop were sent after an exception
         self._halt_ok = False  # ... and both were acknowledged
         self._wall0 = 0.0
+        self._cpu0 = 0.0
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -202,6 +203,7 @@ class Runtime:
             self._stage = "command source"
             bind(self)
         self._wall0 = time.perf_counter()
+        self._cpu0 = time.process_time()
         self._stage = "observer"
         for ob in self.observers:
             ob.episode_start(self)
@@ -238,6 +240,7 @@ class Runtime:
                     res.driver_fault = f"{type(exc).__name__}: {exc}"
         finally:
             res.loop_wall_s = time.perf_counter() - self._wall0 if self._started else 0.0
+            res.loop_cpu_s = time.process_time() - self._cpu0 if self._started else 0.0
             try:
                 self.perception.close()
             finally:

@@ -34,6 +34,7 @@ physics stages: the bench prints the ratio over the baseline that this bound all
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from typing import Any
 
@@ -150,6 +151,10 @@ def measure(
         "rtf": m["real_time_factor"],
         "sim_time_s": m["sim_time_s"],
         "loop_wall_s": m["wall_time_s"]["loop"],
+        # the process's CPU over the loop, every thread (None for the replaced runner: it does not say)
+        "loop_cpu_ms_per_sim_s": (
+            1e3 * m["cpu_time_s"]["loop"] / sim_s if (m.get("cpu_time_s") or {}).get("loop") else None
+        ),
         "kinect_frames": frames,
         "kinect_ms_per_frame": 1e3 * main["kinect_capture"] / max(frames, 1),
         "mapping_ms_per_frame": m["mapping_ms_per_frame_median"],
@@ -194,6 +199,23 @@ def ratio_bound(row: dict[str, Any]) -> dict[str, float] | None:
     loop_old = 1e3 * old["loop_wall_s"] / max(old["sim_time_s"], 1e-9)
     return {"simulator_ms_per_sim_s": sim, "replaced_loop_ms_per_sim_s": loop_old,
             "max_ratio": loop_old / max(sim, 1e-9)}  # fmt: skip
+
+
+def cores_needed(row: dict[str, Any]) -> dict[str, Any] | None:
+    """Cores the new loop needs for its target over the replaced runner, given its CPU per simulated
+    second (a lower bound: perfect overlap of every thread). None without a baseline, a target or the
+    loop's CPU."""
+    m, old = row["median"], row.get("baseline_median")
+    goal = TARGET_RATIO_OLD.get(row["config"]["name"])
+    cpu = m.get("loop_cpu_ms_per_sim_s")
+    if not old or goal is None or not cpu:
+        return None
+    target_rtf = goal * old["rtf"]
+    return {
+        "cpu_ms_per_sim_s": cpu,
+        "target_rtf": target_rtf,
+        "cores": math.ceil(target_rtf * cpu / 1e3 - 1e-9),
+    }
 
 
 def print_stage_table(rows: list[dict[str, Any]]) -> None:
@@ -327,6 +349,14 @@ def _measure_all(
                 goal = TARGET_RATIO_OLD.get(name, 0.9)
                 line += f"; {ratio:.2f}x the replaced runner (target >= {goal}x: {verdict(ratio >= goal)})"
             print(line)
+    for r in rows:
+        c = r["cores_needed"] = cores_needed(r)
+        if c is not None:
+            name = r["config"]["name"]
+            print(f"{name}: the loop used {c['cpu_ms_per_sim_s']:.0f} ms of CPU per simulated second (every "
+                  f"thread); RTF {c['target_rtf']:.2f} ({TARGET_RATIO_OLD.get(name)}x the replaced runner) "
+                  f"needs >= {c['cores']} cores with that CPU, however well it overlaps (this row: "
+                  f"{r['config']['cpus']})")  # fmt: skip
     for r in rows:
         b = r["ratio_bound"] = ratio_bound(r)
         if b is not None:

@@ -68,3 +68,33 @@ def test_the_sim_baseline_is_the_main_line_revision_just_before_the_merge_that_r
     rev = baseline_revision()
     assert rev is not None and rev.sha.startswith("6fea3e8770")
     assert rev.describe().startswith("6fea3e8770 (")
+
+
+def test_the_cores_the_loop_needs_are_its_target_rtf_times_its_cpu_per_simulated_second() -> None:
+    """Two cores, replaced runner at RTF 1.6, target 1.5x = RTF 2.4; the loop used 1300 ms of CPU per
+    sim s, so 2.4 sim s per wall s need 2.4 * 1.3 = 3.12 -> 4 cores (hand computation). 1000 ms at RTF
+    2.0 is exactly 2 cores. Without the loop's CPU or a baseline: None."""
+    from robchair.commands.bench_sim import cores_needed
+
+    row = {"config": {"name": "2 cores", "cpus": 2}, "median": {"loop_cpu_ms_per_sim_s": 1300.0},
+           "baseline_median": {"rtf": 1.6}}  # fmt: skip
+    c = cores_needed(row)
+    assert c is not None and c["cores"] == 4 and abs(c["target_rtf"] - 2.4) < 1e-12
+    exact = {**row, "median": {"loop_cpu_ms_per_sim_s": 1000.0}, "baseline_median": {"rtf": 2.0 / 1.5}}
+    assert cores_needed(exact)["cores"] == 2  # type: ignore[index]
+    assert cores_needed({**row, "median": {}}) is None
+    assert cores_needed({**row, "baseline_median": None}) is None
+
+
+def test_the_loop_reports_the_process_cpu_over_the_loop_in_its_metrics() -> None:
+    """metrics.json cpu_time_s.loop: the process's CPU seconds between the loop's start and stop, every
+    thread (a short run: positive, and within the process's CPU over the whole call)."""
+    import time
+
+    from robchair.scenario import run_scenario
+
+    c0 = time.process_time()
+    m = run_scenario("office_corridor", duration=0.3, progress=False, write=False).metrics()
+    total = time.process_time() - c0
+    cpu = m["cpu_time_s"]["loop"]
+    assert 0 < cpu < total and m["wall_time_s"]["loop"] > 0

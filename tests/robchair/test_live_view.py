@@ -147,6 +147,7 @@ def _comparable(metrics: dict) -> dict:
     drop = {
         "live",
         "wall_time_s",
+        "cpu_time_s",
         "real_time_factor",
         "mapping_ms_per_frame_median",
         "mapping_ms_total",
