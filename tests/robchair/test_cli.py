@@ -54,7 +54,7 @@ def test_unexpected_errors_are_not_swallowed(monkeypatch: pytest.MonkeyPatch) ->
 
 def test_every_command_module_registers_and_shows_help() -> None:
     parser = cli.build_parser()
-    names = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    names = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr,arg-type]
     assert {"map", "pid", "sim", "run", "hw", "bench"} <= names
     out = subprocess.run(
         [sys.executable, "-m", "robchair.cli", "--help"], capture_output=True, text=True, check=True
