@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib
+import sys
 from types import ModuleType
 from typing import Any
 
@@ -33,15 +34,51 @@ def _preload_libusb() -> None:
     ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
 
 
+class _DashName:
+    """One name of ``dash`` (``html``, ``dcc``, ``Dash`` ...) as open3d took it, looked up in the real
+    ``dash`` (imported then, once) when it is first used: an attribute read or a call."""
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+
+    def _target(self) -> Any:
+        return getattr(importlib.import_module("dash"), self._name)
+
+    def __getattr__(self, attr: str) -> Any:
+        return getattr(self._target(), attr)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self._target()(*args, **kwargs)
+
+
+def _deferred_dash() -> ModuleType:
+    """A stand-in ``dash`` module whose every name is a :class:`_DashName`."""
+    stand_in = ModuleType("dash", "dash, imported at the first use of one of its names")
+    stand_in.__getattr__ = _DashName  # type: ignore[method-assign]  # module __getattr__ (PEP 562)
+    return stand_in
+
+
 def import_open3d() -> Any:
-    """Import open3d (once), preloading libusb; raise a clear MappingError if unavailable."""
+    """Import open3d (once), preloading libusb; raise a clear MappingError if unavailable.
+
+    open3d's ``visualization`` imports ``dash`` (a web framework, about 0.4 s of CPU at start-up with
+    what it imports: plotly's app server, requests, IPython ...) only for ``draw_plotly_server``, which
+    nothing here calls. While open3d is imported, ``dash`` (if not imported yet) is a stand-in whose names
+    import the real ``dash`` when first used, so ``draw_plotly_server`` works as before; afterwards
+    ``import dash`` imports the real one."""
     global _open3d
     if _open3d is None:
         _preload_libusb()
+        stand_in = None if "dash" in sys.modules else _deferred_dash()
+        if stand_in is not None:
+            sys.modules["dash"] = stand_in
         try:
             _open3d = importlib.import_module("open3d")
         except ImportError as exc:
             raise MappingError(f"open3d is required here but could not be imported: {exc}") from exc
+        finally:
+            if stand_in is not None and sys.modules.get("dash") is stand_in:
+                del sys.modules["dash"]
     return _open3d
 
 
@@ -79,7 +116,6 @@ def announce_compilation(module: ModuleType, what: str) -> None:
         return
     _announced.add(name)
     import os
-    import sys
 
     indexes = []
     for obj in vars(module).values():
@@ -137,8 +173,6 @@ _compiling: list[str | None] = [None]
 def _compile_started(name: str) -> None:
     """A kernel of module ``name`` starts compiling: say its module's message if the last one was another
     module's (and the module was announced as compiled for the first time)."""
-    import sys
-
     _compiling[0] = name
     if name in _first_compiles and name != _last_said[0]:
         _last_said[0] = name

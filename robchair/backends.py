@@ -163,11 +163,10 @@ def design_pid_configs(spec: RobChairSpec) -> tuple[PIDConfig, PIDConfig]:
 
 @functools.lru_cache(maxsize=16)
 def _design(t_r: float, t_p: float, M_p: float) -> PIDConfig:
-    # cached: the design (with its closed-loop checks) takes a noticeable fraction of a second
-    from robchair.platform.control import design_pid, identify_from_step_metrics
+    # design_pid's gains without its python-control checks (importing python-control costs ~1.5 s)
+    from robchair.platform.control import identify_from_step_metrics, pid_gains
 
-    d = design_pid(identify_from_step_metrics(t_r, t_p, M_p).plant)
-    return PIDConfig(d.kp, d.ki, d.kd)
+    return PIDConfig(*pid_gains(identify_from_step_metrics(t_r, t_p, M_p).plant))
 
 
 def _addresses(cfg: ConfigTable) -> tuple[int, ...]:

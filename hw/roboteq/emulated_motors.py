@@ -59,13 +59,18 @@ LOOP_ERROR_DETECTION = {1: (0.25, 100.0), 2: (0.5, 250.0), 3: (1.0, 500.0)}
 def _plant_and_default_gains(
     t_r: float, t_p: float, M_p: float, firmware_major: int
 ) -> tuple[Any, tuple[int, int, int]]:
-    """Identified plant and the firmware gains of the SPEC 5 design (cached: the design is slow)."""
-    from hw.roboteq.gains import roboteq_gains
+    """Identified plant and the firmware gains of the SPEC 5 design (cached).
+
+    The gains are :func:`robchair.platform.control.pid_gains` (``design_pid``'s gains without its
+    python-control checks; python-control and what it imports cost about 1.5 s of CPU per process), in
+    the firmware's integers as :func:`hw.roboteq.gains.roboteq_gains` encodes them."""
+    from hw.roboteq.gains import encode_gain
     from robchair.platform import control as c
 
     plant = c.identify_from_step_metrics(t_r, t_p, M_p).plant
-    fw = roboteq_gains(c.design_pid(plant), firmware_major)
-    return plant, (fw.kp, fw.ki, fw.kd)
+    kp, ki, kd = c.pid_gains(plant)
+    ints = [encode_gain(g, firmware_major, name) for name, g in (("kp", kp), ("ki", ki), ("kd", kd))]
+    return plant, (ints[0], ints[1], ints[2])
 
 
 class EmulatedMotors:

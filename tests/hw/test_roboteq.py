@@ -43,9 +43,15 @@ def emu(clock: SyncedClock):
         yield e
 
 
+def _path(emu: RoboteqEmulator) -> str:
+    """The started emulator's device path."""
+    assert emu.device_path is not None
+    return emu.device_path
+
+
 @pytest.fixture
 def drv(emu: RoboteqEmulator, clock: SyncedClock):
-    d = RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, retries=2, clock=clock)
+    d = RoboteqMDC2230(_path(emu), timeout_s=TIMEOUT_S, retries=2, clock=clock)
     d.open()
     yield d
     d.close()
@@ -94,7 +100,7 @@ def test_pid_gains_round_trip_in_the_firmware_units_of_each_major_version(
 ) -> None:
     left, right = PIDConfig(1.4, 3.7, 0.3), PIDConfig(1.1, 3.2, 0.2)
     with RoboteqEmulator(clock=clock, firmware=firmware) as emu:
-        with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, pid=(left, right)) as drv:
+        with RoboteqMDC2230(_path(emu), timeout_s=TIMEOUT_S, pid=(left, right)) as drv:
             assert drv.read_config("KP") == (round(1.4 * mult), round(1.1 * mult))
             assert drv.read_config("KI") == (round(3.7 * mult), round(3.2 * mult))
             assert drv.read_config("KD") == (round(0.3 * mult), round(0.2 * mult))
@@ -111,7 +117,7 @@ def test_a_gain_that_does_not_fit_firmware_1x_is_refused_before_anything_is_writ
 
 def test_echo_off_is_handled_as_well_as_echo_on(clock) -> None:
     with RoboteqEmulator(clock=clock, echo=False) as emu:
-        with RoboteqMDC2230(emu.device_path, timeout_s=TIMEOUT_S, clock=clock) as drv:
+        with RoboteqMDC2230(_path(emu), timeout_s=TIMEOUT_S, clock=clock) as drv:
             assert drv.read_config("MMOD") == (1, 1)
             drive_for(drv, clock, 200, 200, 1.0)
             assert drv.read_state().encoder_counts[0] > 0
@@ -375,7 +381,7 @@ def test_emulator_answers_unknown_or_malformed_commands_with_minus(emu) -> None:
         port.write(b"?NOPE\r!S 3 10\r^RWD 70000\r")
         data = b""
         while data.count(b"\r") < 6:
-            chunk = port.read(64)
+            chunk = port.read(1) + port.read(port.in_waiting)  # what has arrived, not 64 bytes or the timeout
             assert chunk, f"emulator stopped answering after {data!r}"
             data += chunk
     lines, _ = codec.split_lines(data)

@@ -72,7 +72,7 @@ def test_emulator_accepts_gains_up_to_two_billion_on_firmware_2x(clock) -> None:
 def _read_lines(port, n: int) -> list[str]:
     data = b""
     while data.count(b"\r") < n:
-        chunk = port.read(64)
+        chunk = port.read(1) + port.read(port.in_waiting)  # what has arrived, not 64 bytes or the timeout
         assert chunk, f"no answer after {data!r}"
         data += chunk
     return codec.split_lines(data)[0]

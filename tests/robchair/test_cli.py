@@ -54,7 +54,7 @@ def test_unexpected_errors_are_not_swallowed(monkeypatch: pytest.MonkeyPatch) ->
 
 def test_every_command_module_registers_and_shows_help() -> None:
     parser = cli.build_parser()
-    names = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    names = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr,arg-type]
     assert {"map", "pid", "sim", "run", "hw", "bench"} <= names
     out = subprocess.run(
         [sys.executable, "-m", "robchair.cli", "--help"], capture_output=True, text=True, check=True
@@ -68,6 +68,22 @@ def test_open3d_imports_through_the_libusb_preload_in_a_fresh_interpreter() -> N
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip()
+
+
+def test_open3d_is_imported_without_dash_and_its_dash_names_still_reach_the_real_dash() -> None:
+    """open3d's visualization takes dash's ``html``, ``dcc`` and ``Dash`` at import (about 0.4 s of CPU
+    per process, for ``draw_plotly_server`` only): import_open3d leaves dash unimported, and those names
+    are dash's own objects once used; ``import dash`` afterwards is the real package."""
+    code = (
+        "import sys; from mapping._deps import import_open3d; import_open3d(); "
+        "print('dash' in sys.modules); "
+        "dp = sys.modules['open3d.visualization.draw_plotly']; "
+        "import dash; from dash import html; "
+        "print(dp.html.Div is html.Div, type(dp.Dash('t')) is dash.Dash, dash.__file__ is not None)"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["False", "True", "True", "True"]
 
 
 def test_a_listed_command_module_that_is_missing_is_an_error_not_a_silent_skip(

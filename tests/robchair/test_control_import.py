@@ -1,5 +1,6 @@
-"""The simulator runs the motor loop without python-control (issue 20: its import costs ~1.7 s of a first
-simulated second), and what it computes instead is python-control's result bit for bit."""
+"""The simulator and the emulated controller run the motor loop without python-control (issue 20: its
+import costs ~1.7 s of a first simulated second), and what they compute instead is python-control's result
+bit for bit."""
 
 from __future__ import annotations
 
@@ -99,3 +100,43 @@ def test_the_discrete_plant_is_python_controls_zoh_discretisation_bit_for_bit(dt
     assert np.array_equal(dp.A, np.asarray(sysd.A, dtype=float)[:2, :2])
     assert np.array_equal(dp.B, np.asarray(sysd.B, dtype=float)[:2, 0])
     assert dp._q_b == float(np.asarray(sysd.B)[2, 0])
+
+
+# What `robchair run --backend emulated` builds before its loop: the Roboteq emulator's two motor channels
+# (their default firmware gains) and the real driver's PID configuration.
+_EMULATED_START = """
+import sys
+from hw.roboteq.emulator import RoboteqEmulator
+from robchair.backends import design_pid_configs
+from robchair.platform.spec import default_spec
+emu = RoboteqEmulator(default_spec())
+design_pid_configs(default_spec())
+print(sorted(m for m in ("control", "scipy.signal", "matplotlib") if m in sys.modules))
+"""
+
+
+def test_the_emulated_controller_and_the_drivers_pid_are_built_without_importing_python_control() -> None:
+    """Breaks when the emulator's default gains or the driver's PID configuration come from
+    ``design_pid`` again (python-control and what it imports: about 2 s of CPU of an emulated run)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    res = subprocess.run([sys.executable, "-c", _EMULATED_START], env=env, capture_output=True, text=True,
+                         timeout=120, check=True, cwd=ROOT)  # fmt: skip
+    assert res.stdout.strip().splitlines()[-1] == "[]", res.stdout
+
+
+@pytest.mark.parametrize("firmware_major", [1, 2])
+@pytest.mark.parametrize("ch", [1, 2])
+def test_the_emulator_and_driver_gains_are_the_designs(ch: int, firmware_major: int) -> None:
+    """The emulator's firmware integers are roboteq_gains(design_pid(plant)); the driver's PID is
+    design_pid's gains."""
+    from hw.roboteq.emulated_motors import _plant_and_default_gains
+    from hw.roboteq.gains import roboteq_gains
+    from robchair.backends import design_pid_configs
+
+    step = default_spec().step_for_channel(ch)
+    plant, gains = _plant_and_default_gains(step.t_r, step.t_p, step.M_p, firmware_major)
+    d = rc.design_pid(rc.identify_from_step_metrics(step.t_r, step.t_p, step.M_p).plant)
+    fw = roboteq_gains(d, firmware_major)
+    assert gains == (fw.kp, fw.ki, fw.kd) and plant == d.plant
+    pid = design_pid_configs(default_spec())[ch - 1]
+    assert (pid.kp, pid.ki, pid.kd) == (d.kp, d.ki, d.kd)
