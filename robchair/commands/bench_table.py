@@ -76,6 +76,10 @@ def _sim(r: dict[str, Any]) -> tuple[str, str, str]:
         loop = 1e3 * m.get("loop_wall_s", 0.0) / sim_s
         stages.append(("rest", loop - sum(v for _, v in stages if isinstance(v, int | float))))
         txt += "; ms per sim s: " + ", ".join(f"{k} {_f(v, '.0f')}" for k, v in stages)
+        cores = row.get("cores_needed")
+        if cores:
+            txt += (f"; {_f(cores.get('cpu_ms_per_sim_s'), '.0f')} ms of CPU per sim s, so its target needs "
+                    f">= {cores.get('cores')} cores")  # fmt: skip
         bound = row.get("ratio_bound")
         if bound:
             txt += f"; the new loop's simulator stages allow at most {_f(bound.get('max_ratio'))}x"
@@ -144,6 +148,11 @@ def _env(r: dict[str, Any]) -> tuple[str, str, str]:
         if row.get("speedup_vs_one_env") is not None:
             extra.append(f"{row['speedup_vs_one_env']:.2f}x one env")
         cells.append(txt + (f" ({', '.join(extra)})" if extra else ""))
+    st = r.get("standin")
+    if st:
+        cells.append(f"a stand-in env doing the light env's CPU per step without RobChair: 2 Async workers "
+                     f"{_f(st.get('speedup'))}x one, {_f(st.get('speedup_with_info'))}x with the light env's "
+                     "info")  # fmt: skip
     return (
         f"Gymnasium envs through the runtime ({_f(r.get('agent_hz'), 'g')} Hz agent): agent steps/s",
         f"`robchair bench env --repeats {r.get('repeats', 1)}`",
@@ -201,7 +210,12 @@ def _map(r: dict[str, Any]) -> tuple[str, str, str]:
         f"`robchair bench map --repeats {r.get('repeats', 1)}`",
         "; ".join(cells)
         + f"; the inserts are {_f(100 * share['of_build'] if 'of_build' in share else None, '.0f')} "
-        "% of the build",
+        "% of the build"
+        + (
+            f"; with its CPU the build needs >= {r['cores_needed_at_target']} cores for the target"
+            if r.get("cores_needed_at_target")
+            else ""
+        ),
     )
 
 

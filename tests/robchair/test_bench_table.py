@@ -21,6 +21,7 @@ SIM = {
             "median": {"rtf": 3.0, "sim_time_s": 4.0, "loop_wall_s": 1.2, "kinect_ms_per_sim_s": 100.0,
                        "sonar_ms_per_sim_s": 20.0, "physics_ms_per_sim_s": 50.0, "map odometry ms/s": 80.0},
             "baseline_median": {"rtf": 1.5},
+            "cores_needed": {"cpu_ms_per_sim_s": 1146.0, "target_rtf": 2.25, "cores": 3},
         },
         {
             "config": {"name": "1 core"},
@@ -71,6 +72,7 @@ def test_the_table_between_the_markers_gives_ratios_stages_machine_and_load_from
     assert "render 100, sonar 20, physics 50, map odometry 80, rest 50" in sim
     assert "render 400, sonar 50, physics 100, map odometry 300, rest 150" in sim
     assert "map odometry 300, rest 150; the new loop's simulator stages allow at most 1.07x" in sim
+    assert "rest 50; 1146 ms of CPU per sim s, so its target needs >= 3 cores" in sim
     assert "`robchair bench sim --repeats 3`" in sim
     assert sim.endswith("| 2 x Test CPU 9000, load 0.5 before / 1.2 after (1-min average), 2026-12-02 |")
     assert "Embree mirror 1.25 ms, PyBullet `rayTestBatch` 15.00 ms (Embree 12.0x faster)" in laser
@@ -120,7 +122,7 @@ def test_assist_and_map_rows_give_their_figures_and_verdicts_not_their_parameter
     bag_map = {"sim_time_s": 20.0, "bag_mb": 209.6, "repeats": 3, "target_x_real_time": 10.0,
                "x_real_time": {"read_and_build": 2.67, "inserts": 3.29},
                "verdict": {"read_and_build": "missed", "inserts": "missed"},
-               "inserts_share": {"of_build": 0.81}, **machine}  # fmt: skip
+               "inserts_share": {"of_build": 0.81}, "cores_needed_at_target": 4, **machine}  # fmt: skip
     (d / "bench_assist.json").write_text(json.dumps(assist))
     (d / "bench_map.json").write_text(json.dumps(bag_map))
     readme = tmp_path / "README.md"
@@ -135,3 +137,20 @@ def test_assist_and_map_rows_give_their_figures_and_verdicts_not_their_parameter
     assert "`robchair map` on a 20 s run's bag (210 MB); target >= 10x real time" in text
     assert "build 2.7x real time (missed)" in text and "inserts alone 3.3x real time (missed)" in text
     assert "the inserts are 81 % of the build" in text and "bag_mb" not in text
+    assert "; with its CPU the build needs >= 4 cores for the target" in text
+
+
+def test_the_env_row_gives_the_stand_in_envs_async_speedups(tmp_path):
+    d = tmp_path / "b"
+    d.mkdir()
+    env = {"agent_hz": 10, "repeats": 3, "rows": [{"config": "physics only", "median_steps_per_s": 400.0}],
+           "standin": {"speedup": 1.8, "speedup_with_info": 1.666}, "load_average_before": [0.5],
+           "load_average_after": [0.6], "cpus": 2, "time_utc": "2026-12-02T01:00:00Z"}  # fmt: skip
+    (d / "bench_env.json").write_text(json.dumps(env))
+    readme = tmp_path / "README.md"
+    readme.write_text(README)
+    assert main(["bench", "table", str(d), "--readme", str(readme)]) == 0
+    assert (
+        "a stand-in env doing the light env's CPU per step without RobChair: 2 Async workers 1.80x one, "
+        "1.67x with the light env's info"
+    ) in readme.read_text()
