@@ -91,6 +91,19 @@ def _emit(xlo, xhi, xl, xt, n, lo, hi, v, vt, vf, merge_eps):  # type: ignore[no
     return n + 1
 
 
+@numba.jit(inline="always", **_JIT)
+def _copy_pieces(plo, phi, pl, pt, dst, src, n, backwards):  # type: ignore[no-untyped-def]
+    """Copy ``n`` pool pieces from slot ``src`` to slot ``dst`` (``backwards``: last first, for a move to
+    higher slots that overlaps its source)."""
+    for i in range(n):
+        k = n - 1 - i if backwards else i
+        plo[dst + k] = plo[src + k]
+        phi[dst + k] = phi[src + k]
+        pl[dst + k] = pl[src + k]
+        pt[dst + k, 0] = pt[src + k, 0]
+        pt[dst + k, 1] = pt[src + k, 1]
+
+
 @numba.jit(**_JIT)
 def update_store(  # type: ignore[no-untyped-def]
     cstart,
@@ -312,18 +325,8 @@ def update_store(  # type: ignore[no-untyped-def]
             if used + 2 * cnt > pool_cap:
                 return a0, b0, cells, used, freed, delta, n_dyn, used + 2 * cnt - pool_cap
             d0 = used
-            for k in range(base):
-                plo[d0 + k] = plo[s0 + k]
-                phi[d0 + k] = phi[s0 + k]
-                pl[d0 + k] = pl[s0 + k]
-                pt[d0 + k, 0] = pt[s0 + k, 0]
-                pt[d0 + k, 1] = pt[s0 + k, 1]
-            for k in range(tail):
-                plo[d0 + base + nout + k] = plo[s0 + p + k]
-                phi[d0 + base + nout + k] = phi[s0 + p + k]
-                pl[d0 + base + nout + k] = pl[s0 + p + k]
-                pt[d0 + base + nout + k, 0] = pt[s0 + p + k, 0]
-                pt[d0 + base + nout + k, 1] = pt[s0 + p + k, 1]
+            _copy_pieces(plo, phi, pl, pt, d0, s0, base, False)
+            _copy_pieces(plo, phi, pl, pt, d0 + base + nout, s0 + p, tail, False)
             freed += ccap[key]
             cstart[key] = used
             ccap[key] = 2 * cnt
@@ -332,20 +335,8 @@ def update_store(  # type: ignore[no-untyped-def]
         else:
             s1 = s0
             shift = base + nout - p
-            if shift > 0:
-                for k in range(tail - 1, -1, -1):
-                    plo[s0 + p + shift + k] = plo[s0 + p + k]
-                    phi[s0 + p + shift + k] = phi[s0 + p + k]
-                    pl[s0 + p + shift + k] = pl[s0 + p + k]
-                    pt[s0 + p + shift + k, 0] = pt[s0 + p + k, 0]
-                    pt[s0 + p + shift + k, 1] = pt[s0 + p + k, 1]
-            elif shift < 0:
-                for k in range(tail):
-                    plo[s0 + p + shift + k] = plo[s0 + p + k]
-                    phi[s0 + p + shift + k] = phi[s0 + p + k]
-                    pl[s0 + p + shift + k] = pl[s0 + p + k]
-                    pt[s0 + p + shift + k, 0] = pt[s0 + p + k, 0]
-                    pt[s0 + p + shift + k, 1] = pt[s0 + p + k, 1]
+            if shift != 0:  # a move to higher slots overlaps its source from the end: copy last first
+                _copy_pieces(plo, phi, pl, pt, s0 + p + shift, s0 + p, tail, shift > 0)
         for k in range(nout):
             plo[s1 + base + k] = xlo[k]
             phi[s1 + base + k] = xhi[k]
