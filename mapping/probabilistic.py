@@ -335,18 +335,6 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
         ms = (time.perf_counter() - t0) * 1e3
         return PreparedFrame(self._layout(), ev, n_in, n_free_only, origin, ms)
 
-    def _counted(
-        self,
-        pts: NDArray[np.floating],
-        n_in: int,
-        free_only: NDArray[np.float64] | None,
-        origin: tuple[float, float, float] | None,
-        method: str,
-        t0: float,
-        n_free_only: int,
-    ) -> EvidenceStats:
-        return self._apply(self._prepared(pts, n_in, free_only, origin, method, t0, n_free_only))
-
     def _apply(self, prepared: PreparedFrame) -> EvidenceStats:
         """Decay, update the store with a prepared frame's evidence and count it."""
         t1 = time.perf_counter()
@@ -440,7 +428,8 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             raise MappingError("insert_free sensor_origin=None: free space needs the sensor position")
         tg = as_points(targets, "targets").astype(np.float64)
         tg = tg[np.isfinite(tg).all(axis=1)]
-        return self._counted(np.empty((0, 3), np.float64), 0, tg, origin, "auto", t0, int(tg.shape[0]))
+        empty = np.empty((0, 3), np.float64)
+        return self._apply(self._prepared(empty, 0, tg, origin, "auto", t0, int(tg.shape[0])))
 
     def insert_sonar(
         self,
@@ -490,14 +479,15 @@ class ProbabilisticVHV(IntervalStore, EvidenceViews, FrameEvidence):
             d = float(fusion.distance_m)
             pts = cone_points(d, fusion.theta_deg, fusion.alpha_deg, ppc) @ rot.T + pos
             beam = beam_points(d, fusion.alpha_deg, fusion.theta_deg, fusion.theta_deg / 2.0) @ rot.T + pos
-            return self._counted(pts, int(pts.shape[0]), beam, origin, "auto", t0, 0)
+            return self._apply(self._prepared(pts, int(pts.shape[0]), beam, origin, "auto", t0, 0))
         d_cm = min(max_range_m * 100.0, 100.0)  # the detection model's domain
         iv = sonar_intervals_deg(d_cm, OUTER_SONAR_DEG)
         lo, hi = float(iv[:, 0].min()), float(iv[:, 1].max())
         left, right = half_apertures_deg(d_cm)
         half_elev = float(np.asarray(left + right)) / 2.0
         beam = beam_points(max_range_m, lo, hi - lo, half_elev) @ rot.T + pos
-        return self._counted(np.empty((0, 3), np.float64), 0, beam, origin, "auto", t0, int(beam.shape[0]))
+        empty = np.empty((0, 3), np.float64)
+        return self._apply(self._prepared(empty, 0, beam, origin, "auto", t0, int(beam.shape[0])))
 
     # ------------------------------------------------------------------ core
     def _check_origin(self, sensor_origin: ArrayLike | None) -> tuple[float, float, float] | None:

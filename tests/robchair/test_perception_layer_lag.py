@@ -65,7 +65,14 @@ def _perception(gated: GatedMap) -> Perception:
                    pose="odometry")  # fmt: skip
     gated.inner = VHVMap(grid, p.tolerance)
     p.add_layer("gated", gated, lambda: se3_planar(0.01, 0.0, 0.0))
+    p.evaluation_every = 1  # the layer takes every frame
     return p
+
+
+def _take(p: Perception, cam: Camera, frames: range) -> None:
+    """Frames ``frames`` of ``cam``, the chair 2 cm further along x at each."""
+    for k in frames:
+        p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
 
 
 def _blocked(fn: Any) -> threading.Thread:
@@ -82,10 +89,8 @@ def test_the_main_map_goes_on_while_a_layer_is_behind_and_readers_wait_for_it(cl
     gated = GatedMap(None, gate)
     p = _perception(gated)
     try:
-        p.evaluation_every = 1
         cam = Camera(clouds)
-        for k in range(LAYER_LAG):
-            p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
+        _take(p, cam, range(LAYER_LAG))
         # the main map took every frame while the layer took none (it waits at its gate)
         for fut in list(p._pending):
             fut.result(timeout=30)
@@ -98,8 +103,7 @@ def test_the_main_map_goes_on_while_a_layer_is_behind_and_readers_wait_for_it(cl
         waiting.join(30)
         assert ran.wait(30) and gated.frames == LAYER_LAG
         gate.clear()
-        for k in range(LAYER_LAG, LAYER_LAG + 2):
-            p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
+        _take(p, cam, range(LAYER_LAG, LAYER_LAG + 2))
         flushing = _blocked(p.occupancy_2d)  # flush: every layer insert is done when it returns
         gate.set()
         flushing.join(30)
@@ -114,10 +118,7 @@ def test_a_layer_never_falls_more_than_the_lag_behind(clouds) -> None:
     gated = GatedMap(None, gate)
     p = _perception(gated)
     try:
-        p.evaluation_every = 1
-        cam = Camera(clouds)
-        for k in range(LAYER_LAG + 1):
-            p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
+        _take(p, Camera(clouds), range(LAYER_LAG + 1))
         # the frame after the lag waits on the mapping thread for the layer's oldest frame
         last = p._pending[-1]
         assert not last.done()
@@ -134,11 +135,8 @@ def test_an_error_in_a_layer_insert_surfaces_in_the_loop(clouds) -> None:
     gate.set()
     gated = GatedMap(None, gate, fail_at=1)
     p = _perception(gated)
-    p.evaluation_every = 1
-    cam = Camera(clouds)
     with pytest.raises(RuntimeError, match="layer insert failed"):
-        for k in range(len(clouds)):
-            p.take_depth(cam, Pose2D(0.02 * k, 0.0, 0.0))
+        _take(p, Camera(clouds), range(len(clouds)))
         p.flush()
     with pytest.raises(RuntimeError):
         p.close()
