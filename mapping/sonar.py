@@ -69,8 +69,8 @@ Pure numpy; nothing here talks to hardware. The pieces, in the order data flows 
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -272,7 +272,16 @@ class ZoneTables:
         if not (math.isfinite(range_m) and 0.0 < range_m <= MODEL_MAX_RANGE_CM / 100.0):
             raise SonarModelError(f"range_m={range_m!r} must be in (0, 1] m for the zone tables")
         d_cm = round(range_m * 100.0)
-        return float(self.alpha_deg[zone - 1, d_cm]), float(self.theta_deg[zone - 1, d_cm])
+        return self._rows[zone - 1][d_cm]
+
+    @functools.cached_property
+    def _rows(self) -> tuple[tuple[tuple[float, float], ...], ...]:
+        """``_rows[zone - 1][d_cm] == (alpha_deg, theta_deg)`` as Python floats (the same values as the
+        arrays; a tuple look-up instead of two numpy scalar reads per fusion)."""
+        return tuple(
+            tuple((float(a), float(t)) for a, t in zip(ra, rt, strict=True))
+            for ra, rt in zip(self.alpha_deg, self.theta_deg, strict=True)
+        )
 
 
 def zone_tables(outer_deg: float = OUTER_SONAR_DEG) -> ZoneTables:
@@ -354,11 +363,6 @@ def _hull(intervals: FloatArray) -> tuple[float, float]:
     return lo, hi - lo
 
 
-def _three(flags: Iterable[bool]) -> tuple[bool, bool, bool]:
-    a, b, c = flags
-    return bool(a), bool(b), bool(c)
-
-
 def fuse_array(
     r1_m: float,
     r2_m: float,
@@ -383,20 +387,22 @@ def fuse_array(
     if not (math.isfinite(threshold_m) and threshold_m >= 0.0):
         raise SonarModelError(f"threshold_m={threshold_m!r} must be a finite value >= 0")
     tables = default_zone_tables() if tables is None else tables
-    # three readings: plain float arithmetic (the same IEEE operations as on a numpy array, without
-    # its per-call overhead; the fusion runs for every array reading)
-    r = (float(r1_m), float(r2_m), float(r3_m))
-    for k, v in enumerate(r, start=1):
+    # three readings: plain float arithmetic, unrolled (the same IEEE operations as on a numpy array,
+    # without its per-call overhead; the fusion runs for every array reading)
+    a, b, c = float(r1_m), float(r2_m), float(r3_m)
+    for k, v in ((1, a), (2, b), (3, c)):
         if v < 0.0 or v == -math.inf:
             raise SonarModelError(f"r{k}_m={v!r} is negative: a range reading must be >= 0 or NaN")
-    mis = _three(not math.isfinite(v) or v == 0.0 for v in r)
-    rej = _three(not m and v > MODEL_MAX_RANGE_CM / 100.0 for v, m in zip(r, mis, strict=True))
-    valid = _three(not m and not j for m, j in zip(mis, rej, strict=True))
-    if not any(valid):
+    isfinite, top = math.isfinite, MODEL_MAX_RANGE_CM / 100.0
+    mis = (not isfinite(a) or a == 0.0, not isfinite(b) or b == 0.0, not isfinite(c) or c == 0.0)
+    rej = (not mis[0] and a > top, not mis[1] and b > top, not mis[2] and c > top)
+    va, vb, vc = not (mis[0] or rej[0]), not (mis[1] or rej[1]), not (mis[2] or rej[2])
+    if not (va or vb or vc):
         return FusionResult(None, math.nan, 0.0, 0.0, (False, False, False), rej, mis, consistent=False)
-    d = min(v for v, ok in zip(r, valid, strict=True) if ok)
+    d = min(v for v, ok in ((a, va), (b, vb), (c, vc)) if ok)
     # inclusive "+- threshold"; 1 nm slack so 0.52 - 0.49 counts as 3 cm despite float rounding
-    key = _three(ok and abs(v - d) <= threshold_m + 1e-9 for v, ok in zip(r, valid, strict=True))
+    near = threshold_m + 1e-9
+    key = (va and abs(a - d) <= near, vb and abs(b - d) <= near, vc and abs(c - d) <= near)
     zone = _ZONE_OF_AGREEMENT.get(key)
     if zone is not None:
         alpha, theta = tables.lookup(zone, d)

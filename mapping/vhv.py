@@ -259,6 +259,47 @@ class VHVMap:
             method=used,
         )
 
+    def insert_few(self, points: NDArray[np.float64], sensor_origin: NDArray[np.float64]) -> None:
+        """:meth:`insert` of a small float64 cloud in one compiled pass (a sonar cone, a few hundred points).
+
+        The same map, counters and ``sensor_origins`` as ``insert(points, sensor_origin)`` (the
+        structures of a cloud are unique; :mod:`mapping._vhv_few`), without its per-call overhead;
+        no :class:`InsertStats`.
+
+        Args:
+            points: (N, 3) float64 xyz in the world frame, m (NaN/inf points are dropped and counted).
+            sensor_origin: (3,) finite world xyz of the sensor, m.
+
+        Raises:
+            PointsError: ``points`` is not a (N, 3) float64 array.
+            MappingError: a malformed or non-finite sensor origin.
+        """
+        from mapping._vhv_few import insert_few
+
+        if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2):
+            raise PointsError(f"insert_few: expected (N, 3) float64 points, got {type(points).__name__}")
+        if points.shape[1] != 3:
+            raise PointsError(f"insert_few: expected shape (N, 3), got {points.shape}")
+        o = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
+        origin = tuple(float(v) for v in o)
+        if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
+            raise MappingError(f"insert_few sensor_origin={sensor_origin!r}: expected finite (x, y, z)")
+        spec = self.spec
+        (ou, ov), (nx, ny) = spec.origin, spec.shape
+        cu, cv, ch = spec.columns
+        grid = (spec.inv_cell_size, ou, ov, nx, ny, cu, cv, ch, self.tolerance)
+        key, bot, top, n_nonfinite, n_outside, n_frame = insert_few(
+            points, *grid, self._key, self._bottom, self._top
+        )
+        if n_frame:
+            self._key, self._bottom, self._top = key, bot, top
+        self._cache = None
+        self.frames += 1
+        self.points_inserted += int(points.shape[0]) - int(n_nonfinite) - int(n_outside)
+        self.points_dropped_nonfinite += int(n_nonfinite)
+        self.points_outside_grid += int(n_outside)
+        self.sensor_origins.append(origin)  # type: ignore[arg-type]
+
     # ------------------------------------------------------------------ queries
     def structures(self) -> Structures:
         """All structures (SoA, sorted by cell then bottom). The arrays are read-only views."""

@@ -76,7 +76,7 @@ from robchair.perception_layers import (
     run_evidence_params,
 )
 from robchair.perception_queries import Corridor, _min_opt, _travelled, points_in_base
-from robchair.perception_sonar import _zone_tables, explained_arc, sonar_obstacle_points
+from robchair.perception_sonar import _zone_tables, explained_arc_fast, mount_geometry
 from robchair.platform.frames import se3_planar, transform_points
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec
@@ -425,12 +425,13 @@ class Perception(FrameInserter):
         """Fuse one array reading, map its points, and return the servo angle to turn to (deg; None: none).
 
         ``name`` is the array's mount (``sonar_array_left``...). The fused arc (where the echo may lie) is
-        clipped to the known surfaces at its range inside its cone (:meth:`_known_surfaces`,
-        :func:`robchair.perception_sonar.explained_arc`) before its distance ahead is taken: at 31 cm and
-        under, three agreeing sonars give a 120 deg arc (zone 3 is empty there), which reaches from a
-        door post beside the chair into the corridor ahead.
+        clipped to the known surfaces at its range inside its cone (the last laser scan's returns and
+        the zoom's fine cells in the band, moved to ``pose``: :func:`robchair.perception_sonar.
+        explained_arc_at`) before its distance ahead is taken: at 31 cm and under, three agreeing sonars
+        give a 120 deg arc (zone 3 is empty there), which reaches from a door post beside the chair
+        into the corridor ahead.
         """
-        from mapping.sonar import array_points, servo_command_deg
+        from mapping.sonar import fuse_array, fusion_points, servo_command_deg
 
         mount = self.spec.mounts.get(name)
         self.stats["sonar_readings"] += 1
@@ -438,31 +439,35 @@ class Perception(FrameInserter):
             self._sonar[name] = None
             self._sonar_arc.pop(name, None)
             return None
-        ranges = tuple(float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
+        fin, nan = math.isfinite, math.nan
+        r1, r2, r3 = reading.ranges_m
         arrays = self.spec.sonar_arrays
-        fusion, pts = array_points(ranges, tables=_zone_tables(arrays.outer_sonar_deg))
-        arc = sonar_obstacle_points(reading, mount, arrays, fusion=fusion)
-        if len(arc):  # the laser and the zoom map locate the echo's surface if they know it
-            known = self._known_surfaces(pose)
-            if known is not None:
-                arc = explained_arc(arc, mount.xyz, known)
-        self._sonar[name] = self.corridor.distance_ahead(arc) if len(arc) else None
-        if len(arc):
-            self._sonar_arc[name] = (np.asarray(arc, dtype=float)[:, :2], pose)
-        else:
-            self._sonar_arc.pop(name, None)
-        if fusion.has_obstacle:
-            self.stats["sonar_fusions_with_obstacle"] += 1
+        fusion = fuse_array(
+            float(r1) if fin(r1) else nan, float(r2) if fin(r2) else nan, float(r3) if fin(r3) else nan,
+            tables=_zone_tables(arrays.outer_sonar_deg),
+        )  # fmt: skip
+        pts = fusion_points(fusion)
+        geo = mount_geometry(mount)
         joint = arrays.joint_angle(reading.servo_angle_deg)
-        insert_sonar = getattr(self.sonar_map, "insert_sonar", None)
+        if fusion.has_obstacle:  # the arc; the laser and the zoom map locate the echo's surface if known
+            arc, self._sonar[name] = explained_arc_fast(
+                fusion, geo, joint, pose, self._scan_world, self._zoom_xy, self.corridor
+            )
+            self._sonar_arc[name] = (np.asarray(arc, dtype=float)[:, :2], pose)
+            self.stats["sonar_fusions_with_obstacle"] += 1
+        else:
+            self._sonar[name] = None
+            self._sonar_arc.pop(name, None)
+        sonar_map = self.sonar_map
+        insert_sonar = getattr(sonar_map, "insert_sonar", None)
         t0 = time.perf_counter()
-        if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or free to max)
+        if insert_sonar is not None or len(pts):
             t = se3_planar(pose.x, pose.y, pose.theta) @ self._t_base_array(name, mount, joint)
-            insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
-            self.stats["sonar_points"] += len(pts)
-        elif len(pts):
-            t = se3_planar(pose.x, pose.y, pose.theta) @ self._t_base_array(name, mount, joint)
-            self.sonar_map.insert(transform_points(t, pts), sensor_origin=t[:3, 3])
+            if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or to max)
+                insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
+            else:  # the cone's points (pts @ R.T + t, as transform_points)
+                insert = getattr(sonar_map, "insert_few", None) or sonar_map.insert
+                insert(pts @ t[:3, :3].T + t[:3, 3], sensor_origin=t[:3, 3])
             self.stats["sonar_points"] += len(pts)
         with self._lock:
             self.layer_s["sonar"] = self.layer_s.get("sonar", 0.0) + time.perf_counter() - t0
@@ -474,28 +479,6 @@ class Perception(FrameInserter):
         self._servo[name] = cmd
         return float(cmd)
 
-    def _known_surfaces(self, pose: Pose2D) -> np.ndarray | None:
-        """Surfaces around the chair that may explain a sonar echo: (M, 2) in ``base_link`` at ``pose``, m.
-
-        The last laser scan's returns in the band and the zoom's fine cells in the band (the map
-        remembers a door post the camera saw on the way in and no longer sees beside the chair), each
-        moved from the odometry pose it was measured at to ``pose``. None: neither is there.
-        """
-        c, s = math.cos(pose.theta), math.sin(pose.theta)
-        parts = []
-        if self._scan_world is not None:
-            q = self._scan_world - (pose.x, pose.y)
-            parts.append(np.stack([c * q[:, 0] + s * q[:, 1], c * q[:, 1] - s * q[:, 0]], 1))
-        if self._zoom_xy is not None:
-            xy, p0 = self._zoom_xy
-            c0, s0 = math.cos(p0.theta), math.sin(p0.theta)
-            qx = c0 * xy[:, 0] - s0 * xy[:, 1] + (p0.x - pose.x)  # base at p0 -> odom, less the pose
-            qy = s0 * xy[:, 0] + c0 * xy[:, 1] + (p0.y - pose.y)
-            parts.append(np.stack([c * qx + s * qy, c * qy - s * qx], 1))
-        if not parts:
-            return None
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
     def _t_base_array(self, name: str, mount: Any, joint: float) -> np.ndarray:
         """``T_base_array`` (4, 4) of sonar array ``name`` with its servo at ``joint`` rad (read-only).
 
@@ -504,7 +487,7 @@ class Perception(FrameInserter):
         kept = self._t_mount.get(name)
         if kept is not None and kept[0] == joint:
             return kept[1]
-        t = mount.transform(joint)
+        t = mount_geometry(mount).t_base_array(joint)  # mount.transform(joint), bit for bit
         t.setflags(write=False)
         self._t_mount[name] = (joint, t)
         return t
