@@ -275,6 +275,11 @@ class ZoneTables:
         return self._rows[zone - 1][d_cm]
 
     @functools.cached_property
+    def _fused(self) -> dict[Any, FusionResult]:
+        """Fusion results already built with these tables (:func:`fuse_array`)."""
+        return {}
+
+    @functools.cached_property
     def _rows(self) -> tuple[tuple[tuple[float, float], ...], ...]:
         """``_rows[zone - 1][d_cm] == (alpha_deg, theta_deg)`` as Python floats (the same values as the
         arrays; a tuple look-up instead of two numpy scalar reads per fusion)."""
@@ -403,6 +408,28 @@ def fuse_array(
     # inclusive "+- threshold"; 1 nm slack so 0.52 - 0.49 counts as 3 cm despite float rounding
     near = threshold_m + 1e-9
     key = (va and abs(a - d) <= near, vb and abs(b - d) <= near, vc and abs(c - d) <= near)
+    # the result is a function of (d, key, rej, mis) and the tables: readings come in centimetres,
+    # so a run meets few of them; each is built once (results are immutable)
+    fused = tables._fused
+    memo = (d, key, rej, mis)
+    hit = fused.get(memo)
+    if hit is None:
+        if len(fused) >= _FUSED_MAX:
+            fused.clear()
+        hit = fused[memo] = _fused_interval(d, key, rej, mis, tables)
+    return hit
+
+
+_FUSED_MAX = 65536
+
+
+def _fused_interval(
+    d: float,
+    key: tuple[bool, bool, bool],
+    rej: tuple[bool, bool, bool],
+    mis: tuple[bool, bool, bool],
+    tables: ZoneTables,
+) -> FusionResult:
     zone = _ZONE_OF_AGREEMENT.get(key)
     if zone is not None:
         alpha, theta = tables.lookup(zone, d)

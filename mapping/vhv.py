@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -35,6 +35,7 @@ from mapping.errors import MappingError, PointsError
 from mapping.grid import GridSpec
 
 Method = Literal["auto", "bins", "sort", "numpy"]
+_insert_few: Any = None  # mapping._vhv_few.insert_few once loaded
 _METHODS = ("auto", "bins", "sort", "numpy")
 
 
@@ -167,6 +168,7 @@ class VHVMap:
         self.points_dropped_nonfinite = 0
         self.points_outside_grid = 0
         self.sensor_origins: list[tuple[float, float, float]] = []
+        self._few_grid: tuple[Any, ...] | None = None  # insert_few's grid arguments
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -274,21 +276,23 @@ class VHVMap:
             PointsError: ``points`` is not a (N, 3) float64 array.
             MappingError: a malformed or non-finite sensor origin.
         """
-        from mapping._vhv_few import insert_few
-
-        if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2):
+        global _insert_few
+        if _insert_few is None:  # numba and the kernel load at the first call
+            from mapping._vhv_few import insert_few as _insert_few
+        if not (type(points) is np.ndarray and points.dtype == np.float64 and points.ndim == 2):
             raise PointsError(f"insert_few: expected (N, 3) float64 points, got {type(points).__name__}")
         if points.shape[1] != 3:
             raise PointsError(f"insert_few: expected shape (N, 3), got {points.shape}")
         o = np.asarray(sensor_origin, dtype=np.float64).reshape(-1)
-        origin = tuple(float(v) for v in o)
-        if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
+        x, y, z = (float(o[0]), float(o[1]), float(o[2])) if o.shape == (3,) else (math.nan,) * 3
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             raise MappingError(f"insert_few sensor_origin={sensor_origin!r}: expected finite (x, y, z)")
-        spec = self.spec
-        (ou, ov), (nx, ny) = spec.origin, spec.shape
-        cu, cv, ch = spec.columns
-        grid = (spec.inv_cell_size, ou, ov, nx, ny, cu, cv, ch, self.tolerance)
-        key, bot, top, n_nonfinite, n_outside, n_frame = insert_few(
+        grid = getattr(self, "_few_grid", None)
+        if grid is None:
+            spec = self.spec
+            (ou, ov), (nx, ny) = spec.origin, spec.shape
+            grid = self._few_grid = (spec.inv_cell_size, ou, ov, nx, ny, *spec.columns, self.tolerance)
+        key, bot, top, n_nonfinite, n_outside, n_frame = _insert_few(
             points, *grid, self._key, self._bottom, self._top
         )
         if n_frame:
@@ -298,7 +302,7 @@ class VHVMap:
         self.points_inserted += int(points.shape[0]) - int(n_nonfinite) - int(n_outside)
         self.points_dropped_nonfinite += int(n_nonfinite)
         self.points_outside_grid += int(n_outside)
-        self.sensor_origins.append(origin)  # type: ignore[arg-type]
+        self.sensor_origins.append((x, y, z))
 
     # ------------------------------------------------------------------ queries
     def structures(self) -> Structures:

@@ -76,7 +76,15 @@ from robchair.perception_layers import (
     run_evidence_params,
 )
 from robchair.perception_queries import Corridor, _min_opt, _travelled, points_in_base
-from robchair.perception_sonar import _zone_tables, explained_arc_fast, mount_geometry
+from robchair.perception_sonar import (
+    _zone_tables,
+    explained_arc_fast,
+    fuse_array,
+    fusion_points,
+    mount_geometry,
+    pose_transform,
+    servo_command_deg,
+)
 from robchair.platform.frames import se3_planar, transform_points
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec
@@ -431,8 +439,6 @@ class Perception(FrameInserter):
         give a 120 deg arc (zone 3 is empty there), which reaches from a door post beside the chair
         into the corridor ahead.
         """
-        from mapping.sonar import fuse_array, fusion_points, servo_command_deg
-
         mount = self.spec.mounts.get(name)
         self.stats["sonar_readings"] += 1
         if mount is None:
@@ -462,7 +468,7 @@ class Perception(FrameInserter):
         insert_sonar = getattr(sonar_map, "insert_sonar", None)
         t0 = time.perf_counter()
         if insert_sonar is not None or len(pts):
-            t = se3_planar(pose.x, pose.y, pose.theta) @ self._t_base_array(name, mount, joint)
+            t = pose_transform(pose) @ self._t_base_array(name, mount, joint)
             if insert_sonar is not None:  # evidence: free cone up to the range, occupied at it (or to max)
                 insert_sonar(fusion, t, max_range_m=SONAR_FREE_RANGE_M)
             else:  # the cone's points (pts @ R.T + t, as transform_points)

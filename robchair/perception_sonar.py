@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import SonarArrayReading
-from robchair.platform.frames import rotation_rpy
+from mapping.sonar import fuse_array, fusion_points, servo_command_deg  # noqa: F401  (perception's)
+from robchair.perception_queries import Corridor
+from robchair.platform.frames import rotation_rpy, se3_planar
 from robchair.platform.spec import SonarArrays
 
 #: Margin, m, of the compiled pre-filter of :func:`explained_arc_at` over the exact range test: far
@@ -36,6 +38,22 @@ def _zone_tables(outer_sonar_deg: float) -> Any:
     return zone_tables(outer_sonar_deg)
 
 
+_LAST_POSE: tuple[Any, Any] = (None, None)  # (pose, its se3_planar) of the last reading
+
+
+def pose_transform(pose: Any) -> np.ndarray:
+    """``se3_planar(pose.x, pose.y, pose.theta)`` (4, 4, read-only), kept for the last pose object: both
+    sonar arrays of one cycle are placed at the same odometry pose (one tuple, read and swapped whole,
+    so threads with other poses only recompute)."""
+    global _LAST_POSE
+    last = _LAST_POSE
+    if last[0] is not pose:
+        t = se3_planar(pose.x, pose.y, pose.theta)
+        t.setflags(write=False)
+        last = _LAST_POSE = (pose, t)
+    return last[1]  # type: ignore[no-any-return]
+
+
 def sonar_obstacle_points(
     reading: SonarArrayReading, mount: Any, arrays: SonarArrays, n_arc: int = 9, fusion: Any = None
 ) -> np.ndarray:
@@ -46,8 +64,6 @@ def sonar_obstacle_points(
     outer sonars' angle and the servo's centre come from ``arrays`` (``spec.sonar_arrays``).
     ``fusion``: the reading's :func:`mapping.sonar.fuse_array` result when the caller has it already.
     """
-    from mapping.sonar import fuse_array
-
     res = fusion
     if res is None:
         r1, r2, r3 = (float(r) if math.isfinite(r) else math.nan for r in reading.ranges_m)
@@ -241,6 +257,7 @@ def explained_arc_at(
 
 
 _NO_POINTS = np.zeros((0, 2))  # the kernel's "no such points" (never written)
+_sonar_arc: Any = None  # robchair._sonar_kernels.sonar_arc once loaded
 
 
 def explained_arc_fast(
@@ -262,9 +279,9 @@ def explained_arc_fast(
     Returns:
         (arc (N, 2) in ``base_link`` m, distance from the corridor's front edge m or None).
     """
-    from robchair._sonar_kernels import sonar_arc
-    from robchair.perception_queries import Corridor
-
+    global _sonar_arc
+    if _sonar_arc is None:  # numba and the kernels load at the first reading with an echo
+        from robchair._sonar_kernels import sonar_arc as _sonar_arc
     scan = _NO_POINTS if scan_world is None else scan_world
     zoom, p0 = (_NO_POINTS, pose) if zoom_xy is None else zoom_xy
     if scan.dtype != np.float64 or zoom.dtype != np.float64 or type(corridor) is not Corridor:
@@ -273,7 +290,7 @@ def explained_arc_fast(
         return arc, corridor.distance_ahead(arc)
     c, s = math.cos(pose.theta), math.sin(pose.theta)
     beside = corridor.half_width if corridor.body_half_width is None else corridor.body_half_width
-    arc, x_min = sonar_arc(
+    arc, x_min = _sonar_arc(
         res.alpha_deg, res.theta_deg, res.distance_m, geo.x0, geo.y0, geo.yaw + joint, 9, geo.x0, geo.y0,
         scan, pose.x, pose.y, c, s, zoom, math.cos(p0.theta), math.sin(p0.theta), p0.x - pose.x,
         p0.y - pose.y, 0.06, corridor.front_x, corridor.half_width, beside,
