@@ -39,13 +39,18 @@ def _sort_run(h, a, b):  # type: ignore[no-untyped-def]  # pragma: no cover - co
 
 
 @numba.jit(**_JIT)
-def insert_few(pts, ics, ou, ov, nx, ny, cu, cv, ch, tol, k1, b1, t1):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def insert_few(pts, gf, gi, k1, b1, t1):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """The map's structures ``(k1, b1, t1)`` (sorted by key, bottom) with the cloud ``pts`` (N, 3) merged in.
+
+    ``gf`` = (1 / cell size, tolerance) float64, ``gi`` = (ou, ov, nx, ny, cu, cv, ch) int64: the grid
+    (:func:`mapping._vhv_build._grid_args`) in two arrays (a numba call types each argument).
 
     Returns:
         (key, bottom, top, n_nonfinite, n_outside_grid, n_frame_structures); with no point kept
         (``n_frame_structures == 0``) the arrays are empty and the map stays as it is.
     """
+    ics, tol = gf[0], gf[1]
+    ou, ov, nx, ny, cu, cv, ch = gi[0], gi[1], gi[2], gi[3], gi[4], gi[5], gi[6]
     n = pts.shape[0]
     hs = np.empty(n, np.float64)
     cell = np.empty(n, np.int64)

@@ -291,7 +291,8 @@ class VHVMap:
         if grid is None:
             spec = self.spec
             (ou, ov), (nx, ny) = spec.origin, spec.shape
-            grid = self._few_grid = (spec.inv_cell_size, ou, ov, nx, ny, *spec.columns, self.tolerance)
+            gi = np.array((ou, ov, nx, ny, *spec.columns), np.int64)
+            grid = self._few_grid = (np.array((spec.inv_cell_size, self.tolerance)), gi)
         key, bot, top, n_nonfinite, n_outside, n_frame = _insert_few(
             points, *grid, self._key, self._bottom, self._top
         )

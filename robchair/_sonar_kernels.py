@@ -50,19 +50,21 @@ def _wrapped(x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def sonar_arc(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    alpha, theta, dist, x0, y0, yaw0, n_arc, ox, oy, scan, px, py, c, s, zoom, c0, s0, dzx, dzy, tol,
-    front_x, half_width, beside,
-):  # fmt: skip
+def sonar_arc(prm, n_arc, scan, zoom):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """The explained arc (N, 2) in ``base_link`` and the smallest x of it inside the corridor (NaN: none).
 
-    ``alpha``, ``theta`` deg, ``dist`` m: the fusion; ``(x0, y0)``, ``yaw0``: the array's origin and
+    ``prm`` (20,) float64: ``alpha, theta, dist, x0, y0, yaw0, ox, oy, px, py, c, s, c0, s0, dzx, dzy,
+    tol, front_x, half_width, beside`` (one array: a numba call types each argument). ``alpha``,
+    ``theta`` deg, ``dist`` m: the fusion; ``(x0, y0)``, ``yaw0``: the array's origin and
     heading; ``(ox, oy)``: the sonar origin of the explanation (the mount's xy). ``scan`` (M, 2): laser
     returns in ``odom`` with ``(px, py)``, ``(c, s)`` the pose's position and heading's cos/sin;
     ``zoom`` (K, 2): cells in ``base_link`` at the zoom's pose (``(c0, s0)`` its heading, ``(dzx, dzy)``
     its position less the pose's); empty arrays for none. ``front_x``, ``half_width``, ``beside``: the
     corridor (:class:`robchair.perception_queries.Corridor`).
     """
+    alpha, theta, dist, x0, y0, yaw0, ox, oy = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6], prm[7]
+    px, py, c, s, c0, s0, dzx, dzy = prm[8], prm[9], prm[10], prm[11], prm[12], prm[13], prm[14], prm[15]
+    tol, front_x, half_width, beside = prm[16], prm[17], prm[18], prm[19]
     # np.linspace(alpha, alpha + theta, n_arc) as linspace computes it, then radians + yaw0
     stop = alpha + theta
     div = n_arc - 1

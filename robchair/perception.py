@@ -81,6 +81,7 @@ from robchair.perception_sonar import (
     explained_arc_fast,
     fuse_array,
     fusion_points,
+    load_sonar_kernels,
     mount_geometry,
     pose_transform,
     servo_command_deg,
@@ -273,6 +274,7 @@ class Perception(FrameInserter):
         """
         if self.map_kind not in _WARMED:
             load_kernels(self.new_map(), self.spec.sonar_arrays.outer_sonar_deg, SONAR_FREE_RANGE_M)
+            load_sonar_kernels(self.new_map())
             _WARMED.add(self.map_kind)
 
     # --- frames -----------------------------------------------------------------------------------

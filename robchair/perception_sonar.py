@@ -133,7 +133,8 @@ class MountGeometry:
         self.x0, self.y0 = float(mount.xyz[0]), float(mount.xyz[1])
         self.yaw = mount.rpy[2]
         self._r0 = rotation_rpy(*mount.rpy)
-        self._xyz = np.asarray(mount.xyz, dtype=float)
+        self._eye = np.eye(4)  # with the mount's translation
+        self._eye[:3, 3] = np.asarray(mount.xyz, dtype=float)
         self._axis: tuple[float, float, float, float] | None = None
         if mount.joint is not None:
             x, y, z = (float(v) for v in np.asarray(mount.joint.axis, dtype=float).ravel())
@@ -153,15 +154,14 @@ class MountGeometry:
         s = math.sin(h) / n
         qx, qy, qz, qw = x * s, y * s, z * s, math.cos(h)
         ra = np.array(
-            [
-                [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
-                [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
-                [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
-            ]
-        )
-        t = np.eye(4)
+            (
+                1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw),
+                2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw),
+                2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy),
+            )
+        ).reshape(3, 3)  # fmt: skip
+        t = self._eye.copy()
         t[:3, :3] = self._r0 @ ra
-        t[:3, 3] = self._xyz
         return t
 
 
@@ -290,9 +290,31 @@ def explained_arc_fast(
         return arc, corridor.distance_ahead(arc)
     c, s = math.cos(pose.theta), math.sin(pose.theta)
     beside = corridor.half_width if corridor.body_half_width is None else corridor.body_half_width
-    arc, x_min = _sonar_arc(
-        res.alpha_deg, res.theta_deg, res.distance_m, geo.x0, geo.y0, geo.yaw + joint, 9, geo.x0, geo.y0,
-        scan, pose.x, pose.y, c, s, zoom, math.cos(p0.theta), math.sin(p0.theta), p0.x - pose.x,
-        p0.y - pose.y, 0.06, corridor.front_x, corridor.half_width, beside,
+    prm = np.array(
+        (
+            res.alpha_deg, res.theta_deg, res.distance_m, geo.x0, geo.y0, geo.yaw + joint, geo.x0, geo.y0,
+            pose.x, pose.y, c, s, math.cos(p0.theta), math.sin(p0.theta), p0.x - pose.x, p0.y - pose.y,
+            0.06, corridor.front_x, corridor.half_width, beside,
+        )
     )  # fmt: skip
+    arc, x_min = _sonar_arc(prm, 9, scan, zoom)
     return arc, (None if math.isnan(x_min) else max(0.0, x_min - corridor.front_x))
+
+
+def load_sonar_kernels(scratch: Any) -> None:
+    """Load the sonar path's compiled kernels for the argument types of a run (compiled on a cold cache).
+
+    The arc kernel with laser returns, and the small-cloud insert of ``scratch`` (a map with
+    ``insert_few``; it gets two points) before and after its structures were read (then its arrays
+    are read-only, another numba signature): called by the perception stage's warm-up, before the
+    clock starts.
+    """
+    global _sonar_arc
+    if _sonar_arc is None:
+        from robchair._sonar_kernels import sonar_arc as _sonar_arc
+    _sonar_arc(np.zeros(20), 9, np.zeros((1, 2)), _NO_POINTS)
+    insert_few = getattr(scratch, "insert_few", None)
+    if insert_few is not None:
+        insert_few(np.array([[0.5, 0.0, 0.3]]), np.zeros(3))
+        scratch.structures()
+        insert_few(np.array([[0.5, 0.0, 0.5]]), np.zeros(3))
