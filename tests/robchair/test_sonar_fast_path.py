@@ -9,6 +9,7 @@ perception stages fed the same readings, scans and zoom cells, and every output 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -20,7 +21,13 @@ from mapping.grid import GridSpec
 from mapping.sonar import fuse_array, zone_tables
 from mapping.vhv import VHVMap
 from robchair.perception import Perception
-from robchair.perception_sonar import MountGeometry, explained_arc_at, fused_arc, sonar_obstacle_points
+from robchair.perception_sonar import (
+    MountGeometry,
+    explained_arc_at,
+    explained_arc_fast,
+    fused_arc,
+    sonar_obstacle_points,
+)
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import load_spec
 from tests.robchair.sonar_reference import (
@@ -134,11 +141,14 @@ def test_the_fast_path_gives_the_old_outputs_maps_and_stats(spec, kind: str) -> 
     assert _same(old.occupancy_2d(old.sonar_map), new.occupancy_2d(new.sonar_map))
 
 
-def test_some_arcs_are_explained_by_the_laser_and_by_the_zoom(spec) -> None:
-    """The side-by-side run above exercises the clipping, not only whole arcs."""
+def test_the_arc_is_clipped_as_before_by_the_laser_and_by_the_zoom(spec) -> None:
+    """The numpy fast path (:func:`explained_arc_at`, its pre-filter) and the kernel, on rings of known
+    points around the arc's range: both clip as the old path does, and they do clip."""
+    from robchair.perception_queries import Corridor
+
     rng = np.random.default_rng(3)
     mount = spec.mounts["sonar_array_left"]
-    geo = MountGeometry(mount)
+    geo, corridor = MountGeometry(mount), Corridor.from_spec(spec)
     clipped = {"scan": 0, "zoom": 0}
     for _ in range(300):
         d = float(rng.uniform(0.1, 0.95))
@@ -146,32 +156,52 @@ def test_some_arcs_are_explained_by_the_laser_and_by_the_zoom(spec) -> None:
         joint = float(rng.uniform(-0.6, 0.6))
         pose = Pose2D(*rng.uniform(-2.0, 2.0, 2), float(rng.uniform(-3.0, 3.0)))
         arc = fused_arc(res, geo.x0, geo.y0, geo.yaw + joint)
-        ring = np.array([geo.x0, geo.y0]) + d * np.stack(
-            [np.cos(b := rng.uniform(-3.2, 3.2, 30)), np.sin(b)], 1
-        )
+        b, r = rng.uniform(-3.2, 3.2, 40), d + rng.uniform(-0.1, 0.1, 40)
+        ring = np.array([geo.x0, geo.y0]) + r[:, None] * np.stack([np.cos(b), np.sin(b)], 1)
         c, s = math.cos(pose.theta), math.sin(pose.theta)
         scan = np.stack(
             [c * ring[:, 0] - s * ring[:, 1] + pose.x, s * ring[:, 0] + c * ring[:, 1] + pose.y], 1
         )
-        for which, scan_w, zoom in (("scan", scan, None), ("zoom", None, (ring, pose))):
+        p0 = Pose2D(pose.x - 0.2, pose.y + 0.1, pose.theta + 0.3)  # the zoom's cells at an earlier pose
+        c0, s0 = math.cos(-0.3), math.sin(-0.3)
+        zoom = np.stack([c0 * ring[:, 0] - s0 * ring[:, 1] + 0.1, s0 * ring[:, 0] + c0 * ring[:, 1] - 0.2], 1)
+        for which, scan_w, zoom_xy in (
+            ("scan", scan, None),
+            ("zoom", None, (zoom, p0)),
+            ("both", scan, (zoom, p0)),
+        ):
             stage = Perception.__new__(Perception)
-            stage._scan_world, stage._zoom_xy = scan_w, zoom
+            stage._scan_world, stage._zoom_xy = scan_w, zoom_xy
             known = known_surfaces_reference(stage, pose)
             ref = explained_arc_reference(arc, mount.xyz, known)
-            got = explained_arc_at(arc, mount.xyz, pose, scan_w, zoom)
-            assert _same(ref, got)
-            clipped[which] += ref is not arc
+            assert _same(ref, explained_arc_at(arc, mount.xyz, pose, scan_w, zoom_xy))
+            got, dist = explained_arc_fast(res, geo, joint, pose, scan_w, zoom_xy, corridor)
+            assert _same(ref, got) and dist == corridor.distance_ahead(ref)
+            clipped[which] = clipped.get(which, 0) + (ref is not arc)
     assert clipped["scan"] > 50 and clipped["zoom"] > 50
 
 
 def test_the_fused_arc_is_the_old_arc(spec) -> None:
-    arrays = spec.sonar_arrays
+    from robchair.perception_queries import Corridor
+
+    arrays, corridor = spec.sonar_arrays, Corridor.from_spec(spec)
     for name, r, servo in itertools.product(ARRAYS, (0.08, 0.25, 0.33, 0.5, 0.97), (40.0, 90.0, 123.4)):
         reading = SonarArrayReading(0, (r, r + 0.01, r + 0.2), servo)
         mount = spec.mounts[name]
         assert _same(
             sonar_obstacle_points_reference(reading, mount, arrays),
             sonar_obstacle_points(reading, mount, arrays),
+        )
+    rng = np.random.default_rng(8)
+    geo = MountGeometry(spec.mounts[ARRAYS[0]])
+    for alpha, theta, d, joint in zip(*rng.uniform((-90, 0, 0.1, -1), (60, 120, 1, 1), (2000, 4)).T):
+        res = fuse_array(d, d, d)  # a fusion with this interval (the arc reads only these fields)
+        res = dataclasses.replace(res, alpha_deg=float(alpha), theta_deg=float(theta))
+        ref = np.radians(np.linspace(res.alpha_deg, res.alpha_deg + res.theta_deg, 9)) + (geo.yaw + joint)
+        ref = np.stack([geo.x0 + d * np.cos(ref), geo.y0 + d * np.sin(ref)], axis=1)
+        assert _same(ref, fused_arc(res, geo.x0, geo.y0, geo.yaw + joint))
+        assert _same(
+            ref, explained_arc_fast(res, geo, float(joint), Pose2D(0, 0, 0), None, None, corridor)[0]
         )
 
 
@@ -193,10 +223,12 @@ def test_the_fusion_is_the_old_fusion() -> None:
 
 def _random_cloud(rng, n: int, spread: float) -> np.ndarray:
     pts = rng.normal((1.0, 0.5, 0.4), spread, (n, 3))
-    pts[:, 2] = np.round(pts[:, 2], 2)  # repeated heights, gaps at the tolerance
+    pts[:, 2] = np.round(pts[:, 2] * 64.0) / 64.0  # repeated heights, gaps of exactly the tolerance
     pts[rng.random(n) < 0.03] = np.nan
     pts[rng.random(n) < 0.02, 0] = 40.0  # outside the grid
-    return pts
+    # a column of one cell with heights exactly a tolerance apart, and more apart
+    col = np.cumsum(rng.choice((4 / 64, 5 / 64), 8))
+    return np.concatenate([pts, np.stack([np.full(8, 1.01), np.full(8, 0.51), col], 1)])
 
 
 @pytest.mark.parametrize("spread", [0.02, 0.15, 1.5])
@@ -204,7 +236,7 @@ def test_insert_few_gives_the_map_insert_gives(spread: float) -> None:
     """Clouds of a few cells (more than 32 points in a cell) to many (the cell list grows)."""
     grid = GridSpec(cell_size=0.05, size_x=6.0, size_y=6.0)
     rng = np.random.default_rng(int(spread * 100))
-    ref, fast = VHVMap(grid, 0.05), VHVMap(grid, 0.05)
+    ref, fast = VHVMap(grid, 4 / 64), VHVMap(grid, 4 / 64)
     for k in range(40):
         pts = _random_cloud(rng, int(rng.integers(0, 700)), spread)
         origin = np.array([0.1 * k, 0.0, 0.5])
