@@ -15,13 +15,20 @@ of :func:`mapping._vhv_kernels.merge_structures`, so the map comes out the same 
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import numba
 import numpy as np
 
 from mapping._deps import announce_compilation
 
-_JIT = {"cache": True, "nogil": True, "nopython": True, "error_model": "numpy", "boundscheck": False}
+_JIT: dict[str, Any] = {
+    "cache": True,
+    "nogil": True,
+    "nopython": True,
+    "error_model": "numpy",
+    "boundscheck": False,
+}
 
 
 @numba.jit(**_JIT)

@@ -272,21 +272,11 @@ class ZoneTables:
         if not (math.isfinite(range_m) and 0.0 < range_m <= MODEL_MAX_RANGE_CM / 100.0):
             raise SonarModelError(f"range_m={range_m!r} must be in (0, 1] m for the zone tables")
         d_cm = round(range_m * 100.0)
-        return self._rows[zone - 1][d_cm]
+        return float(self.alpha_deg[zone - 1, d_cm]), float(self.theta_deg[zone - 1, d_cm])
 
     @functools.cached_property
-    def _fused(self) -> dict[Any, FusionResult]:
-        """Fusion results already built with these tables (:func:`fuse_array`)."""
+    def _fused(self) -> dict[Any, FusionResult]:  # fusion results built with these tables (fuse_array)
         return {}
-
-    @functools.cached_property
-    def _rows(self) -> tuple[tuple[tuple[float, float], ...], ...]:
-        """``_rows[zone - 1][d_cm] == (alpha_deg, theta_deg)`` as Python floats (the same values as the
-        arrays; a tuple look-up instead of two numpy scalar reads per fusion)."""
-        return tuple(
-            tuple((float(a), float(t)) for a, t in zip(ra, rt, strict=True))
-            for ra, rt in zip(self.alpha_deg, self.theta_deg, strict=True)
-        )
 
 
 def zone_tables(outer_deg: float = OUTER_SONAR_DEG) -> ZoneTables:
@@ -392,8 +382,8 @@ def fuse_array(
     if not (math.isfinite(threshold_m) and threshold_m >= 0.0):
         raise SonarModelError(f"threshold_m={threshold_m!r} must be a finite value >= 0")
     tables = default_zone_tables() if tables is None else tables
-    # three readings: plain float arithmetic, unrolled (the same IEEE operations as on a numpy array,
-    # without its per-call overhead; the fusion runs for every array reading)
+    # three readings: plain float arithmetic (the same IEEE operations as on a numpy array, without
+    # its per-call overhead; the fusion runs for every array reading)
     a, b, c = float(r1_m), float(r2_m), float(r3_m)
     for k, v in ((1, a), (2, b), (3, c)):
         if v < 0.0 or v == -math.inf:
@@ -408,28 +398,17 @@ def fuse_array(
     # inclusive "+- threshold"; 1 nm slack so 0.52 - 0.49 counts as 3 cm despite float rounding
     near = threshold_m + 1e-9
     key = (va and abs(a - d) <= near, vb and abs(b - d) <= near, vc and abs(c - d) <= near)
-    # the result is a function of (d, key, rej, mis) and the tables: readings come in centimetres,
-    # so a run meets few of them; each is built once (results are immutable)
-    fused = tables._fused
-    memo = (d, key, rej, mis)
+    # the result depends on (d, key, rej, mis) and the tables only: built once each (readings in cm)
+    memo, fused = (d, key, rej, mis), tables._fused
     hit = fused.get(memo)
     if hit is None:
-        if len(fused) >= _FUSED_MAX:
+        if len(fused) >= 65536:
             fused.clear()
         hit = fused[memo] = _fused_interval(d, key, rej, mis, tables)
     return hit
 
 
-_FUSED_MAX = 65536
-
-
-def _fused_interval(
-    d: float,
-    key: tuple[bool, bool, bool],
-    rej: tuple[bool, bool, bool],
-    mis: tuple[bool, bool, bool],
-    tables: ZoneTables,
-) -> FusionResult:
+def _fused_interval(d: float, key: Any, rej: Any, mis: Any, tables: ZoneTables) -> FusionResult:
     zone = _ZONE_OF_AGREEMENT.get(key)
     if zone is not None:
         alpha, theta = tables.lookup(zone, d)

@@ -113,7 +113,7 @@ def test_the_fast_path_gives_the_old_outputs_maps_and_stats(spec, kind: str) -> 
             d = float(rng.choice(RANGES))
             r = [float(rng.choice(RANGES)) if rng.random() < 0.3 else d + rng.choice((0.0, 0.01, 0.02, 0.05))
                  for _ in range(3)]  # fmt: skip
-            readings[name] = SonarArrayReading(step, tuple(r), float(rng.uniform(50.0, 130.0)))
+            readings[name] = SonarArrayReading(step, (r[0], r[1], r[2]), float(rng.uniform(50.0, 130.0)))
         if step % 3 == 0:  # a laser scan with returns where the sonars hear something
             pts = _scan_near(spec, rng, readings[ARRAYS[step % 2]].ranges_m, ARRAYS[step % 2])
             for p in (old, new):
@@ -154,7 +154,9 @@ def test_the_arc_is_clipped_as_before_by_the_laser_and_by_the_zoom(spec) -> None
         d = float(rng.uniform(0.1, 0.95))
         res = fuse_array(d, d + float(rng.choice((0.0, 0.01, 0.1))), d + 0.01)
         joint = float(rng.uniform(-0.6, 0.6))
-        pose = Pose2D(*rng.uniform(-2.0, 2.0, 2), float(rng.uniform(-3.0, 3.0)))
+        pose = Pose2D(
+            float(rng.uniform(-2.0, 2.0)), float(rng.uniform(-2.0, 2.0)), float(rng.uniform(-3.0, 3.0))
+        )
         arc = fused_arc(res, geo.x0, geo.y0, geo.yaw + joint)
         b, r = rng.uniform(-3.2, 3.2, 40), d + rng.uniform(-0.1, 0.1, 40)
         ring = np.array([geo.x0, geo.y0]) + r[:, None] * np.stack([np.cos(b), np.sin(b)], 1)
