@@ -77,6 +77,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from mapping._sonar_one import one_bearing_deg
 from mapping.errors import SonarModelError
 
 FloatArray = npt.NDArray[np.float64]
@@ -151,13 +152,12 @@ _SOLVED_MAX = 65536
 def _model_half_apertures_deg(d_cm: FloatArray) -> tuple[FloatArray, FloatArray]:
     if d_cm.shape != (1,):
         return _crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right")
-    # one range: solved as a one-element array, exactly as before, once per distinct value
-    key = float(d_cm[0])
+    key = float(d_cm[0])  # one range: the same bisection on floats (mapping._sonar_one), once per value
     hit = _SOLVED.get(key)
     if hit is None:
         if len(_SOLVED) >= _SOLVED_MAX:
             _SOLVED.clear()
-        hit = (_crossing_bearing_deg(d_cm, "left"), _crossing_bearing_deg(d_cm, "right"))
+        hit = (np.array([one_bearing_deg(key, "left")]), np.array([one_bearing_deg(key, "right")]))
         for a in hit:
             a.setflags(write=False)
         _SOLVED[key] = hit

@@ -268,3 +268,18 @@ def test_insert_few_refuses_what_insert_refuses() -> None:
     with pytest.raises(MappingError):
         m.insert_few(np.zeros((3, 3)), np.zeros(2))
     assert m.frames == 0 and m.n_structures == 0
+
+
+def test_the_bisection_on_floats_is_the_numpy_bisection() -> None:
+    """One range's half-apertures (what a fusion meets first) solved on floats, as on a numpy array."""
+    from mapping import sonar
+    from mapping._sonar_one import _BOTTOM, _TOP, one_bearing_deg
+
+    assert (_TOP, _BOTTOM) == (sonar.TOP_BOUNDARY_COEFFS_CM, sonar.BOTTOM_BOUNDARY_COEFFS_CM)
+    rng = np.random.default_rng(2)
+    ranges = [15.0, 100.0, *(k / 100 * 100 for k in range(15, 101)), *rng.uniform(15.0, 100.0, 400)]
+    for d, side in itertools.product(ranges, ("left", "right")):
+        assert one_bearing_deg(float(d), side) == sonar._crossing_bearing_deg(np.array([d]), side)[0]
+    sonar._SOLVED.clear()  # the cached path gives the vectorised solve's values too
+    left, right = sonar.half_apertures_deg(np.array([37.0]))
+    assert (left[0], right[0]) == tuple(a[7] for a in sonar.half_apertures_deg(np.arange(30.0, 45.0)))
