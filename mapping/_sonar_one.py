@@ -1,14 +1,17 @@
-"""The beam's half-aperture at one range on floats (:func:`mapping.sonar._crossing_bearing_deg`).
+"""What a fusion meets once per new range or cone, computed without small numpy arrays.
 
-The bisection of :mod:`mapping.sonar` on a one-element array costs some 800 numpy calls (60 halvings);
-a fusion meets a new range at the start of a run, in the perception stage's every-reading path. The
-same operations on Python floats (IEEE float64, the C library's ``cos`` and ``sin`` that numpy calls
-for float64 here) give the same value; a test compares them over the model's domain.
+A run meets each new range and cone once, at its start, in the perception stage's every-reading path.
+The bisection of :mod:`mapping.sonar` on a one-element array costs some 800 numpy calls (60 halvings):
+:func:`one_bearing_deg` makes the same operations on Python floats (IEEE float64, the C library's
+``cos`` and ``sin`` that numpy calls for float64 here); :func:`cone_points_fast` is the compiled
+:func:`mapping.sonar.cone_points`. Tests compare both with the numpy versions bit for bit.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 #: Coefficients of the beam's boundaries (:data:`mapping.sonar.TOP_BOUNDARY_COEFFS_CM`, ``BOTTOM_...``).
 _TOP = (-0.0031, 1.2082, -14.2762)
@@ -32,3 +35,12 @@ def one_bearing_deg(d_cm: float, side: str) -> float:
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+def cone_points_fast(range_m: float, theta_deg: float, alpha_deg: float, ppc: int) -> np.ndarray:
+    """:func:`mapping.sonar.cone_points` of a fusion's cone (finite, ``theta_deg > 0``, ``ppc >= 1``) in
+    one compiled pass (:mod:`mapping._sonar_kernels`), the same (N, 3) float64 points bit for bit."""
+    from mapping._sonar_kernels import cone_points_compiled
+
+    n_rings = len(np.arange(0.0, theta_deg / 2.0))  # the rings cone_points makes, as it counts them
+    return cone_points_compiled(float(range_m), float(theta_deg), float(alpha_deg), int(ppc), n_rings)  # type: ignore[no-any-return]

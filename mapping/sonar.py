@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mapping._sonar_one import one_bearing_deg
+from mapping._sonar_one import cone_points_fast, one_bearing_deg
 from mapping.errors import SonarModelError
 
 FloatArray = npt.NDArray[np.float64]
@@ -562,7 +562,7 @@ def fusion_points(result: FusionResult, ppc: int = 40) -> FloatArray:
     key = (float(result.distance_m), float(result.theta_deg), float(result.alpha_deg), int(ppc))
     pts = _CONES.get(key)
     if pts is None:
-        pts = cone_points(result.distance_m, result.theta_deg, result.alpha_deg, ppc)
+        pts = cone_points_fast(result.distance_m, result.theta_deg, result.alpha_deg, int(ppc))
         pts.setflags(write=False)
         if len(_CONES) >= _CONES_MAX:
             _CONES.clear()

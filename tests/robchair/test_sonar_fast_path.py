@@ -283,3 +283,14 @@ def test_the_bisection_on_floats_is_the_numpy_bisection() -> None:
     sonar._SOLVED.clear()  # the cached path gives the vectorised solve's values too
     left, right = sonar.half_apertures_deg(np.array([37.0]))
     assert (left[0], right[0]) == tuple(a[7] for a in sonar.half_apertures_deg(np.arange(30.0, 45.0)))
+
+
+def test_the_compiled_cone_is_the_printed_cone() -> None:
+    from mapping._sonar_one import cone_points_fast
+    from mapping.sonar import cone_points
+
+    rng = np.random.default_rng(4)
+    for k, (d, theta, alpha) in enumerate(rng.uniform((0.0, 0.01, -100.0), (1.0, 125.0, 100.0), (1500, 3))):
+        theta = float(round(theta)) if k % 3 == 0 else float(theta)  # whole ring counts too
+        ppc = 40 if k % 2 else int(rng.integers(1, 50))
+        assert _same(cone_points(float(d), theta, float(alpha), ppc), cone_points_fast(d, theta, alpha, ppc))
