@@ -165,10 +165,17 @@ class MountGeometry:
         return t
 
 
-@functools.lru_cache(maxsize=64)
+_GEOMETRY: dict[int, MountGeometry] = {}  # by id(mount); each holds its mount, so the id stays its own
+
+
 def mount_geometry(mount: Any) -> MountGeometry:
-    """The :class:`MountGeometry` of a (frozen, hashable) mount, built once per mount."""
-    return MountGeometry(mount)
+    """The :class:`MountGeometry` of a mount, built once per mount object (no hashing of the mount)."""
+    geo = _GEOMETRY.get(id(mount))
+    if geo is None or geo.mount is not mount:
+        if len(_GEOMETRY) >= 256:
+            _GEOMETRY.clear()
+        geo = _GEOMETRY[id(mount)] = MountGeometry(mount)
+    return geo
 
 
 def explained_arc(arc: np.ndarray, origin: Any, scan_xy: np.ndarray | None, tol: float = 0.06) -> np.ndarray:
