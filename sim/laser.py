@@ -7,10 +7,12 @@ sensor's x axis (-119.53 to +119.88 deg: the datasheet's "240 deg"), so beam 340
 exactly what :mod:`hw.hokuyo` reads from the real sensor and the emulator. Ranges 0.02 - 4 m, one scan
 per 100 ms (600 rpm), accuracy +-10 mm up to 1 m and +-1 % of the range beyond.
 
-Rays are cast in the sensor's scan plane into the shared :class:`sim.raycast.MeshMirror` (Open3D's
-Embree ``RaycastingScene``), or, for comparison, with PyBullet's ``rayTestBatch`` against the collision
-shapes; ``robchair bench laser`` times both. The chair does not see itself: the mirror leaves its body
-out (see :class:`sim.backend.SimChair`).
+Rays are cast in the sensor's scan plane against the shared :class:`sim.raycast.MeshMirror`'s
+triangles: by default by cutting each triangle with the scan plane and testing the beams its cut
+covers (``caster="raster"``, :mod:`sim._laser_raster`, the exact answer without a BVH), or through
+Open3D's Embree ``RaycastingScene`` (``"embree"``), or, for comparison, with PyBullet's ``rayTestBatch``
+against the collision shapes (``"pybullet"``); ``robchair bench laser`` times them. The chair does
+not see itself: the mirror leaves its body out (see :class:`sim.backend.SimChair`).
 
 Ranges follow REP-117 like the driver's: nothing within ``range_max`` is ``+inf``; a surface closer
 than ``range_min`` is ``-inf``; otherwise the true range plus Gaussian noise of standard deviation
@@ -35,7 +37,7 @@ from sim.raycast import MeshMirror, pose_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
-CASTERS = ("embree", "pybullet")
+CASTERS = ("raster", "embree", "pybullet")
 
 
 class LaserSimError(SimError, ValueError):
@@ -130,8 +132,9 @@ class LaserSim(Device):
         model: the laser model (default :data:`URG_04LX`).
         mirror: a shared :class:`MeshMirror` (made here, leaving out ``exclude_bodies``, if None).
         exclude_bodies: bodies the laser does not see (the chair itself).
-        caster: ``"embree"`` (the mirror) or ``"pybullet"`` (``rayTestBatch`` on collision shapes; sees
-            every body, ``exclude_bodies`` included).
+        caster: ``"raster"`` (the mirror's triangles cut by the scan plane, :mod:`sim._laser_raster`),
+            ``"embree"`` (the mirror through Open3D) or ``"pybullet"`` (``rayTestBatch`` on collision
+            shapes; sees every body, ``exclude_bodies`` included).
         noise: add the datasheet accuracy as Gaussian noise.
         accuracy_sigmas: the datasheet bound is this many standard deviations.
         rng: Generator (or int seed) for the noise; None means seed 0.
@@ -149,7 +152,7 @@ class LaserSim(Device):
         *,
         mirror: MeshMirror | None = None,
         exclude_bodies: Any = (),
-        caster: str = "embree",
+        caster: str = "raster",
         noise: bool = True,
         accuracy_sigmas: float = 3.0,
         rng: np.random.Generator | int | None = None,
@@ -165,7 +168,7 @@ class LaserSim(Device):
         self.model = model
         self.caster = caster
         self.mirror = mirror
-        if caster == "embree" and self.mirror is None:
+        if caster in ("raster", "embree") and self.mirror is None:
             self.mirror = MeshMirror(client, exclude_bodies=exclude_bodies)
         self.noise = bool(noise)
         self.accuracy_sigmas = float(accuracy_sigmas)
@@ -178,6 +181,7 @@ class LaserSim(Device):
         a = model.angles()
         self._dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # sensor frame
         self._rays = np.empty((len(a), 6), dtype=np.float32)  # Embree's (origin, direction) rows, reused
+        self._cos, self._sin = np.cos(a), np.sin(a)  # the raster caster's beam directions (sensor frame)
 
     # ---- casting ----------------------------------------------------------------------------
 
@@ -188,6 +192,21 @@ class LaserSim(Device):
         origin = t[:3, 3]
         dirs = self._dirs @ t[:3, :3].T
         rmax = self.model.range_max
+        if self.caster == "raster":
+            assert self.mirror is not None
+            if not (np.isfinite(origin).all() and np.isfinite(t[:3, :3]).all()):
+                from sim.raycast import MeshMirrorError
+
+                raise MeshMirrorError("ray origins and directions must be finite")
+            from sim._laser_raster import planar_first_hits
+
+            mirror = self.mirror
+            mirror.sync()
+            m = self.model
+            return planar_first_hits(  # type: ignore[no-any-return]
+                mirror.tri_vertices, mirror.tri_faces, np.ascontiguousarray(t[:3, :3]),
+                np.ascontiguousarray(origin), m.angle_min, m.angle_increment, self._cos, self._sin, rmax,
+            )  # fmt: skip
         if self.caster == "embree":
             assert self.mirror is not None
             if not (np.isfinite(origin).all() and np.isfinite(dirs).all()):
