@@ -106,3 +106,24 @@ def test_a_vertex_on_the_scan_plane_cuts_the_triangle_from_that_vertex() -> None
     inside = np.abs(np.tan(a)) * 2.0 <= 1.0 - 1e-9
     np.testing.assert_allclose(r[inside], 2.0 / np.cos(a[inside]), rtol=1e-12)
     assert np.isinf(r[np.abs(np.tan(a)) * 2.0 > 1.0 + 1e-9]).all()
+
+
+def test_a_laser_scan_needs_no_open3d() -> None:
+    """The mirror makes its Embree scene only for an Embree query: a chair with only the laser (the
+    plane cut) never imports Open3D, which costs each process about a second."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from robchair.platform.paths import SCENES\n"
+        "from sim.chair import SimChair\n"
+        "c = SimChair(scene=SCENES / 'office.toml', sensor=None, sonars=False, laser=True)\n"
+        "c.laser.open()\n"
+        "scan = c.laser.read()\n"
+        "assert (scan.ranges > 0).sum() > 100, scan.ranges\n"
+        "print('open3d' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "False"
