@@ -63,7 +63,9 @@ def _result(res: Any) -> dict[str, str]:
     }  # fmt: skip
 
 
-def record_case(env_id: str, kwargs: dict[str, Any], seed: int, action_seed: int, steps: int) -> dict[str, Any]:
+def record_case(
+    env_id: str, kwargs: dict[str, Any], seed: int, action_seed: int, steps: int
+) -> dict[str, Any]:
     """Run the case; per step ``[obs digest, reward, terminated, truncated, info digest]``, the
     results of the episodes (one per reset) and counts of what happened (safety, ends)."""
     import gymnasium

@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("pybullet")
 pytest.importorskip("gymnasium")
 
-from tests.robchair.env_step_record import CASES, DIGESTS, record_case  # noqa: E402
+from tests.robchair.env_step_record import CASES, DIGESTS, record_case
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
