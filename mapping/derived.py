@@ -56,8 +56,9 @@ def occupancy_2d(m: VHVMap, z_min: float, z_max: float) -> NDArray[np.bool_]:
         raise MappingError(f"occupancy band [{z_min!r}, {z_max!r}]: expected finite z_min <= z_max")
     grid = np.zeros(m.spec.shape, dtype=bool)
     if type(m) is VHVMap:  # its sorted cell keys i * ny + j are the grid's flat indices: no (i, j) split
-        hit = (m._top >= z_min) & (m._bottom <= z_max)
-        grid.reshape(-1)[m._key[hit]] = True
+        from mapping._derived_kernels import mark_band
+
+        mark_band(m._key, m._bottom, m._top, z_min, z_max, grid.reshape(-1))
         return grid
     s = m.structures()
     hit = (s.top >= z_min) & (s.bottom <= z_max)

@@ -43,10 +43,17 @@ def _fill_rays(t, dirs, rays):  # type: ignore[no-untyped-def]  # pragma: no cov
 
 
 @numba.njit(cache=True, nogil=True)
-def _hit_ranges(t_hit, gid, invalid, rmax, out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _hit_ranges(t_hit, gid, invalid, rmin, rmax, out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    n = 0
     for i in range(t_hit.shape[0]):
         d = np.float64(t_hit[i])
-        out[i] = np.inf if (gid[i] == invalid or not d <= rmax) else d
+        if gid[i] == invalid or not d <= rmax:
+            out[i] = np.inf
+        else:
+            out[i] = d
+            if not d < rmin:
+                n += 1
+    return n
 
 
 @numba.njit(cache=True, nogil=True)
@@ -87,12 +94,14 @@ def fill_rays(t: np.ndarray, dirs: np.ndarray, rays: np.ndarray) -> bool:
     return bool(_fill_rays(t, dirs, rays))
 
 
-def hit_ranges(t_hit: np.ndarray, gid: np.ndarray, invalid_id: int, range_max: float) -> np.ndarray:
+def hit_ranges(
+    t_hit: np.ndarray, gid: np.ndarray, invalid_id: int, range_min: float, range_max: float
+) -> tuple[np.ndarray, int]:
     """(N,) float64 ranges of Embree's hits: ``t_hit``, or ``inf`` for a miss (``gid == invalid_id``)
-    and beyond ``range_max`` (m)."""
+    and beyond ``range_max`` (m); and how many are measurements (:func:`count_measured`)."""
     out = np.empty(t_hit.shape[0], dtype=np.float64)
-    _hit_ranges(t_hit, gid, np.uint32(invalid_id), float(range_max), out)
-    return out
+    n = _hit_ranges(t_hit, gid, np.uint32(invalid_id), float(range_min), float(range_max), out)
+    return out, int(n)
 
 
 def count_measured(r: np.ndarray, range_min: float, range_max: float) -> int:

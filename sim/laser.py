@@ -189,6 +189,10 @@ class LaserSim(Device):
         Raises:
             MeshMirrorError: the pose is not finite or not a pose.
         """
+        return self._true_ranges(pose)[0]
+
+    def _true_ranges(self, pose: Any) -> tuple[FloatArray, int | None]:
+        """:meth:`true_ranges` and, from Embree's hits, how many beams are measurements."""
         rmax = self.model.range_max
         if self.caster == "embree":
             assert self.mirror is not None
@@ -203,7 +207,7 @@ class LaserSim(Device):
                 raise MeshMirrorError("ray origins and directions must be finite")
             self.mirror.sync()
             t_hit, gid, _ = self.mirror.cast_raw(self._rays, normals=False)  # one beam, no per-ray checks
-            return hit_ranges(t_hit, gid, self.mirror.invalid_id, rmax)
+            return hit_ranges(t_hit, gid, self.mirror.invalid_id, self.model.range_min, rmax)
         import pybullet as p
 
         t = pose_matrix(pose)
@@ -214,7 +218,7 @@ class LaserSim(Device):
             np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
         )
         frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
-        return frac * rmax
+        return frac * rmax, None
 
     def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
         """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``.
@@ -223,11 +227,13 @@ class LaserSim(Device):
         order, from ``rng`` (default the laser's own generator).
         """
         m = self.model
-        r = self.true_ranges(pose)
+        r, measured = self._true_ranges(pose)
         z = None
         if self.noise:
             gen = rng if rng is not None else self.rng
-            z = gen.standard_normal((count_measured(r, m.range_min, m.range_max),))
+            if measured is None:
+                measured = count_measured(r, m.range_min, m.range_max)
+            z = gen.standard_normal((measured,))
         return readings(r, z, m, self.accuracy_sigmas)
 
     def ranges_reference(

@@ -29,6 +29,7 @@ import numpy as np
 from hw.interfaces import DepthFrame, MotorState
 from hw.messages import MotorFaults
 from robchair.loop_types import CycleResult
+from robchair.platform import frames
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec
 from sim.backend import SONAR_MOUNTS, SimBackend, SimChair, SimMotorController, SimSonarArray
@@ -127,6 +128,40 @@ def instant(chair: SimChair) -> int:
     return int(chair._restarts)
 
 
+def se3_from_quat(pos: Any, q: Any) -> np.ndarray:
+    """:func:`robchair.platform.frames.se3_from_quat` (4, 4) of a position and a quaternion ``(x, y, z,
+    w)`` built in one array, the same values bit for bit (a sensor's pose every step).
+
+    Raises:
+        ValueError: the quaternion has zero length.
+    """
+    x, y, z, w = (float(c) for c in q)
+    n = x * x + y * y + z * z + w * w
+    if not n >= 1e-24:
+        return frames.se3_from_quat(pos, q)  # raises its error
+    s = 2.0 / n  # frames.matrix_from_quat's closed form, term for term
+    px, py, pz = (float(c) for c in pos)
+    return np.array([[1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), px],
+                     [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w), py],
+                     [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y), pz],
+                     [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
+
+
+def yaw_from_quat(q: Any) -> float:
+    """:func:`robchair.platform.frames.yaw_from_quat` of ``(x, y, z, w)`` from the two matrix entries it
+    reads, the same value bit for bit.
+
+    Raises:
+        ValueError: the quaternion has zero length.
+    """
+    x, y, z, w = (float(c) for c in q)
+    n = x * x + y * y + z * z + w * w
+    if not n >= 1e-24:
+        return frames.yaw_from_quat(q)  # raises its error
+    s = 2.0 / n
+    return math.atan2(s * (x * y + z * w), 1.0 - s * (y * y + z * z))
+
+
 #: the fault flags of a reading, by emergency stop (frozen: one instance serves every reading)
 _FAULTS = {False: MotorFaults(emergency_stop=False), True: MotorFaults(emergency_stop=True)}
 
@@ -190,7 +225,7 @@ class EpisodeLaser:
 
     def read(self) -> Any:
         self.laser.accuracy_sigmas = self.accuracy_sigmas / max(self.noise.scale, 1e-6)
-        pose = self.chair.robot.link_transform("laser_link")
+        pose = se3_from_quat(*self.chair.robot.link_pose("laser_link"))  # link_transform's matrix
         return self.laser.scan(pose, self.chair.world.now_ns(), rng=self.noise.rng)
 
 
@@ -301,7 +336,8 @@ class GroundTruthLocalisation:
         kept = self._kept
         if kept is not None and kept[0] == key:
             return kept[1]
-        pose = self.chair.ground_truth_pose()
+        pos, orn = self.chair.robot.base_pose()  # SimChair.ground_truth_pose, without the rotation matrix
+        pose = Pose2D(pos[0], pos[1], yaw_from_quat(orn))
         self._kept = (key, pose)
         return pose
 

@@ -25,6 +25,8 @@ def test_the_occupancy_from_cell_keys_is_the_structures_one():
             n = 3000
             pts = np.column_stack([rng.uniform(x0 - 1, x1 + 1, n), rng.uniform(y0 - 1, y1 + 1, n),
                                    rng.uniform(-0.2, 2.0, n)])  # fmt: skip
+            pts[::50, 2] = 0.1  # structures that only touch the band's edges
+            pts[1::50, 2] = 1.3
             m.insert(pts, sensor_origin=(0.0, 0.0, 0.5))
             other = copy.copy(m)
             other.__class__ = _Other

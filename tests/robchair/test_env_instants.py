@@ -47,3 +47,22 @@ def test_the_true_pose_is_read_once_per_instant_and_anew_after_a_restart(env):
     env.chair.step(steps)  # the same step count in another episode of the physics
     assert env.chair.world.steps == steps
     assert truth.now() == env.chair.ground_truth_pose() != before
+
+
+def test_the_sensor_pose_and_the_heading_are_the_frames_modules_bit_for_bit():
+    from robchair.envs.chair import se3_from_quat, yaw_from_quat
+    from robchair.platform import frames
+
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        q = rng.normal(size=4) * rng.choice([1e-6, 1.0, 1e3])  # not normalised: both normalise
+        pos = tuple(rng.uniform(-10, 10, 3))
+        a, b = se3_from_quat(pos, tuple(q)), frames.se3_from_quat(pos, tuple(q))
+        assert a.dtype == b.dtype and a.shape == b.shape == (4, 4)
+        np.testing.assert_array_equal(a.view(np.uint64), b.view(np.uint64))
+        ya, yb = yaw_from_quat(tuple(q)), frames.yaw_from_quat(tuple(q))
+        assert np.float64(ya).view(np.uint64) == np.float64(yb).view(np.uint64)
+    with pytest.raises(ValueError, match="non-zero"):
+        se3_from_quat((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="non-zero"):
+        yaw_from_quat((0.0, 0.0, 0.0, 0.0))

@@ -77,13 +77,17 @@ def test_the_compiled_ranges_of_hits_keep_misses_and_far_hits_out():
     rng = np.random.default_rng(2)
     t_hit = rng.uniform(0.0, 6.0, 500).astype(np.float32)
     t_hit[::7] = np.inf
-    t_hit[1:4] = (4.0, np.nextafter(np.float32(4.0), np.float32(5.0)), np.float32(0.0))  # on the limits
+    t_hit[1:5] = (4.0, np.nextafter(np.float32(4.0), np.float32(5.0)), np.float32(0.0), 0.02)  # the limits
     gid = rng.integers(0, 3, 500).astype(np.uint32)
     invalid = 2**32 - 1
     gid[::5] = invalid
     ref = t_hit.astype(np.float64)
     ref[(gid == invalid) | ~(ref <= 4.0)] = np.inf
-    np.testing.assert_array_equal(_laser_kernels.hit_ranges(t_hit, gid, invalid, 4.0), ref)
+    got, n = _laser_kernels.hit_ranges(t_hit, gid, invalid, 0.02, 4.0)
+    np.testing.assert_array_equal(got, ref)
+    assert (
+        n == _laser_kernels.count_measured(ref, 0.02, 4.0) == int((ref >= 0.02).sum() - np.isinf(ref).sum())
+    )
 
 
 def test_a_pose_that_is_not_finite_is_refused_as_before(client):
