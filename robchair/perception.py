@@ -66,7 +66,7 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, SonarArrayReading
-from robchair.perception_kernels import all_finite, band_xy, points_in_base_fast
+from robchair.perception_kernels import all_finite, band_xy, obstacle_points
 from robchair.perception_layers import (
     FrameInserter,
     MapLayer,
@@ -76,7 +76,7 @@ from robchair.perception_layers import (
     load_kernels,
     run_evidence_params,
 )
-from robchair.perception_queries import Corridor, _min_opt, _travelled, points_in_base
+from robchair.perception_queries import Corridor, _min_opt, _travelled
 from robchair.perception_sonar import _zone_tables, explained_arc, sonar_obstacle_points
 from robchair.platform.frames import se3_planar, transform_points
 from robchair.platform.kinematics import Pose2D
@@ -402,8 +402,7 @@ class Perception(FrameInserter):
         arcs = list(self._sonar_arc.values())
         if self._zoom_xy is not None:
             arcs.append(self._zoom_xy)  # (N, 2) in base_link at the pose of the frame that placed them
-        fast = points_in_base_fast(pose, self._scan_world, arcs)  # None: not all float64 (N, 2)
-        return fast if fast is not None else points_in_base(pose, self._scan_world, arcs)
+        return obstacle_points(pose, self._scan_world, arcs)  # compiled points_in_base
 
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""

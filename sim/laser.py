@@ -30,7 +30,6 @@ import numpy as np
 import numpy.typing as npt
 
 from hw.interfaces import Clock, Device, LaserScan
-from sim._laser_kernels import count_measured, fill_rays, hit_ranges, readings
 from sim.errors import SimError
 from sim.raycast import MeshMirror, pose_matrix
 
@@ -195,6 +194,8 @@ class LaserSim(Device):
         """:meth:`true_ranges` and, from Embree's hits, how many beams are measurements."""
         rmax = self.model.range_max
         if self.caster == "embree":
+            from sim._laser_kernels import fill_rays, hit_ranges  # numba, imported when first used
+
             assert self.mirror is not None
             # a float64 (4, 4) array is its own pose matrix; the kernel checks that it is finite
             fast = isinstance(pose, np.ndarray) and pose.shape == (4, 4) and pose.dtype == np.float64
@@ -226,6 +227,8 @@ class LaserSim(Device):
         Noise: one standard normal per measured beam (finite, within the range limits), in beam
         order, from ``rng`` (default the laser's own generator).
         """
+        from sim._laser_kernels import count_measured, readings  # numba, imported when first used
+
         m = self.model
         r, measured = self._true_ranges(pose)
         z = None

@@ -37,9 +37,3 @@ def laser_observation(ranges: np.ndarray, range_max: float, out: np.ndarray | No
     res = np.empty(ranges.shape[0], dtype=np.float32) if out is None else out
     _laser_obs(ranges, float(range_max), res)
     return res
-
-
-def clip_value(x: float, lo: float, hi: float) -> float:
-    """``numpy.clip`` of one value (NaN stays, and so does the value on a tie with a bound)."""
-    x = lo if x < lo else x
-    return hi if x > hi else x

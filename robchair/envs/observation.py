@@ -13,7 +13,6 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
-from robchair.envs._obs_kernels import clip_value, laser_observation
 from robchair.platform.kinematics import DiffDrive, Pose2D
 from sim.envs.errors import NavigationEnvError
 from sim.envs.geometry import egocentric_patch, egocentric_values, goal_in_robot_frame
@@ -65,6 +64,12 @@ def action_to_twist(
     if not (math.isfinite(v) and math.isfinite(w)):
         raise _bad_action(action, "")
     return drive.limit(min(max(v, -1.0), 1.0) * max_speed, min(max(w, -1.0), 1.0) * max_yaw_rate)
+
+
+def clip_value(x: float, lo: float, hi: float) -> float:
+    """``numpy.clip`` of one value (NaN stays, and so does the value on a tie with a bound)."""
+    x = lo if x < lo else x
+    return hi if x > hi else x
 
 
 def _bad_action(action: Any, what: str) -> NavigationEnvError:
@@ -166,6 +171,8 @@ class ObservationBuilder:
         if self.laser is not None and scan is not None:
             # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor);
             # then clipped to the box (noise may pass range_max)
+            from robchair.envs._obs_kernels import laser_observation  # numba: imported when first used
+
             r = scan.ranges
             if isinstance(r, np.ndarray) and r.ndim == 1 and r.dtype in (np.float32, np.float64):
                 self.laser = laser_observation(r, self.laser_model.range_max)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from robchair.envs._obs_kernels import clip_value, laser_observation
+from robchair.envs._obs_kernels import laser_observation
+from robchair.envs.observation import clip_value
 
 SPECIAL = (0.0, -0.0, 4.0, -4.0, np.inf, -np.inf, np.nan, 1e-300, -1e-300)
 
