@@ -20,13 +20,18 @@ from mapping._deps import announce_compilation
 from robchair.perception_queries import points_in_base
 from robchair.platform.kinematics import Pose2D
 
+_JIT: Any = None
+
 
 def _jit() -> Any:
     """The compiled kernels' module (numba is imported at the first call, not with the stage)."""
-    from robchair import _perception_jit
+    global _JIT
+    if _JIT is None:
+        import robchair._perception_jit as jit
 
-    announce_compilation(_perception_jit, "perception point kernels")
-    return _perception_jit
+        announce_compilation(jit, "perception point kernels")
+        _JIT = jit
+    return _JIT
 
 
 def obstacle_points(
