@@ -187,26 +187,84 @@ class LaserSim(Device):
 
     def true_ranges(self, pose: Any) -> FloatArray:
         """(n_beams,) distance to the first surface along each beam from the world ``pose``, m
-        (``inf`` for none within ``range_max``); no noise, no limits below."""
-        t = pose_matrix(pose)
-        origin = t[:3, 3]
-        dirs = self._dirs @ t[:3, :3].T
+        (``inf`` for none within ``range_max``); no noise, no limits below.
+
+        Raises:
+            MeshMirrorError: the pose is not finite or not a pose.
+        """
+        return self._true_ranges(pose)[0]
+
+    def _true_ranges(self, pose: Any) -> tuple[FloatArray, int | None]:
+        """:meth:`true_ranges` and, from Embree's hits, how many beams are measurements."""
         rmax = self.model.range_max
         if self.caster == "raster":
+            from sim._laser_raster import planar_first_hits  # numba, imported when first used
+
             assert self.mirror is not None
-            if not (np.isfinite(origin).all() and np.isfinite(t[:3, :3]).all()):
-                from sim.raycast import MeshMirrorError
-
-                raise MeshMirrorError("ray origins and directions must be finite")
-            from sim._laser_raster import planar_first_hits
-
+            t = pose_matrix(pose)  # refuses a pose that is not finite
             mirror = self.mirror
             mirror.sync()
             m = self.model
-            return planar_first_hits(  # type: ignore[no-any-return]
+            r = planar_first_hits(
                 mirror.tri_vertices, mirror.tri_faces, np.ascontiguousarray(t[:3, :3]),
-                np.ascontiguousarray(origin), m.angle_min, m.angle_increment, self._cos, self._sin, rmax,
+                np.ascontiguousarray(t[:3, 3]), m.angle_min, m.angle_increment, self._cos, self._sin, rmax,
             )  # fmt: skip
+            return r, None
+        if self.caster == "embree":
+            from sim._laser_kernels import fill_rays, hit_ranges  # numba, imported when first used
+
+            assert self.mirror is not None
+            # a float64 (4, 4) array is its own pose matrix; the kernel checks that it is finite
+            fast = isinstance(pose, np.ndarray) and pose.shape == (4, 4) and pose.dtype == np.float64
+            t = pose if fast else pose_matrix(pose)
+            dirs = self._dirs @ t[:3, :3].T
+            if not fill_rays(t, dirs, self._rays):  # Embree's (origin, direction) rows, reused
+                from sim.raycast import MeshMirrorError
+
+                pose_matrix(t)  # a pose that is not finite raises here, as its own error
+                raise MeshMirrorError("ray origins and directions must be finite")
+            self.mirror.sync()
+            t_hit, gid, _ = self.mirror.cast_raw(self._rays, normals=False)  # one beam, no per-ray checks
+            return hit_ranges(t_hit, gid, self.mirror.invalid_id, self.model.range_min, rmax)
+        import pybullet as p
+
+        t = pose_matrix(pose)
+        origin = t[:3, 3]
+        dirs = self._dirs @ t[:3, :3].T
+        ends = origin + dirs * rmax
+        hits = p.rayTestBatch(
+            np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
+        )
+        frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
+        return frac * rmax, None
+
+    def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
+        """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``.
+
+        Noise: one standard normal per measured beam (finite, within the range limits), in beam
+        order, from ``rng`` (default the laser's own generator).
+        """
+        from sim._laser_kernels import count_measured, readings  # numba, imported when first used
+
+        m = self.model
+        r, measured = self._true_ranges(pose)
+        z = None
+        if self.noise:
+            gen = rng if rng is not None else self.rng
+            if measured is None:
+                measured = count_measured(r, m.range_min, m.range_max)
+            z = gen.standard_normal((measured,))
+        return readings(r, z, m, self.accuracy_sigmas)
+
+    def ranges_reference(
+        self, pose: Any, *, rng: np.random.Generator | None = None
+    ) -> npt.NDArray[np.float32]:
+        """:meth:`ranges` in numpy passes over the beams (the reference the compiled path is tested
+        against): the same readings and the same draws, bit for bit."""
+        m = self.model
+        t = pose_matrix(pose)
+        origin = t[:3, 3]
+        dirs = self._dirs @ t[:3, :3].T
         if self.caster == "embree":
             assert self.mirror is not None
             if not (np.isfinite(origin).all() and np.isfinite(dirs).all()):
@@ -217,23 +275,11 @@ class LaserSim(Device):
             rays = self._rays
             rays[:, :3] = origin
             rays[:, 3:] = dirs
-            t_hit, gid, _ = self.mirror.cast_raw(rays, normals=False)  # one beam, no per-ray checks
-            dist = t_hit.astype(np.float64)
-            dist[(gid == self.mirror.invalid_id) | ~(dist <= rmax)] = np.inf
-            return dist
-        import pybullet as p
-
-        ends = origin + dirs * rmax
-        hits = p.rayTestBatch(
-            np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
-        )
-        frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
-        return frac * rmax
-
-    def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
-        """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``."""
-        m = self.model
-        r = self.true_ranges(pose)
+            t_hit, gid, _ = self.mirror.cast_raw(rays, normals=False)
+            r = t_hit.astype(np.float64)
+            r[(gid == self.mirror.invalid_id) | ~(r <= m.range_max)] = np.inf
+        else:
+            r = self.true_ranges(t)
         hit = np.isfinite(r) & (r <= m.range_max)
         near = hit & (r < m.range_min)
         ok = hit & ~near
