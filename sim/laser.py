@@ -38,6 +38,10 @@ from sim.raycast import MeshMirror, pose_matrix
 FloatArray = npt.NDArray[np.float64]
 
 CASTERS = ("raster", "embree", "pybullet")
+#: The caster of a :class:`LaserSim` made without one (the chair's): the plane cut. Embree gives the
+#: same ranges to its float32 rounding (tests/sim/test_laser_raster.py); a test that replays readings
+#: recorded with Embree sets this to ``"embree"``.
+DEFAULT_CASTER = "raster"
 
 
 class LaserSimError(SimError, ValueError):
@@ -132,7 +136,8 @@ class LaserSim(Device):
         model: the laser model (default :data:`URG_04LX`).
         mirror: a shared :class:`MeshMirror` (made here, leaving out ``exclude_bodies``, if None).
         exclude_bodies: bodies the laser does not see (the chair itself).
-        caster: ``"raster"`` (the mirror's triangles cut by the scan plane, :mod:`sim._laser_raster`),
+        caster: ``"raster"`` (the mirror's triangles cut by the scan plane, :mod:`sim._laser_raster`;
+            None: :data:`DEFAULT_CASTER`),
             ``"embree"`` (the mirror through Open3D) or ``"pybullet"`` (``rayTestBatch`` on collision
             shapes; sees every body, ``exclude_bodies`` included).
         noise: add the datasheet accuracy as Gaussian noise.
@@ -152,7 +157,7 @@ class LaserSim(Device):
         *,
         mirror: MeshMirror | None = None,
         exclude_bodies: Any = (),
-        caster: str = "raster",
+        caster: str | None = None,
         noise: bool = True,
         accuracy_sigmas: float = 3.0,
         rng: np.random.Generator | int | None = None,
@@ -160,6 +165,7 @@ class LaserSim(Device):
         clock: Clock | None = None,
         frame_id: str = "laser_link",
     ) -> None:
+        caster = DEFAULT_CASTER if caster is None else caster
         if caster not in CASTERS:
             raise LaserSimError(f"caster={caster!r}: expected one of {CASTERS}")
         if not (math.isfinite(accuracy_sigmas) and accuracy_sigmas > 0):
