@@ -38,9 +38,6 @@ _EPS_X = 1e-9
 #: Margin (in a and c) added to a triangle's box before it is mapped to bins: covers the rounding of
 #: the box itself (relative ~1e-16), far below a bin.
 _BOX_MARGIN = 1e-9
-#: Boxes at least this many bins wide get a span per row (narrower ones test their whole box).
-_SPAN_BINS = 1 << 30
-
 
 def beam_layout(
     dirs: npt.NDArray[np.float64], grid_a: int = GRID_A, grid_c: int = GRID_C
@@ -86,7 +83,9 @@ def mesh_chunks(verts, faces, tri_geom):  # type: ignore[no-untyped-def]  # prag
     A new chunk starts at each change of geometry and every :data:`CHUNK_FACES` faces.
 
     Returns:
-        ``(chunks, bounds)``: (K + 1,) face offsets and (K, 4) sphere (world centre x, y, z, radius m).
+        ``(chunks, bounds)``: (K + 1,) face offsets and (K, 12) bounds: sphere (world centre x, y, z,
+        radius m), the first and last vertex index the chunk's faces use, then the world box's
+        lower and upper corners (x, y, z each).
     """
     nf = faces.shape[0]
     off = np.empty(nf + 2, dtype=np.int64)
@@ -102,7 +101,7 @@ def mesh_chunks(verts, faces, tri_geom):  # type: ignore[no-untyped-def]  # prag
         k += 1
         off[k] = nf
     chunks = off[: k + 1].copy()
-    bounds = np.empty((k, 4))
+    bounds = np.empty((k, 12))
     for c in range(k):
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)
@@ -113,8 +112,14 @@ def mesh_chunks(verts, faces, tri_geom):  # type: ignore[no-untyped-def]  # prag
                     lo[q] = min(lo[q], v)
                     hi[q] = max(hi[q], v)
         r2 = 0.0
+        vlo, vhi = verts.shape[0], 0
+        for f in range(chunks[c], chunks[c + 1]):
+            for j in range(3):
+                vlo, vhi = min(vlo, faces[f, j]), max(vhi, faces[f, j])
+        bounds[c, 4], bounds[c, 5] = vlo, vhi
         for q in range(3):
             bounds[c, q] = 0.5 * (lo[q] + hi[q])
+            bounds[c, 6 + q], bounds[c, 9 + q] = lo[q], hi[q]
         for f in range(chunks[c], chunks[c + 1]):
             for j in range(3):
                 s = 0.0
@@ -136,14 +141,53 @@ def _bin_range(lo, hi, x0, dx, n):  # type: ignore[no-untyped-def]  # pragma: no
     return max(i0, 0), min(i1, n - 1)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _echo_of(i, r, f, verts, faces, pose, rays, cos_incidence, bearing, elevation, table_m, table_left, table_right):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``r`` when ray ``i``'s nearest hit (distance ``r``, face ``f``; -1 = none) echoes, else inf: the
+    triangle faces the ray (``|normal . ray| >= cos_incidence``) and the hit lies inside the beam's
+    ellipse of the tabulated half-apertures at ``r`` (the rule of
+    :func:`sim._kinect_kernels.sonar_first_echo`)."""
+    if f < 0:
+        return np.inf
+    # the triangle's world normal and the ray's world direction
+    i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+    ux, uy, uz = verts[i1, 0] - verts[i0, 0], verts[i1, 1] - verts[i0, 1], verts[i1, 2] - verts[i0, 2]
+    wx, wy, wz = verts[i2, 0] - verts[i0, 0], verts[i2, 1] - verts[i0, 1], verts[i2, 2] - verts[i0, 2]
+    nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+    rx, ry, rz = rays[0, i], rays[1, i], rays[2, i]
+    dx = pose[0, 0] * rx + pose[0, 1] * ry + pose[0, 2] * rz
+    dy = pose[1, 0] * rx + pose[1, 1] * ry + pose[1, 2] * rz
+    dz = pose[2, 0] * rx + pose[2, 1] * ry + pose[2, 2] * rz
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if not abs(nx * dx + ny * dy + nz * dz) >= cos_incidence * ln:
+        return np.inf
+    left = _interp_uniform(r, table_m, table_left)
+    right = _interp_uniform(r, table_m, table_right)
+    vert = 0.5 * (left + right)
+    h = left if bearing[i] >= 0 else right
+    if (bearing[i] / h) ** 2 + (elevation[i] / vert) ** 2 <= 1.0:
+        return r
+    return np.inf
+
+
 # error_model="numpy": a division by zero gives inf instead of raising (the ray loop relies on it)
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_cone, far, zbuf, tri):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Nearest hit (distance into ``zbuf``, face into ``tri``) of each ray of one sonar.
+def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_cone, far, zbuf, tri, pv, code, early, rule, bearing, elevation, table_m, table_left, table_right, done):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Nearest hit (distance into ``zbuf``, face into ``tri``) of each ray of one sonar, and with
+    ``early`` its first echo (m, inf = none; else inf is returned).
+
+    The chunks are drawn nearest first (by their near side: the distance to their world box or
+    sphere, whichever is larger). With ``early``, before
+    each chunk the rays whose hit is no farther than its near side are judged (:func:`_echo_of`;
+    ``done`` marks them): their hit is final, since everything left is at least that far. The cast
+    stops once the smallest of their echoes is no farther than that near side: nothing left can give
+    a smaller one.
 
     ``pose``: (4, 4) the sonar's world pose; ``rays``: (3, N) sonar-frame unit rays in bin order;
     ``cos_cone``: cosine of the widest ray's angle off the axis. ``zbuf`` (inf) and ``tri`` (-1) come
-    in filled with "no hit"; hits beyond ``far`` are misses.
+    in filled with "no hit"; hits beyond ``far`` are misses. ``pv`` (M, 5) and ``code`` (M,) are
+    scratch: each vertex's sonar-frame (x, y, z, a, c) and its outcode. ``rule``: cos_incidence
+    of the echo rule; ``bearing`` ... ``table_right``: as :func:`first_echoes` (unused without early).
     """
     a0, da, c0, dc = grid[0], grid[1], grid[2], grid[3]
     ga, gc = int(grid[4]), int(grid[5])
@@ -161,10 +205,9 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
     cx = np.empty(4)
     cy = np.empty(4)
     cz = np.empty(4)
-    pa = np.empty(5)  # the polygon's pinhole coordinates, closed (the first vertex again at the end)
-    pc = np.empty(5)
-    slope = np.empty(4)  # da / dc along each edge of the polygon
-    for ch in range(chunks.shape[0] - 1):
+    nch = chunks.shape[0] - 1
+    key = np.full(nch, np.inf)
+    for ch in range(nch):
         # the chunk's sphere in the sonar frame
         dx, dy, dz = bounds[ch, 0] - ox, bounds[ch, 1] - oy, bounds[ch, 2] - oz
         qx = r00 * dx + r10 * dy + r20 * dz
@@ -178,38 +221,60 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
         # sphere's angular radius, beyond the widest ray's (with a margin for rounding)
         if dist > rad and math.acos(min(1.0, max(-1.0, qx / dist))) - math.asin(rad / dist) > cone + 1e-9:
             continue
+        # no point of the chunk is nearer than its box (tighter than the sphere for long thin walls)
+        gx = max(bounds[ch, 6] - ox, 0.0, ox - bounds[ch, 9])
+        gy = max(bounds[ch, 7] - oy, 0.0, oy - bounds[ch, 10])
+        gz = max(bounds[ch, 8] - oz, 0.0, oz - bounds[ch, 11])
+        key[ch] = max(dist - rad, math.sqrt(gx * gx + gy * gy + gz * gz))
+        if key[ch] > far:
+            key[ch] = np.inf
+    by_key = np.argsort(key)
+    best = np.inf  # the smallest echo among the rays judged (those whose hit is final)
+    n = zbuf.shape[0]
+    for q in range(nch):
+        ch = by_key[q]
+        near = key[ch]
+        if near == np.inf:
+            break  # culled, as is every chunk after it
+        if early:
+            # rays whose hit is no farther than this chunk's near side hold their final hit: judge
+            # them (once each); when one echoes no farther than that, nothing left can give a smaller one
+            for j in range(n):
+                if zbuf[j] <= near and not done[j]:
+                    done[j] = True
+                    best = min(best, _echo_of(j, zbuf[j], tri[j], verts, faces, pose, rays, rule, bearing, elevation, table_m, table_left, table_right))  # fmt: skip
+            if best <= near:
+                return best
+        # the chunk's vertices (a range of indices) in the sonar frame, once each, with outcodes:
+        # 1 behind (x <= eps), 2 beyond the range (x > far), 4 / 8 / 16 / 32 outside the planes
+        # y = alo x, y = ahi x, z = clo x, z = chi x that bound the beam
+        for v in range(int(bounds[ch, 4]), int(bounds[ch, 5]) + 1):
+            dx, dy, dz = verts[v, 0] - ox, verts[v, 1] - oy, verts[v, 2] - oz
+            x = r00 * dx + r10 * dy + r20 * dz
+            y = r01 * dx + r11 * dy + r21 * dz
+            z = r02 * dx + r12 * dy + r22 * dz
+            pv[v, 0], pv[v, 1], pv[v, 2] = x, y, z
+            k = 1 if x <= eps else 0
+            k |= 2 if x > far else 0
+            k |= 4 if y < alo * x else 0
+            k |= 8 if y > ahi * x else 0
+            k |= 16 if z < clo * x else 0
+            k |= 32 if z > chi * x else 0
+            code[v] = k
+            if x > eps:
+                pv[v, 3], pv[v, 4] = y / x, z / x
         for f in range(chunks[ch], chunks[ch + 1]):
             i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            dx, dy, dz = verts[i0, 0] - ox, verts[i0, 1] - oy, verts[i0, 2] - oz
-            x0 = r00 * dx + r10 * dy + r20 * dz
-            y0 = r01 * dx + r11 * dy + r21 * dz
-            z0 = r02 * dx + r12 * dy + r22 * dz
-            dx, dy, dz = verts[i1, 0] - ox, verts[i1, 1] - oy, verts[i1, 2] - oz
-            x1 = r00 * dx + r10 * dy + r20 * dz
-            y1 = r01 * dx + r11 * dy + r21 * dz
-            z1 = r02 * dx + r12 * dy + r22 * dz
-            dx, dy, dz = verts[i2, 0] - ox, verts[i2, 1] - oy, verts[i2, 2] - oz
-            x2 = r00 * dx + r10 * dy + r20 * dz
-            y2 = r01 * dx + r11 * dy + r21 * dz
-            z2 = r02 * dx + r12 * dy + r22 * dz
-            if x0 > far and x1 > far and x2 > far:
-                continue  # every point of it farther than the range (a distance is at least its x)
-            # wholly on the outer side of one of the four planes that bound the beam (no division;
-            # this also drops what lies behind the sonar)
-            if (
-                (y0 < alo * x0 and y1 < alo * x1 and y2 < alo * x2)
-                or (y0 > ahi * x0 and y1 > ahi * x1 and y2 > ahi * x2)
-                or (z0 < clo * x0 and z1 < clo * x1 and z2 < clo * x2)
-                or (z0 > chi * x0 and z1 > chi * x1 and z2 > chi * x2)
-            ):
+            k0, k1, k2 = code[i0], code[i1], code[i2]
+            # wholly behind, beyond the range (a distance is at least its x) or outside the beam
+            if k0 & k1 & k2:
                 continue
-            if x0 <= eps and x1 <= eps and x2 <= eps:
-                continue  # wholly behind the sonar
-            if x0 > eps and x1 > eps and x2 > eps:
-                nc = 3
-                cx[0], cy[0], cz[0] = x0, y0, z0
-                cx[1], cy[1], cz[1] = x1, y1, z1
-                cx[2], cy[2], cz[2] = x2, y2, z2
+            x0, y0, z0 = pv[i0, 0], pv[i0, 1], pv[i0, 2]
+            x1, y1, z1 = pv[i1, 0], pv[i1, 1], pv[i1, 2]
+            x2, y2, z2 = pv[i2, 0], pv[i2, 1], pv[i2, 2]
+            if not (k0 | k1 | k2) & 1:
+                amin, amax = min(pv[i0, 3], pv[i1, 3], pv[i2, 3]), max(pv[i0, 3], pv[i1, 3], pv[i2, 3])
+                cmin, cmax = min(pv[i0, 4], pv[i1, 4], pv[i2, 4]), max(pv[i0, 4], pv[i1, 4], pv[i2, 4])
             else:
                 # clip against x = eps (Sutherland-Hodgman, one plane) to bound the projection
                 nc = 0
@@ -227,26 +292,19 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
                         s = (eps - px) / (sx - px)
                         cx[nc], cy[nc], cz[nc] = eps, py + s * (sy - py), pz + s * (sz - pz)
                         nc += 1
-            # the (clipped) polygon in pinhole coordinates and its box
-            amin, amax, cmin, cmax = np.inf, -np.inf, np.inf, -np.inf
-            for k in range(nc):
-                pa[k] = cy[k] / cx[k]
-                pc[k] = cz[k] / cx[k]
-                amin, amax = min(amin, pa[k]), max(amax, pa[k])
-                cmin, cmax = min(cmin, pc[k]), max(cmax, pc[k])
-            pa[nc], pc[nc] = pa[0], pc[0]
-            scale = max(-amin, amax, -cmin, cmax)
-            margin = _BOX_MARGIN * (1.0 + scale)
+                amin, amax, cmin, cmax = np.inf, -np.inf, np.inf, -np.inf
+                for k in range(nc):
+                    a = cy[k] / cx[k]
+                    c = cz[k] / cx[k]
+                    amin, amax = min(amin, a), max(amax, a)
+                    cmin, cmax = min(cmin, c), max(cmax, c)
+            # the box's own rounding is relative to its coordinates (a vertex just in front of the
+            # sonar projects far out)
+            margin = _BOX_MARGIN * (1.0 + max(-amin, amax, -cmin, cmax))
             ia0, ia1 = _bin_range(amin - margin, amax + margin, a0, da, ga)
             ic0, ic1 = _bin_range(cmin - margin, cmax + margin, c0, dc, gc)
             if ia0 > ia1 or ic0 > ic1:
                 continue  # outside the beam
-            # rows get their own span (the polygon's extent in a over the row's band of c) unless the
-            # polygon reaches far out (a vertex just in front of the sonar), where rounding grows
-            spans = scale < 1e4 and ia1 - ia0 >= _SPAN_BINS
-            if spans:
-                for k in range(nc):
-                    slope[k] = (pa[k + 1] - pa[k]) / (pc[k + 1] - pc[k]) if pc[k + 1] != pc[k] else 0.0
             # edge vectors p_i x p_j, the normal (their sum) and the plane's n . p0
             e00, e01, e02 = y0 * z1 - z0 * y1, z0 * x1 - x0 * z1, x0 * y1 - y0 * x1
             e10, e11, e12 = y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2
@@ -261,27 +319,7 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
                 e00, e01, e02, e10, e11, e12 = -e00, -e01, -e02, -e10, -e11, -e12
                 e20, e21, e22 = -e20, -e21, -e22
             for ic in range(ic0, ic1 + 1):
-                ja0, ja1 = ia0, ia1
-                if spans:
-                    bl, bh = c0 + ic * dc - margin, c0 + (ic + 1) * dc + margin
-                    lo_a, hi_a = np.inf, -np.inf
-                    for k in range(nc):
-                        # edge k's part within the band: its c range clipped, then a along it
-                        ca, cb = pc[k], pc[k + 1]
-                        lo_c, hi_c = max(bl, min(ca, cb)), min(bh, max(ca, cb))
-                        if lo_c > hi_c:
-                            continue
-                        if ca == cb:
-                            u0, u1 = pa[k], pa[k + 1]
-                        else:
-                            u0, u1 = pa[k] + (lo_c - ca) * slope[k], pa[k] + (hi_c - ca) * slope[k]
-                        lo_a, hi_a = min(lo_a, u0, u1), max(hi_a, u0, u1)
-                    if lo_a > hi_a:
-                        continue
-                    ja0, ja1 = _bin_range(lo_a - margin, hi_a + margin, a0, da, ga)
-                    if ja0 > ja1:
-                        continue
-                lo, hi = bin_start[ic * ga + ja0], bin_start[ic * ga + ja1 + 1]
+                lo, hi = bin_start[ic * ga + ia0], bin_start[ic * ga + ia1 + 1]
                 # branch-free over the row's rays (contiguous), so that it runs on SIMD lanes (the
                 # slices give indices LLVM knows are >= 0: no wraparound test per ray); a ray in the
                 # triangle's plane gives an infinite distance, which fails t <= far
@@ -300,6 +338,12 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
                     )
                     zr[j] = t if ok else zj
                     tr[j] = f if ok else tr[j]
+    if not early:
+        return np.inf
+    for j in range(n):
+        if not done[j]:
+            best = min(best, _echo_of(j, zbuf[j], tri[j], verts, faces, pose, rays, rule, bearing, elevation, table_m, table_left, table_right))  # fmt: skip
+    return best
 
 
 @numba.njit(cache=True, nogil=True)
@@ -312,9 +356,14 @@ def beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, cos_co
     k, n = stack.shape[0], rays.shape[1]
     zbuf = np.full((k, n), np.inf)
     tri = np.full((k, n), -1, dtype=np.int64)
+    pv = np.empty((verts.shape[0], 5))
+    code = np.empty(verts.shape[0], dtype=np.int64)
+    none, done = np.empty(0), np.empty(0, dtype=np.bool_)
     for s in range(k):
         _cast_one(
-verts, faces, chunks, bounds, stack[s], rays, grid, bin_start, cos_cone, far, zbuf[s], tri[s])
+            verts, faces, chunks, bounds, stack[s], rays, grid, bin_start, cos_cone, far, zbuf[s], tri[s], pv, code,
+            False, 2.0, none, none, none, none, none, done,
+        )  # fmt: skip
     return zbuf, tri
 
 
@@ -355,35 +404,21 @@ def first_echoes(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
         within ``max_range``, faces it (``|normal . ray| >= cos_incidence``) and lies inside the beam's
         ellipse at that distance.
     """
-    zbuf, tri = beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, cos_cone, max_range)
-    k, n = zbuf.shape
+    k, n = stack.shape[0], rays.shape[1]
+    zbuf = np.empty(n)
+    tri = np.empty(n, dtype=np.int64)
+    done = np.empty(n, dtype=np.bool_)
+    pv = np.empty((verts.shape[0], 5))
+    code = np.empty(verts.shape[0], dtype=np.int64)
     out = np.full(k, np.nan)
     for s in range(k):
-        best = np.inf
-        rot = stack[s, :3, :3]
-        for i in range(n):
-            r = zbuf[s, i]
-            f = tri[s, i]
-            if f < 0 or not r < best:
-                continue
-            # the triangle's world normal and the ray's world direction
-            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            ux, uy, uz = verts[i1, 0] - verts[i0, 0], verts[i1, 1] - verts[i0, 1], verts[i1, 2] - verts[i0, 2]
-            wx, wy, wz = verts[i2, 0] - verts[i0, 0], verts[i2, 1] - verts[i0, 1], verts[i2, 2] - verts[i0, 2]
-            nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
-            rx, ry, rz = rays[0, i], rays[1, i], rays[2, i]
-            dx = rot[0, 0] * rx + rot[0, 1] * ry + rot[0, 2] * rz
-            dy = rot[1, 0] * rx + rot[1, 1] * ry + rot[1, 2] * rz
-            dz = rot[2, 0] * rx + rot[2, 1] * ry + rot[2, 2] * rz
-            ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if not abs(nx * dx + ny * dy + nz * dz) >= cos_incidence * ln:
-                continue
-            left = _interp_uniform(r, table_m, table_left)
-            right = _interp_uniform(r, table_m, table_right)
-            vert = 0.5 * (left + right)
-            h = left if bearing[i] >= 0 else right
-            if (bearing[i] / h) ** 2 + (elevation[i] / vert) ** 2 <= 1.0:
-                best = r
+        zbuf[:] = np.inf
+        tri[:] = -1
+        done[:] = False
+        best = _cast_one(
+            verts, faces, chunks, bounds, stack[s], rays, grid, bin_start, cos_cone, max_range, zbuf, tri, pv, code,
+            True, cos_incidence, bearing, elevation, table_m, table_left, table_right, done,
+        )  # fmt: skip
         if best < np.inf:
             out[s] = best
     return out
