@@ -238,12 +238,13 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
             break  # culled, as is every chunk after it
         if early:
             # rays whose hit is no farther than this chunk's near side hold their final hit: judge
-            # them (once each); when one echoes no farther than that, nothing left can give a smaller one
+            # them (once each); when one echoes (no farther than that), nothing left can give a
+            # smaller echo
             for j in range(n):
                 if zbuf[j] <= near and not done[j]:
                     done[j] = True
                     best = min(best, _echo_of(j, zbuf[j], tri[j], verts, faces, pose, rays, rule, bearing, elevation, table_m, table_left, table_right))  # fmt: skip
-            if best <= near:
+            if best < np.inf:
                 return best
         # the chunk's vertices (a range of indices) in the sonar frame, once each, with outcodes:
         # 1 behind (x <= eps), 2 beyond the range (x > far), 4 / 8 / 16 / 32 outside the planes
