@@ -9,13 +9,32 @@ frame, its pinhole box bounded (clipped at x = 1e-9 as the raster does), and onl
 bins the box covers are tested, exactly: a ray ``r`` from the origin crosses the triangle (p0, p1,
 p2) iff the three triple products ``r . (p_i x p_j)`` share the sign of ``d = n . p0`` (n the
 triangle's normal), at the distance ``d / (n . r)`` (metres: the rays are unit vectors). The
-nearest hit of each ray is kept (a tie keeps the lower triangle index), then the echo rule of
+nearest hit of each ray is kept (a tie keeps the triangle drawn first), then the echo rule of
 :func:`sim._kinect_kernels.sonar_first_echo` picks each sonar's first echo.
 
-Whole chunks of triangles (each geometry's faces, at most :data:`CHUNK_FACES` at a time, bounded by a
-sphere computed once per mirror rebuild) are skipped when they lie beyond the range, behind the sonar
-or outside the cone that holds every ray. The answer is Embree's up to its float32 rounding (Embree
-casts float32 rays; here the geometry is the mirror's float32 vertices in float64, the rays float64).
+Work saved per sonar, none of it changing the answer (the tests bound it against Embree's):
+
+* whole chunks of triangles (each geometry's faces, at most :data:`CHUNK_FACES` at a time, bounded
+  by a sphere and a box computed once per mirror rebuild) are skipped when they lie beyond the range,
+  behind the sonar or outside the cone that holds every ray;
+* a chunk's vertices are taken into the sonar frame once each, with outcodes (behind, beyond the
+  range, outside one of the four planes that bound the beam): a triangle all of whose vertices share
+  one is skipped without a division;
+* the rays of a row of bins are contiguous, so the exact test runs branch-free on SIMD lanes;
+* the chunks are drawn nearest first, and the echo rule is fused in: before each chunk, the rays
+  whose hit is no farther than the chunk's near side hold their final hit and are judged; once one
+  of them echoes, nothing left can give a smaller echo and the cast stops (most sonars stop after a
+  handful of chunks: the floor, the walls around, the nearest object).
+
+The answer is Embree's up to its float32 rounding (Embree casts float32 rays; here the geometry is
+the mirror's float32 vertices in float64, the rays float64): over 400 random office poses (2400
+sonars) the raw first echoes differ by at most 7e-7 m, echo or silence alike.
+
+Measured (``time.process_time`` medians, 900 group casts of 6 x 1102 rays at poses from a
+``RobChair/Navigation-v1`` run, same process, load ~2 on 2 cores): 362 us per group against 936 us
+for the Embree path's ``first_echo`` (788 us of it Embree's ``cast_rays``), 2.6x. Tried and dropped:
+per-row spans of each triangle (14 % fewer ray tests, but slower) and per-bin occlusion bounds
+(15 % fewer tests, the bookkeeping cost more).
 """
 
 from __future__ import annotations
@@ -38,6 +57,7 @@ _EPS_X = 1e-9
 #: Margin (in a and c) added to a triangle's box before it is mapped to bins: covers the rounding of
 #: the box itself (relative ~1e-16), far below a bin.
 _BOX_MARGIN = 1e-9
+
 
 def beam_layout(
     dirs: npt.NDArray[np.float64], grid_a: int = GRID_A, grid_c: int = GRID_C
@@ -142,7 +162,9 @@ def _bin_range(lo, hi, x0, dx, n):  # type: ignore[no-untyped-def]  # pragma: no
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _echo_of(i, r, f, verts, faces, pose, rays, cos_incidence, bearing, elevation, table_m, table_left, table_right):  # type: ignore[no-untyped-def]  # pragma: no cover
+def _echo_of(
+    i, r, f, verts, faces, pose, rays, cos_incidence, bearing, elevation, table_m, table_left, table_right
+):  # type: ignore[no-untyped-def]  # pragma: no cover
     """``r`` when ray ``i``'s nearest hit (distance ``r``, face ``f``; -1 = none) echoes, else inf: the
     triangle faces the ray (``|normal . ray| >= cos_incidence``) and the hit lies inside the beam's
     ellipse of the tabulated half-apertures at ``r`` (the rule of
@@ -172,16 +194,38 @@ def _echo_of(i, r, f, verts, faces, pose, rays, cos_incidence, bearing, elevatio
 
 # error_model="numpy": a division by zero gives inf instead of raising (the ray loop relies on it)
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_cone, far, zbuf, tri, pv, code, early, rule, bearing, elevation, table_m, table_left, table_right, done):  # type: ignore[no-untyped-def]  # pragma: no cover
+def _cast_one(
+    verts,
+    faces,
+    chunks,
+    bounds,
+    pose,
+    rays,
+    grid,
+    bin_start,
+    cos_cone,
+    far,
+    zbuf,
+    tri,
+    pv,
+    code,
+    early,
+    rule,
+    bearing,
+    elevation,
+    table_m,
+    table_left,
+    table_right,
+    done,
+):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Nearest hit (distance into ``zbuf``, face into ``tri``) of each ray of one sonar, and with
     ``early`` its first echo (m, inf = none; else inf is returned).
 
     The chunks are drawn nearest first (by their near side: the distance to their world box or
-    sphere, whichever is larger). With ``early``, before
-    each chunk the rays whose hit is no farther than its near side are judged (:func:`_echo_of`;
-    ``done`` marks them): their hit is final, since everything left is at least that far. The cast
-    stops once the smallest of their echoes is no farther than that near side: nothing left can give
-    a smaller one.
+    sphere, whichever is larger). With ``early``, before each chunk the rays whose hit is no farther
+    than its near side are judged (:func:`_echo_of`; ``done`` marks them): their hit is final, since
+    everything left is at least that far. The cast stops once one of them echoes: its echo is no
+    farther than that near side, so nothing left can give a smaller one.
 
     ``pose``: (4, 4) the sonar's world pose; ``rays``: (3, N) sonar-frame unit rays in bin order;
     ``cos_cone``: cosine of the widest ray's angle off the axis. ``zbuf`` (inf) and ``tri`` (-1) come
@@ -243,7 +287,24 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
             for j in range(n):
                 if zbuf[j] <= near and not done[j]:
                     done[j] = True
-                    best = min(best, _echo_of(j, zbuf[j], tri[j], verts, faces, pose, rays, rule, bearing, elevation, table_m, table_left, table_right))  # fmt: skip
+                    best = min(
+                        best,
+                        _echo_of(
+                            j,
+                            zbuf[j],
+                            tri[j],
+                            verts,
+                            faces,
+                            pose,
+                            rays,
+                            rule,
+                            bearing,
+                            elevation,
+                            table_m,
+                            table_left,
+                            table_right,
+                        ),
+                    )
             if best < np.inf:
                 return best
         # the chunk's vertices (a range of indices) in the sonar frame, once each, with outcodes:
@@ -343,7 +404,24 @@ def _cast_one(verts, faces, chunks, bounds, pose, rays, grid, bin_start, cos_con
         return np.inf
     for j in range(n):
         if not done[j]:
-            best = min(best, _echo_of(j, zbuf[j], tri[j], verts, faces, pose, rays, rule, bearing, elevation, table_m, table_left, table_right))  # fmt: skip
+            best = min(
+                best,
+                _echo_of(
+                    j,
+                    zbuf[j],
+                    tri[j],
+                    verts,
+                    faces,
+                    pose,
+                    rays,
+                    rule,
+                    bearing,
+                    elevation,
+                    table_m,
+                    table_left,
+                    table_right,
+                ),
+            )
     return best
 
 
@@ -362,9 +440,29 @@ def beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, cos_co
     none, done = np.empty(0), np.empty(0, dtype=np.bool_)
     for s in range(k):
         _cast_one(
-            verts, faces, chunks, bounds, stack[s], rays, grid, bin_start, cos_cone, far, zbuf[s], tri[s], pv, code,
-            False, 2.0, none, none, none, none, none, done,
-        )  # fmt: skip
+            verts,
+            faces,
+            chunks,
+            bounds,
+            stack[s],
+            rays,
+            grid,
+            bin_start,
+            cos_cone,
+            far,
+            zbuf[s],
+            tri[s],
+            pv,
+            code,
+            False,
+            2.0,
+            none,
+            none,
+            none,
+            none,
+            none,
+            done,
+        )
     return zbuf, tri
 
 
@@ -417,9 +515,29 @@ def first_echoes(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
         tri[:] = -1
         done[:] = False
         best = _cast_one(
-            verts, faces, chunks, bounds, stack[s], rays, grid, bin_start, cos_cone, max_range, zbuf, tri, pv, code,
-            True, cos_incidence, bearing, elevation, table_m, table_left, table_right, done,
-        )  # fmt: skip
+            verts,
+            faces,
+            chunks,
+            bounds,
+            stack[s],
+            rays,
+            grid,
+            bin_start,
+            cos_cone,
+            max_range,
+            zbuf,
+            tri,
+            pv,
+            code,
+            True,
+            cos_incidence,
+            bearing,
+            elevation,
+            table_m,
+            table_left,
+            table_right,
+            done,
+        )
         if best < np.inf:
             out[s] = best
     return out
