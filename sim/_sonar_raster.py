@@ -16,7 +16,7 @@ Work saved per sonar, none of it changing the answer (the tests bound it against
 
 * whole chunks of triangles (each geometry's faces, at most :data:`CHUNK_FACES` at a time, bounded
   by a sphere and a box computed once per mirror rebuild) are skipped when they lie beyond the range,
-  behind the sonar or outside the cone that holds every ray;
+  behind the sonar or outside the four planes that bound the beam;
 * a chunk's vertices are taken into the sonar frame once each, with outcodes (behind, beyond the
   range, outside one of the four planes that bound the beam): a triangle all of whose vertices share
   one is skipped without a division;
@@ -203,7 +203,6 @@ def _cast_one(
     rays,
     grid,
     bin_start,
-    cos_cone,
     far,
     zbuf,
     tri,
@@ -227,8 +226,8 @@ def _cast_one(
     everything left is at least that far. The cast stops once one of them echoes: its echo is no
     farther than that near side, so nothing left can give a smaller one.
 
-    ``pose``: (4, 4) the sonar's world pose; ``rays``: (3, N) sonar-frame unit rays in bin order;
-    ``cos_cone``: cosine of the widest ray's angle off the axis. ``zbuf`` (inf) and ``tri`` (-1) come
+    ``pose``: (4, 4) the sonar's world pose; ``rays``: (3, N) sonar-frame unit rays in bin order.
+    ``zbuf`` (inf) and ``tri`` (-1) come
     in filled with "no hit"; hits beyond ``far`` are misses. ``pv`` (M, 5) and ``code`` (M,) are
     scratch: each vertex's sonar-frame (x, y, z, a, c) and its outcode. ``rule``: cos_incidence
     of the echo rule; ``bearing`` ... ``table_right``: as :func:`first_echoes` (unused without early).
@@ -239,7 +238,6 @@ def _cast_one(
     alo, ahi = a0 - 1e-6, a0 + ga * da + 1e-6
     clo, chi = c0 - 1e-6, c0 + gc * dc + 1e-6
     eps = _EPS_X
-    cone = math.acos(cos_cone)
     # the pose as scalars (world <- sonar rotation r.., origin o.)
     r00, r01, r02 = pose[0, 0], pose[0, 1], pose[0, 2]
     r10, r11, r12 = pose[1, 0], pose[1, 1], pose[1, 2]
@@ -249,8 +247,15 @@ def _cast_one(
     cx = np.empty(4)
     cy = np.empty(4)
     cz = np.empty(4)
+    # the four planes through the sonar that bound the beam (y = alo x, ...) as unit inward normals
+    na = 1.0 / math.sqrt(1.0 + alo * alo)
+    nb = 1.0 / math.sqrt(1.0 + ahi * ahi)
+    nc_ = 1.0 / math.sqrt(1.0 + clo * clo)
+    nd = 1.0 / math.sqrt(1.0 + chi * chi)
     nch = chunks.shape[0] - 1
-    key = np.full(nch, np.inf)
+    kept = np.empty(nch, dtype=np.int64)
+    key = np.empty(nch)
+    nk = 0
     for ch in range(nch):
         # the chunk's sphere in the sonar frame
         dx, dy, dz = bounds[ch, 0] - ox, bounds[ch, 1] - oy, bounds[ch, 2] - oz
@@ -258,28 +263,32 @@ def _cast_one(
         qy = r01 * dx + r11 * dy + r21 * dz
         qz = r02 * dx + r12 * dy + r22 * dz
         rad = bounds[ch, 3]
-        dist = math.sqrt(qx * qx + qy * qy + qz * qz)
-        if dist - rad > far or qx + rad <= eps:
-            continue  # every point of it beyond the range, or behind the sonar
-        # wholly outside the cone that holds every ray: the centre's angle off the axis, less the
-        # sphere's angular radius, beyond the widest ray's (with a margin for rounding)
-        if dist > rad and math.acos(min(1.0, max(-1.0, qx / dist))) - math.asin(rad / dist) > cone + 1e-9:
+        if qx + rad <= eps:
+            continue  # behind the sonar
+        # wholly on the outer side of one of the planes that bound the beam
+        if (
+            (qy - alo * qx) * na < -rad
+            or (ahi * qx - qy) * nb < -rad
+            or (qz - clo * qx) * nc_ < -rad
+            or (chi * qx - qz) * nd < -rad
+        ):
             continue
         # no point of the chunk is nearer than its box (tighter than the sphere for long thin walls)
         gx = max(bounds[ch, 6] - ox, 0.0, ox - bounds[ch, 9])
         gy = max(bounds[ch, 7] - oy, 0.0, oy - bounds[ch, 10])
         gz = max(bounds[ch, 8] - oz, 0.0, oz - bounds[ch, 11])
-        key[ch] = max(dist - rad, math.sqrt(gx * gx + gy * gy + gz * gz))
-        if key[ch] > far:
-            key[ch] = np.inf
-    by_key = np.argsort(key)
+        near = max(math.sqrt(qx * qx + qy * qy + qz * qz) - rad, math.sqrt(gx * gx + gy * gy + gz * gz))
+        if near > far:
+            continue  # every point of it beyond the range
+        kept[nk] = ch
+        key[nk] = near
+        nk += 1
+    by_key = np.argsort(key[:nk])
     best = np.inf  # the smallest echo among the rays judged (those whose hit is final)
     n = zbuf.shape[0]
-    for q in range(nch):
-        ch = by_key[q]
-        near = key[ch]
-        if near == np.inf:
-            break  # culled, as is every chunk after it
+    for q in range(nk):
+        ch = kept[by_key[q]]
+        near = key[by_key[q]]
         if early:
             # rays whose hit is no farther than this chunk's near side hold their final hit: judge
             # them (once each); when one echoes (no farther than that), nothing left can give a
@@ -426,7 +435,7 @@ def _cast_one(
 
 
 @numba.njit(cache=True, nogil=True)
-def beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, cos_cone, far):  # type: ignore[no-untyped-def]  # pragma: no cover
+def beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, far):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Nearest hit of every ray of ``k`` sonars: ``(distance (k, N), face (k, N))``, rays in bin order.
 
     ``stack``: (k, 4, 4) world poses of the sonars; the other arguments as :func:`first_echoes`.
@@ -448,7 +457,6 @@ def beam_hits(verts, faces, chunks, bounds, stack, rays, grid, bin_start, cos_co
             rays,
             grid,
             bin_start,
-            cos_cone,
             far,
             zbuf[s],
             tri[s],
@@ -476,7 +484,6 @@ def first_echoes(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     rays,
     grid,
     bin_start,
-    cos_cone,
     max_range,
     cos_incidence,
     bearing,
@@ -494,7 +501,6 @@ def first_echoes(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
         stack: (k, 4, 4) world poses of the sonars (x = axis).
         rays, grid, bin_start: :func:`beam_layout` of the beam; ``bearing``, ``elevation``: (N,) deg of
             each ray, in the same (bin) order.
-        cos_cone: cosine of the widest ray's angle off the axis.
         max_range: m; cos_incidence: the echo rule's limit; table_*: the tabulated half-apertures
             (as :func:`sim._kinect_kernels.sonar_first_echo`).
 
@@ -523,7 +529,6 @@ def first_echoes(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
             rays,
             grid,
             bin_start,
-            cos_cone,
             max_range,
             zbuf,
             tri,

@@ -148,17 +148,15 @@ class _Beam:
 
     def _raster_layout(self) -> tuple[Any, ...]:
         """The beam's rays sorted into the raster's (a, c) bins, with bearing and elevation in the same
-        order and the cosine of the widest ray's angle off the axis (:mod:`sim._sonar_raster`)."""
+        order (:mod:`sim._sonar_raster`)."""
         if self._layout is None:
             from sim._sonar_raster import beam_layout
 
             order, rays, grid, bin_start = beam_layout(self.dirs)
-            cos_cone = float(np.min(self.dirs[:, 0]))
             self._layout = (
                 rays,
                 grid,
                 bin_start,
-                cos_cone,
                 np.ascontiguousarray(self.bearing_deg[order]),
                 np.ascontiguousarray(self.elevation_deg[order]),
             )
@@ -209,7 +207,7 @@ class _Beam:
         if compiled and finite and caster == "raster":
             from sim._sonar_raster import first_echoes
 
-            rays, grid, bin_start, cos_cone, bearing, elevation = self._raster_layout()
+            rays, grid, bin_start, bearing, elevation = self._raster_layout()
             chunks, bounds = self._raster_mesh(mirror)
             return first_echoes(  # type: ignore[no-any-return]
                 mirror.tri_vertices,
@@ -220,7 +218,6 @@ class _Beam:
                 rays,
                 grid,
                 bin_start,
-                cos_cone,
                 float(self.model.max_range_m),
                 self.cos_incidence,
                 bearing,

@@ -78,14 +78,12 @@ def test_raster_nearest_hits_of_every_ray_equal_embree_s(chair):
     arr = chair.sonars["sonar_array_left"]
     beam, m = arr._beam, chair.mirror
     m.sync()
-    rays, grid, bin_start, cos_cone, _, _ = beam._raster_layout()
+    rays, grid, bin_start, _, _ = beam._raster_layout()
     chunks, bounds = beam._raster_mesh(m)
     hits = 0
     for poses in _office_stacks(arr, 40, 5):
         st = np.asarray(poses)
-        dist, face = beam_hits(
-            m.tri_vertices, m.tri_faces, chunks, bounds, st, rays, grid, bin_start, cos_cone, 6.0
-        )
+        dist, face = beam_hits(m.tri_vertices, m.tri_faces, chunks, bounds, st, rays, grid, bin_start, 6.0)
         dirs = np.matmul(rays.T, st[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
         rows = np.empty((len(dirs), 6), dtype=np.float32)
         fill_rays(st, dirs, rows)
