@@ -30,9 +30,10 @@ The answer is Embree's up to its float32 rounding (Embree casts float32 rays; he
 the mirror's float32 vertices in float64, the rays float64): over 400 random office poses (2400
 sonars) the raw first echoes differ by at most 7e-7 m, echo or silence alike.
 
-Measured (``time.process_time`` medians, 900 group casts of 6 x 1102 rays at poses from a
-``RobChair/Navigation-v1`` run, same process, load ~2 on 2 cores): 362 us per group against 936 us
-for the Embree path's ``first_echo`` (788 us of it Embree's ``cast_rays``), 2.6x. Tried and dropped:
+Measured (``time.process_time`` medians, 900 group casts of 6 x 1102 rays at 300 poses spread over
+a 1200-step ``RobChair/Navigation-v1`` run, same process, load ~3.7 on 2 cores): 355 us per group
+against 913 us for the Embree path's ``first_echo`` (753 us of it Embree's ``cast_rays``), 2.6x; at
+random office poses (many looking down the open rooms) 1.6-2x. Tried and dropped:
 per-row spans of each triangle (14 % fewer ray tests, but slower) and per-bin occlusion bounds
 (15 % fewer tests, the bookkeeping cost more).
 """
