@@ -46,6 +46,11 @@ from sim.raycast import MeshMirror, pose_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
+#: The beam's caster when none is named: the image-space raster over the mirror's triangles
+#: (:mod:`sim._sonar_raster`), Embree's echoes to its float32 rounding (tests/sim/test_sonar_raster.py).
+#: A test that replays readings recorded with Embree sets this to ``"embree"``.
+DEFAULT_CASTER = "raster"
+
 
 class SonarSimError(SimError, ValueError):
     """A simulated sonar was configured or queried with invalid values."""
@@ -178,7 +183,7 @@ class _Beam:
         return np.interp(r, self._table_m, self._table_left), np.interp(r, self._table_m, self._table_right)
 
     def first_echo(
-        self, mirror: MeshMirror, poses: list[FloatArray], *, compiled: bool = True, caster: str = "raster"
+        self, mirror: MeshMirror, poses: list[FloatArray], *, compiled: bool = True, caster: str | None = None
     ) -> FloatArray:
         """Raw first-echo distance (m, unquantised, NaN = none) for each sonar pose.
 
@@ -187,10 +192,10 @@ class _Beam:
             poses: k world poses (4x4) of the sonars, x = the axis.
             compiled: False runs the echo rule in numpy over Embree's hits (the reference the tests
                 compare with), whatever ``caster`` says.
-            caster: ``"raster"`` (default) casts and applies the echo rule in one compiled call over
-                the mirror's flat triangle arrays (:mod:`sim._sonar_raster`, exact: Embree's answer up
-                to its float32 rounding); ``"embree"`` casts through Open3D and applies the rule in
-                one compiled pass over its raw hits.
+            caster: ``"raster"`` (None: :data:`DEFAULT_CASTER`) casts and applies the echo rule in
+                one compiled call over the mirror's flat triangle arrays (:mod:`sim._sonar_raster`,
+                exact: Embree's answer up to its float32 rounding); ``"embree"`` casts through Open3D
+                and applies the rule in one compiled pass over its raw hits.
 
         Returns:
             (k,) float64 first echoes.
@@ -198,6 +203,7 @@ class _Beam:
         Raises:
             SonarSimError: an unknown caster. Non-finite poses are refused by :meth:`MeshMirror.cast`.
         """
+        caster = DEFAULT_CASTER if caster is None else caster
         if caster not in ("raster", "embree"):
             raise SonarSimError(f"caster={caster!r}: expected 'raster' or 'embree'")
         n = len(self.dirs)

@@ -107,8 +107,9 @@ def record() -> dict[str, Any]:
     """Every case of :data:`CASES`, by name, with the sensors' Embree casters (as the digests were
     recorded; test_env_step_bits replays them so)."""
     import sim.laser
+    import sim.sonar
 
-    sim.laser.DEFAULT_CASTER = "embree"
+    sim.laser.DEFAULT_CASTER = sim.sonar.DEFAULT_CASTER = "embree"
     return {name: record_case(env_id, kw, seed, a_seed, n) for name, env_id, kw, seed, a_seed, n in CASES}
 
 

@@ -24,8 +24,10 @@ from tests.robchair.env_step_record import CASES, DIGESTS, record_case
 def embree_casters(monkeypatch):
     """The sensors cast through Embree, as when the digests were recorded."""
     import sim.laser
+    import sim.sonar
 
     monkeypatch.setattr(sim.laser, "DEFAULT_CASTER", "embree")
+    monkeypatch.setattr(sim.sonar, "DEFAULT_CASTER", "embree")
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])

@@ -185,23 +185,3 @@ def test_beam_layout_bins_every_ray_once_and_refuses_rays_off_to_the_side():
         beam_layout(np.array([[0.1, 0.995, 0.0]]))
     with pytest.raises(ValueError, match="grid"):
         beam_layout(dirs, 0, 3)
-
-
-def test_the_raster_group_cast_costs_less_cpu_than_embree_s(chair):
-    """The point of the raster: the chair's group cast (6 sonars x 1102 rays) costs less CPU than the
-    Embree path's, timed in the same process at the same poses (medians; measured 2.6x at poses of a
-    RobChair/Navigation-v1 run, 1.6-2x at random office poses; asserted with a margin for a loaded
-    machine)."""
-    import time
-
-    arr = chair.sonars["sonar_array_left"]
-    beam, m = arr._beam, chair.mirror
-    stacks = list(_office_stacks(arr, 60, 21))
-    cost: dict[str, list[int]] = {"raster": [], "embree": []}
-    for _ in range(3):
-        for poses in stacks:
-            for caster, ts in cost.items():
-                t0 = time.process_time_ns()
-                beam.first_echo(m, poses, caster=caster)
-                ts.append(time.process_time_ns() - t0)
-    assert np.median(cost["raster"]) * 1.2 < np.median(cost["embree"])

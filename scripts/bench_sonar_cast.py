@@ -1,8 +1,8 @@
 """Median CPU per sonar group cast: the raster's first_echo against the Embree path's (and Embree's
 cast_rays alone), same process, at 300 poses spread over a RobChair/Navigation-v1 run.
 
-Run: ``PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python tests/sim/sonar_cast_bench.py [REPS=3] [STEPS=1200]``
-(not a test: pytest does not collect it).
+Run: ``OPENBLAS_NUM_THREADS=1 python scripts/bench_sonar_cast.py [REPS=3] [STEPS=1200]``
+(a measuring script, as scripts/profile_map_build.py).
 """
 
 from __future__ import annotations
