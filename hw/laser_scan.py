@@ -55,6 +55,19 @@ def scan_to_points(scan: LaserScan, *, keep_invalid: bool = False) -> npt.NDArra
         float64 points; to put them in the world, apply ``T_world_sensor`` (perception stage).
     """
     cos_a, sin_a = beam_trig(scan.angle_min, scan.angle_increment, scan.n_beams)
+    r = scan.ranges
+    if not (isinstance(r, np.ndarray) and r.ndim == 1 and r.dtype in (np.float32, np.float64)):
+        return scan_to_points_reference(scan, keep_invalid=keep_invalid)
+    from hw._laser_scan_kernels import beam_points
+
+    # the limits in the ranges' own type, as numpy compares an array with a Python float (NEP 50)
+    lo, hi = r.dtype.type(scan.range_min), r.dtype.type(scan.range_max)
+    return beam_points(r, cos_a, sin_a, lo, hi, keep_invalid)
+
+
+def scan_to_points_reference(scan: LaserScan, *, keep_invalid: bool = False) -> npt.NDArray[np.float64]:
+    """:func:`scan_to_points` in numpy passes (the reference its compiled path is tested against)."""
+    cos_a, sin_a = beam_trig(scan.angle_min, scan.angle_increment, scan.n_beams)
     r = scan.ranges.astype(np.float64)
     with np.errstate(invalid="ignore"):  # inf x cos(90 deg) = NaN: such beams are dropped or NaN below
         pts = np.stack([r * cos_a, r * sin_a, np.zeros_like(cos_a)], axis=-1)

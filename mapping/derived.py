@@ -54,8 +54,13 @@ def occupancy_2d(m: VHVMap, z_min: float, z_max: float) -> NDArray[np.bool_]:
     """
     if not (math.isfinite(z_min) and math.isfinite(z_max)) or z_min > z_max:
         raise MappingError(f"occupancy band [{z_min!r}, {z_max!r}]: expected finite z_min <= z_max")
-    s = m.structures()
     grid = np.zeros(m.spec.shape, dtype=bool)
+    if type(m) is VHVMap:  # its sorted cell keys i * ny + j are the grid's flat indices: no (i, j) split
+        from mapping._derived_kernels import mark_band
+
+        mark_band(m._key, m._bottom, m._top, z_min, z_max, grid.reshape(-1))
+        return grid
+    s = m.structures()
     hit = (s.top >= z_min) & (s.bottom <= z_max)
     grid[s.i[hit], s.j[hit]] = True
     return grid

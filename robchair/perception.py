@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, SonarArrayReading
+from robchair.perception_kernels import all_finite, band_xy, obstacle_points
 from robchair.perception_layers import (
     FrameInserter,
     MapLayer,
@@ -75,7 +76,7 @@ from robchair.perception_layers import (
     load_kernels,
     run_evidence_params,
 )
-from robchair.perception_queries import Corridor, _min_opt, _travelled, points_in_base
+from robchair.perception_queries import Corridor, _min_opt, _travelled
 from robchair.perception_sonar import (
     _zone_tables,
     explained_arc_fast,
@@ -411,7 +412,7 @@ class Perception(FrameInserter):
         arcs = list(self._sonar_arc.values())
         if self._zoom_xy is not None:
             arcs.append(self._zoom_xy)  # (N, 2) in base_link at the pose of the frame that placed them
-        return points_in_base(pose, self._scan_world, arcs)
+        return obstacle_points(pose, self._scan_world, arcs)  # compiled points_in_base
 
     def _t_main_base(self, pose: Pose2D) -> np.ndarray:
         """``T_world_base`` (4, 4) in the main map's frame for the odometry ``pose``."""
@@ -511,10 +512,13 @@ class Perception(FrameInserter):
         """Insert a laser scan: ``points`` (N, 3) in ``frame_id`` (NaN rows = no return), at ``pose``."""
         t = self._t_main_base(pose) @ self.t_base_sensor(frame_id)
         p = np.asarray(points, dtype=float).reshape(-1, 3)
-        t_odom = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
-        w = transform_points(t_odom, p[np.isfinite(p).all(axis=1)])
-        self._scan_world = w[(w[:, 2] >= self.band[0]) & (w[:, 2] <= self.band[1]), :2]
-        self._submit(lambda: self.map.insert(transform_points(t, p), sensor_origin=t[:3, 3]))
+        if self.pose == "odometry" and all_finite(p):  # the map's placement is odometry's: one product
+            placed = w = transform_points(t, p)
+        else:
+            t_odom = se3_planar(pose.x, pose.y, pose.theta) @ self.t_base_sensor(frame_id)
+            w, placed = transform_points(t_odom, p[np.isfinite(p).all(axis=1)]), transform_points(t, p)
+        self._scan_world = band_xy(w, self.band)
+        self._submit(lambda: self.map.insert(placed, sensor_origin=t[:3, 3]))
         self.stats["laser_scans"] += 1
 
     def scan_points_odom(self) -> np.ndarray | None:

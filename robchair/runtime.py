@@ -50,6 +50,7 @@ import numpy as np
 from hw.errors import HardwareError
 from hw.interfaces import Backend, MotorState, SonarArrayReading
 from hw.laser_scan import scan_to_points
+from hw.messages import MotorFaults
 from robchair.loop_types import CycleResult, Observer, RunResult
 from robchair.perception import Perception
 from robchair.platform.errors import ConfigError, RobChairError, StopSignal
@@ -89,6 +90,7 @@ def halt_running_loops(cause: BaseException) -> None:
 
 
 DEPTH_CAMERA = "depth_camera"
+_NO_FAULTS = MotorFaults()
 WATCHDOG_PERIODS_MIN = 1.5
 WATCHDOG_PERIODS_MAX = 10.0
 
@@ -467,7 +469,7 @@ class Runtime:
             state = self.backend.motors.read_state()
         except HardwareError as exc:
             return None, f"{type(exc).__name__}: {exc}"
-        if state.faults.any:
+        if state.faults != _NO_FAULTS and state.faults.any:  # no flag set: nothing to name
             return state, f"motor controller fault flags {state.faults.names()}"
         return state, None
 

@@ -89,5 +89,6 @@ def hits_to_image(t_hit, gid, nrm, invalid_id, keys, rot, max_range, h, w, norma
                 nc[v, u, 0] = nc[v, u, 1] = nc[v, u, 2] = np.nan
     return depth, nc, body, link
 
+
 # first run after an install or a change here: say why the first frame takes longer
 announce_compilation(sys.modules[__name__], "Kinect ray-cast kernels")

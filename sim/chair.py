@@ -91,6 +91,8 @@ class SimChair:
             self.wheel_radius_scale = (float(scale[0]), float(scale[1]))
             self.robot = SimRobot(self.world, self.spec, start, wheel_radius_scale=self.wheel_radius_scale)
             self._body_names = {v: k for k, v in self.bodies.ids.items()}  # scene bodies never change
+            # the static scene bodies' bounding boxes ((lo, hi) by body), made when first needed
+            self._static_boxes: dict[int, tuple[list[float], list[float]]] | None = None
             b = self.spec.body  # what the scripted people keep clear of (sim.crowd)
             self._footprint = Footprint(b.centre_x - 0.5 * b.depth, b.centre_x + 0.5 * b.depth, 0.5 * b.width)
             self._ghost_people()
@@ -179,6 +181,7 @@ class SimChair:
             self.captures_in_flight.clear()
         t0 = time.perf_counter()
         world, moving = self.world, self.bodies.moving
+        near = self._contact_candidates(n) if hits is not None else []
         for _ in range(n):
             if before is not None:
                 before()
@@ -186,9 +189,61 @@ class SimChair:
                 pose = self.robot.pose2d()
                 self.bodies.update(world.client, world.time, (self._footprint, (pose.x, pose.y, pose.theta)))
             world.step(1)
-            if hits is not None:
-                hits |= self.contacts()
+            if hits is not None and (near or moving):
+                hits |= self._contacts_among(near)
         self.timing["physics"] += time.perf_counter() - t0
+
+    #: Fastest the chair can move, m/s, with a wide margin (its top speed is about a third of it): the
+    #: reach of :meth:`_contact_candidates` over an interval.
+    _REACH_SPEED_M_S = 5.0
+    #: Margin for PyBullet's contact threshold and rounding, m.
+    _REACH_MARGIN_M = 0.25
+
+    def _contact_candidates(self, n: int) -> list[int]:
+        """The static scene bodies the chair could touch in the next ``n`` physics steps.
+
+        A contact needs the two bodies' bounding boxes to overlap (PyBullet's broadphase), so a body
+        whose box stays farther from the chair's box than the chair can travel in ``n`` steps
+        (:data:`_REACH_SPEED_M_S`) plus :data:`_REACH_MARGIN_M` has no contact point in them: only the
+        others are queried, pair by pair (the floor, always touched by the wheels, is never named).
+        """
+        import pybullet as p
+
+        c, robot = self.world.client, self.robot.body
+        n_links = p.getNumJoints(robot, physicsClientId=c)
+        boxes = [p.getAABB(robot, link, physicsClientId=c) for link in range(-1, n_links)]
+        reach = self._REACH_MARGIN_M + self._REACH_SPEED_M_S * n / self.world.physics_hz
+        lo = [min(b[0][i] for b in boxes) - reach for i in range(3)]
+        hi = [max(b[1][i] for b in boxes) + reach for i in range(3)]
+        static = self._static_boxes
+        if static is None:
+            moving = {body for body, _ in self.bodies.moving}
+            static = self._static_boxes = {}
+            for body in self._body_names:
+                if body in moving:
+                    continue
+                nk = p.getNumJoints(body, physicsClientId=c)
+                links = [p.getAABB(body, k, physicsClientId=c) for k in range(-1, nk)]
+                static[body] = (
+                    [min(b[0][i] for b in links) for i in range(3)],
+                    [max(b[1][i] for b in links) for i in range(3)],
+                )
+        return [
+            body
+            for body, (blo, bhi) in static.items()
+            if all(blo[i] <= hi[i] and bhi[i] >= lo[i] for i in range(3))
+        ]
+
+    def _contacts_among(self, near: list[int]) -> set[str]:
+        """:meth:`contacts` asked of the bodies ``near`` (:meth:`_contact_candidates`) and the walkers."""
+        import pybullet as p
+
+        c, robot, names = self.world.client, self.robot.body, self._body_names
+        hit = {names[b] for b in near if p.getContactPoints(bodyA=robot, bodyB=b, physicsClientId=c)}
+        for body, _ in self.bodies.moving:
+            if body in names and p.getClosestPoints(robot, body, 0.0, physicsClientId=c):
+                hit.add(names[body])
+        return hit
 
     def sonar_raw(self, mount: str) -> np.ndarray:
         """Raw first echoes (3,) (m, unquantised, NaN = none) of the sonar array on ``mount`` now.

@@ -70,7 +70,7 @@ def render_raycast(
     rays_cam = intr.rays() if rays is None else rays
     h, w = rays_cam.shape[:2]
     if caster == "raster":
-        if mirror._scene is None:
+        if not mirror._built:
             mirror.sync()
         ax = np.ascontiguousarray(rays_cam[0, :, 1])
         by = np.ascontiguousarray(rays_cam[:, 0, 2])

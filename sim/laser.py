@@ -7,10 +7,12 @@ sensor's x axis (-119.53 to +119.88 deg: the datasheet's "240 deg"), so beam 340
 exactly what :mod:`hw.hokuyo` reads from the real sensor and the emulator. Ranges 0.02 - 4 m, one scan
 per 100 ms (600 rpm), accuracy +-10 mm up to 1 m and +-1 % of the range beyond.
 
-Rays are cast in the sensor's scan plane into the shared :class:`sim.raycast.MeshMirror` (Open3D's
-Embree ``RaycastingScene``), or, for comparison, with PyBullet's ``rayTestBatch`` against the collision
-shapes; ``robchair bench laser`` times both. The chair does not see itself: the mirror leaves its body
-out (see :class:`sim.backend.SimChair`).
+Rays are cast in the sensor's scan plane against the shared :class:`sim.raycast.MeshMirror`'s
+triangles: by default by cutting each triangle with the scan plane and testing the beams its cut
+covers (``caster="raster"``, :mod:`sim._laser_raster`, the exact answer without a BVH), or through
+Open3D's Embree ``RaycastingScene`` (``"embree"``), or, for comparison, with PyBullet's ``rayTestBatch``
+against the collision shapes (``"pybullet"``); ``robchair bench laser`` times them. The chair does
+not see itself: the mirror leaves its body out (see :class:`sim.backend.SimChair`).
 
 Ranges follow REP-117 like the driver's: nothing within ``range_max`` is ``+inf``; a surface closer
 than ``range_min`` is ``-inf``; otherwise the true range plus Gaussian noise of standard deviation
@@ -35,7 +37,11 @@ from sim.raycast import MeshMirror, pose_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
-CASTERS = ("embree", "pybullet")
+CASTERS = ("raster", "embree", "pybullet")
+#: The caster of a :class:`LaserSim` made without one (the chair's): the plane cut. Embree gives the
+#: same ranges to its float32 rounding (tests/sim/test_laser_raster.py); a test that replays readings
+#: recorded with Embree sets this to ``"embree"``.
+DEFAULT_CASTER = "raster"
 
 
 class LaserSimError(SimError, ValueError):
@@ -130,8 +136,10 @@ class LaserSim(Device):
         model: the laser model (default :data:`URG_04LX`).
         mirror: a shared :class:`MeshMirror` (made here, leaving out ``exclude_bodies``, if None).
         exclude_bodies: bodies the laser does not see (the chair itself).
-        caster: ``"embree"`` (the mirror) or ``"pybullet"`` (``rayTestBatch`` on collision shapes; sees
-            every body, ``exclude_bodies`` included).
+        caster: ``"raster"`` (the mirror's triangles cut by the scan plane, :mod:`sim._laser_raster`;
+            None: :data:`DEFAULT_CASTER`),
+            ``"embree"`` (the mirror through Open3D) or ``"pybullet"`` (``rayTestBatch`` on collision
+            shapes; sees every body, ``exclude_bodies`` included).
         noise: add the datasheet accuracy as Gaussian noise.
         accuracy_sigmas: the datasheet bound is this many standard deviations.
         rng: Generator (or int seed) for the noise; None means seed 0.
@@ -149,7 +157,7 @@ class LaserSim(Device):
         *,
         mirror: MeshMirror | None = None,
         exclude_bodies: Any = (),
-        caster: str = "embree",
+        caster: str | None = None,
         noise: bool = True,
         accuracy_sigmas: float = 3.0,
         rng: np.random.Generator | int | None = None,
@@ -157,6 +165,7 @@ class LaserSim(Device):
         clock: Clock | None = None,
         frame_id: str = "laser_link",
     ) -> None:
+        caster = DEFAULT_CASTER if caster is None else caster
         if caster not in CASTERS:
             raise LaserSimError(f"caster={caster!r}: expected one of {CASTERS}")
         if not (math.isfinite(accuracy_sigmas) and accuracy_sigmas > 0):
@@ -165,7 +174,7 @@ class LaserSim(Device):
         self.model = model
         self.caster = caster
         self.mirror = mirror
-        if caster == "embree" and self.mirror is None:
+        if caster in ("raster", "embree") and self.mirror is None:
             self.mirror = MeshMirror(client, exclude_bodies=exclude_bodies)
         self.noise = bool(noise)
         self.accuracy_sigmas = float(accuracy_sigmas)
@@ -178,16 +187,90 @@ class LaserSim(Device):
         a = model.angles()
         self._dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # sensor frame
         self._rays = np.empty((len(a), 6), dtype=np.float32)  # Embree's (origin, direction) rows, reused
+        self._cos, self._sin = np.cos(a), np.sin(a)  # the raster caster's beam directions (sensor frame)
 
     # ---- casting ----------------------------------------------------------------------------
 
     def true_ranges(self, pose: Any) -> FloatArray:
         """(n_beams,) distance to the first surface along each beam from the world ``pose``, m
-        (``inf`` for none within ``range_max``); no noise, no limits below."""
+        (``inf`` for none within ``range_max``); no noise, no limits below.
+
+        Raises:
+            MeshMirrorError: the pose is not finite or not a pose.
+        """
+        return self._true_ranges(pose)[0]
+
+    def _true_ranges(self, pose: Any) -> tuple[FloatArray, int | None]:
+        """:meth:`true_ranges` and, from Embree's hits, how many beams are measurements."""
+        rmax = self.model.range_max
+        if self.caster == "raster":
+            from sim._laser_raster import planar_first_hits  # numba, imported when first used
+
+            assert self.mirror is not None
+            t = pose_matrix(pose)  # refuses a pose that is not finite
+            mirror = self.mirror
+            mirror.sync()
+            m = self.model
+            r = planar_first_hits(
+                mirror.tri_vertices, mirror.tri_faces, np.ascontiguousarray(t[:3, :3]),
+                np.ascontiguousarray(t[:3, 3]), m.angle_min, m.angle_increment, self._cos, self._sin, rmax,
+            )  # fmt: skip
+            return r, None
+        if self.caster == "embree":
+            from sim._laser_kernels import fill_rays, hit_ranges  # numba, imported when first used
+
+            assert self.mirror is not None
+            # a float64 (4, 4) array is its own pose matrix; the kernel checks that it is finite
+            fast = isinstance(pose, np.ndarray) and pose.shape == (4, 4) and pose.dtype == np.float64
+            t = pose if fast else pose_matrix(pose)
+            dirs = self._dirs @ t[:3, :3].T
+            if not fill_rays(t, dirs, self._rays):  # Embree's (origin, direction) rows, reused
+                from sim.raycast import MeshMirrorError
+
+                pose_matrix(t)  # a pose that is not finite raises here, as its own error
+                raise MeshMirrorError("ray origins and directions must be finite")
+            self.mirror.sync()
+            t_hit, gid, _ = self.mirror.cast_raw(self._rays, normals=False)  # one beam, no per-ray checks
+            return hit_ranges(t_hit, gid, self.mirror.invalid_id, self.model.range_min, rmax)
+        import pybullet as p
+
         t = pose_matrix(pose)
         origin = t[:3, 3]
         dirs = self._dirs @ t[:3, :3].T
-        rmax = self.model.range_max
+        ends = origin + dirs * rmax
+        hits = p.rayTestBatch(
+            np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
+        )
+        frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
+        return frac * rmax, None
+
+    def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
+        """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``.
+
+        Noise: one standard normal per measured beam (finite, within the range limits), in beam
+        order, from ``rng`` (default the laser's own generator).
+        """
+        from sim._laser_kernels import count_measured, readings  # numba, imported when first used
+
+        m = self.model
+        r, measured = self._true_ranges(pose)
+        z = None
+        if self.noise:
+            gen = rng if rng is not None else self.rng
+            if measured is None:
+                measured = count_measured(r, m.range_min, m.range_max)
+            z = gen.standard_normal((measured,))
+        return readings(r, z, m, self.accuracy_sigmas)
+
+    def ranges_reference(
+        self, pose: Any, *, rng: np.random.Generator | None = None
+    ) -> npt.NDArray[np.float32]:
+        """:meth:`ranges` in numpy passes over the beams (the reference the compiled path is tested
+        against): the same readings and the same draws, bit for bit."""
+        m = self.model
+        t = pose_matrix(pose)
+        origin = t[:3, 3]
+        dirs = self._dirs @ t[:3, :3].T
         if self.caster == "embree":
             assert self.mirror is not None
             if not (np.isfinite(origin).all() and np.isfinite(dirs).all()):
@@ -198,23 +281,11 @@ class LaserSim(Device):
             rays = self._rays
             rays[:, :3] = origin
             rays[:, 3:] = dirs
-            t_hit, gid, _ = self.mirror.cast_raw(rays, normals=False)  # one beam, no per-ray checks
-            dist = t_hit.astype(np.float64)
-            dist[(gid == self.mirror.invalid_id) | ~(dist <= rmax)] = np.inf
-            return dist
-        import pybullet as p
-
-        ends = origin + dirs * rmax
-        hits = p.rayTestBatch(
-            np.broadcast_to(origin, ends.shape).tolist(), ends.tolist(), physicsClientId=self.client
-        )
-        frac = np.array([h[2] if h[0] >= 0 else np.inf for h in hits], dtype=np.float64)
-        return frac * rmax
-
-    def ranges(self, pose: Any, *, rng: np.random.Generator | None = None) -> npt.NDArray[np.float32]:
-        """(n_beams,) float32 ranges under REP-117 (see the module docstring) from the world ``pose``."""
-        m = self.model
-        r = self.true_ranges(pose)
+            t_hit, gid, _ = self.mirror.cast_raw(rays, normals=False)
+            r = t_hit.astype(np.float64)
+            r[(gid == self.mirror.invalid_id) | ~(r <= m.range_max)] = np.inf
+        else:
+            r = self.true_ranges(t)
         hit = np.isfinite(r) & (r <= m.range_max)
         near = hit & (r < m.range_min)
         ok = hit & ~near

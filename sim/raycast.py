@@ -183,7 +183,8 @@ class MeshMirror:
         self._links: list[_LinkGeometry] = []
         self._bodies: tuple[int, ...] = ()
         self._signature: tuple[Any, ...] = ()
-        self._scene: Any = None
+        self._scene: Any = None  # Open3D's Embree scene, made on the first Embree query after a build
+        self._built = False  # the flat triangle arrays follow the world (see sync)
         self._o3d: Any = None
         self.keys: IntArray = np.zeros((0, 2), dtype=np.int64)
         self._face_normals_world: list[FloatArray] = []
@@ -357,18 +358,19 @@ class MeshMirror:
         self.keys = np.array([[lg.body, lg.link] for lg in self._links], dtype=np.int64).reshape(-1, 2)
 
     def sync(self) -> bool:
-        """Follow the world: re-read poses (and bodies); rebuild the Embree scene if anything moved.
+        """Follow the world: re-read poses (and bodies); rebuild the triangles if anything moved (the
+        Embree scene then follows on its next query).
 
         Returns:
             True when the scene was rebuilt.
         """
         stamp = self.step_counter() if self.step_counter is not None else None
-        if stamp is not None and stamp == self._synced_stamp and self._scene is not None:
+        if stamp is not None and stamp == self._synced_stamp and self._built:
             return False  # the world has not stepped since the last sync: nothing can have moved
         p = self._pb()
         bodies = self._body_ids()
         changed = False
-        if self.bodies_fixed and self._scene is not None and bodies == self._bodies:
+        if self.bodies_fixed and self._built and bodies == self._bodies:
             signature = self._signature  # the owner guarantees no body is replaced
         else:
             # PyBullet reuses the unique id of a removed body, so the set of ids alone cannot tell
@@ -395,27 +397,20 @@ class MeshMirror:
                     lg.world_vertices = np.ascontiguousarray(v @ t[:3, :3].T + t[:3, 3], dtype=np.float32)
                     changed = True
         self._synced_stamp = stamp
-        if changed or self._scene is None:
+        if changed or not self._built:
             self._build()
             return True
         return False
 
     def _build(self) -> None:
-        if self._o3d is None:
-            from mapping._deps import import_open3d
+        """Refresh the flat triangle arrays; the Embree scene is made again on its next query.
 
-            self._o3d = import_open3d()
-        o3d = self._o3d
-        scene = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
-        for k, lg in enumerate(self._links):
-            assert lg.world_vertices is not None and lg.faces is not None
-            gid = scene.add_triangles(
-                o3d.core.Tensor(lg.world_vertices),
-                o3d.core.Tensor(np.ascontiguousarray(lg.faces, dtype=np.uint32)),
-            )
-            if gid != k:  # geometry ids are assigned 0, 1, 2, ... in insertion order
-                raise MeshMirrorError(f"Open3D assigned geometry id {gid} to geometry {k}")
-        self._scene = scene
+        Open3D (about a second to import) is loaded only by an Embree query (:meth:`cast`,
+        :meth:`cast_raw`): the chair's own casters (the Kinect raster, the sonars' and the laser's)
+        work on the flat arrays.
+        """
+        self._scene = None
+        self._built = True
         self.rebuilds += 1
         # the same triangles as flat arrays, for casters that work on them directly (the Kinect's
         # image-space caster, sim._raster_kernels.raster_depth)
@@ -433,6 +428,29 @@ class MeshMirror:
             self.tri_vertices = np.zeros((0, 3))
             self.tri_faces = np.zeros((0, 3), dtype=np.int64)
             self.tri_geometry = np.zeros(0, dtype=np.int64)
+
+    def _embree(self) -> Any:
+        """Open3D's ``RaycastingScene`` of the current triangles (made once per build)."""
+        if not self._built:
+            self.sync()
+        if self._scene is not None:
+            return self._scene
+        if self._o3d is None:
+            from mapping._deps import import_open3d
+
+            self._o3d = import_open3d()
+        o3d = self._o3d
+        scene = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
+        for k, lg in enumerate(self._links):
+            assert lg.world_vertices is not None and lg.faces is not None
+            gid = scene.add_triangles(
+                o3d.core.Tensor(lg.world_vertices),
+                o3d.core.Tensor(np.ascontiguousarray(lg.faces, dtype=np.uint32)),
+            )
+            if gid != k:  # geometry ids are assigned 0, 1, 2, ... in insertion order
+                raise MeshMirrorError(f"Open3D assigned geometry id {gid} to geometry {k}")
+        self._scene = scene
+        return scene
 
     @property
     def n_triangles(self) -> int:
@@ -493,9 +511,7 @@ class MeshMirror:
     @property
     def invalid_id(self) -> int:
         """The geometry id :meth:`cast_raw` reports for a ray that hit nothing."""
-        if self._scene is None:
-            self.sync()
-        return int(self._scene.INVALID_ID)
+        return int(self._embree().INVALID_ID)
 
     def cast_raw(
         self, rays: npt.NDArray[np.float32], *, normals: bool = True
@@ -506,10 +522,8 @@ class MeshMirror:
         primitive_normals)``, misses have ``geometry_ids == invalid_id`` and ``t_hit = inf``; hits
         beyond a range limit are not cut. ``normals=False`` returns None for the normals.
         """
-        if self._scene is None:
-            self.sync()
-        o3d = self._o3d
-        res = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        scene = self._embree()
+        res = scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
         nrm = res["primitive_normals"].numpy() if normals else None
         return res["t_hit"].numpy(), res["geometry_ids"].numpy(), nrm
 

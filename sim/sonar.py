@@ -46,6 +46,11 @@ from sim.raycast import MeshMirror, pose_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
+#: The beam's caster when none is named: the image-space raster over the mirror's triangles
+#: (:mod:`sim._sonar_raster`), Embree's echoes to its float32 rounding (tests/sim/test_sonar_raster.py).
+#: A test that replays readings recorded with Embree sets this to ``"embree"``.
+DEFAULT_CASTER = "raster"
+
 
 class SonarSimError(SimError, ValueError):
     """A simulated sonar was configured or queried with invalid values."""
@@ -143,24 +148,93 @@ class _Beam:
         # the bisection behind the model is exact but slow per ray: tabulate it every 2 mm
         self._table_m = np.linspace(0.002, 1.0, 500)
         self._table_left, self._table_right = beam_half_apertures_deg(self._table_m)
+        self._layout: tuple[Any, ...] | None = None  # the rays in the raster's bins (built at first use)
+        self._mesh: tuple[Any, ...] = (None, None, None)  # (mirror's tri_vertices, chunks, bounds)
+
+    def _raster_layout(self) -> tuple[Any, ...]:
+        """The beam's rays sorted into the raster's (a, c) bins, with bearing and elevation in the same
+        order (:mod:`sim._sonar_raster`)."""
+        if self._layout is None:
+            from sim._sonar_raster import beam_layout
+
+            order, rays, grid, bin_start = beam_layout(self.dirs)
+            self._layout = (
+                rays,
+                grid,
+                bin_start,
+                np.ascontiguousarray(self.bearing_deg[order]),
+                np.ascontiguousarray(self.elevation_deg[order]),
+            )
+        return self._layout
+
+    def _raster_mesh(self, mirror: MeshMirror) -> tuple[Any, Any]:
+        """Chunks and bounding spheres of the mirror's triangles, recomputed when it was rebuilt
+        (each rebuild makes new flat arrays, so the vertex array's identity tells)."""
+        verts = mirror.tri_vertices
+        if self._mesh[0] is not verts:
+            from sim._sonar_raster import mesh_chunks
+
+            chunks, bounds = mesh_chunks(verts, mirror.tri_faces, mirror.tri_geometry)
+            self._mesh = (verts, chunks, bounds)
+        return self._mesh[1], self._mesh[2]
 
     def apertures(self, r: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Tabulated (left, right) half-apertures at ranges ``r`` (m), constant beyond 1 m."""
         return np.interp(r, self._table_m, self._table_left), np.interp(r, self._table_m, self._table_right)
 
-    def first_echo(self, mirror: MeshMirror, poses: list[FloatArray], *, compiled: bool = True) -> FloatArray:
+    def first_echo(
+        self, mirror: MeshMirror, poses: list[FloatArray], *, compiled: bool = True, caster: str | None = None
+    ) -> FloatArray:
         """Raw first-echo distance (m, unquantised, NaN = none) for each sonar pose.
 
-        ``compiled`` (default) runs the echo rule in one compiled pass over Embree's raw hits;
-        False runs the same rule in numpy (the reference the tests compare with). Non-finite poses
-        are refused by :meth:`MeshMirror.cast` either way.
+        Args:
+            mirror: the scene (synced here).
+            poses: k world poses (4x4) of the sonars, x = the axis.
+            compiled: False runs the echo rule in numpy over Embree's hits (the reference the tests
+                compare with), whatever ``caster`` says.
+            caster: ``"raster"`` (None: :data:`DEFAULT_CASTER`) casts and applies the echo rule in
+                one compiled call over the mirror's flat triangle arrays (:mod:`sim._sonar_raster`,
+                exact: Embree's answer up to its float32 rounding); ``"embree"`` casts through Open3D
+                and applies the rule in one compiled pass over its raw hits.
+
+        Returns:
+            (k,) float64 first echoes.
+
+        Raises:
+            SonarSimError: an unknown caster. Non-finite poses are refused by :meth:`MeshMirror.cast`.
         """
+        caster = DEFAULT_CASTER if caster is None else caster
+        if caster not in ("raster", "embree"):
+            raise SonarSimError(f"caster={caster!r}: expected 'raster' or 'embree'")
         n = len(self.dirs)
         stack = np.asarray(poses, dtype=float)  # (k, 4, 4)
+        mirror.sync()
+        finite = math.isfinite(float(stack.sum()))
+        if compiled and finite and caster == "raster":
+            from sim._sonar_raster import first_echoes
+
+            rays, grid, bin_start, bearing, elevation = self._raster_layout()
+            chunks, bounds = self._raster_mesh(mirror)
+            return first_echoes(  # type: ignore[no-any-return]
+                mirror.tri_vertices,
+                mirror.tri_faces,
+                chunks,
+                bounds,
+                stack,
+                rays,
+                grid,
+                bin_start,
+                float(self.model.max_range_m),
+                self.cos_incidence,
+                bearing,
+                elevation,
+                self._table_m,
+                self._table_left,
+                self._table_right,
+            )
         # every sonar's directions in one product: (k, n, 3) = dirs (n, 3) @ R_k^T
         dirs = np.matmul(self.dirs, stack[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
-        mirror.sync()
-        if compiled and math.isfinite(float(stack.sum())):
+        if compiled and finite:
             from sim._kinect_kernels import sonar_first_echo
             from sim._sonar_kernels import fill_rays
 

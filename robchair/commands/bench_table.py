@@ -164,7 +164,8 @@ def _laser(r: dict[str, Any]) -> tuple[str, str, str]:
     return (
         f"one simulated URG-04LX scan in `{r.get('scene')}`, one thread",
         "`robchair bench laser`",
-        f"Embree mirror {_f(r.get('embree_ms'))} ms, PyBullet `rayTestBatch` {_f(r.get('pybullet_ms'))} ms "
+        f"plane cut {_f(r.get('raster_ms'))} ms, Embree mirror {_f(r.get('embree_ms'))} ms, "
+        f"PyBullet `rayTestBatch` {_f(r.get('pybullet_ms'))} ms "
         f"({r.get('faster')} {_f(r.get('ratio'), '.1f')}x faster); within 1 cm on "
         f"{_f(100 * r['agreement_1cm'] if 'agreement_1cm' in r else None, '.1f')} % of the beams",
     )

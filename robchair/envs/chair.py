@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from hw.interfaces import DepthFrame, MotorState
+from hw.messages import MotorFaults
 from robchair.loop_types import CycleResult
+from robchair.platform import frames
 from robchair.platform.kinematics import Pose2D
 from robchair.platform.spec import RobChairSpec
 from sim.backend import SONAR_MOUNTS, SimBackend, SimChair, SimMotorController, SimSonarArray
@@ -54,6 +56,7 @@ class EpisodeMotors(SimMotorController):
         self.latency_steps = 0
         self.counts0 = (0, 0)
         self.pending: tuple[float, float, int] | None = None  # (left, right, physics step due)
+        self._kept: tuple[tuple[int, int, bool], MotorState] | None = None  # (instant, state)
 
     def new_episode(self, tyre_scale: tuple[float, float], latency_steps: int) -> None:
         """Start an episode: tyres, latency, encoder origin; no set point pending, stop released."""
@@ -61,6 +64,7 @@ class EpisodeMotors(SimMotorController):
         self.latency_steps = int(latency_steps)
         self.counts0 = self.chair.robot.encoder_counts()
         self.pending = None
+        self._kept = None
         self.release_stop()
 
     def set_speeds_rpm(self, left_rpm: float, right_rpm: float) -> None:
@@ -83,6 +87,30 @@ class EpisodeMotors(SimMotorController):
         super().emergency_stop()
 
     def read_state(self) -> MotorState:
+        """The controller's state as :meth:`SimMotorController.read_state` gives it, seen through the
+        episode's tyres; one reading per instant of the physics (the runtime's next cycle reads the
+        state the observation read, nothing moved between them)."""
+        self._check_open()
+        chair = self.chair
+        key = (chair.world.steps, instant(chair), self._estop)
+        kept = self._kept
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        r = chair.robot
+        (cl, cr), (l0, r0) = r.encoder_counts(), self.counts0
+        kl, kr = self.tyre_scale
+        ml, mr = r.wheel_speed_rpm()
+        state = MotorState(
+            stamp_ns=chair.world.now_ns(),
+            encoder_counts=(l0 + round((cl - l0) / kl), r0 + round((cr - r0) / kr)),
+            speed_rpm=(ml / kl, mr / kr),
+            faults=_FAULTS[self._estop],
+        )
+        self._kept = (key, state)
+        return state
+
+    def read_state_reference(self) -> MotorState:
+        """:meth:`read_state` through the simulated controller's own reading (the tested reference)."""
         state = super().read_state()
         (cl, cr), (l0, r0) = state.encoder_counts, self.counts0
         kl, kr = self.tyre_scale
@@ -92,6 +120,50 @@ class EpisodeMotors(SimMotorController):
             encoder_counts=(l0 + round((cl - l0) / kl), r0 + round((cr - r0) / kr)),
             speed_rpm=(ml / kl, mr / kr),
         )
+
+
+def instant(chair: SimChair) -> int:
+    """The restart count of ``chair``: with its physics step it names an instant of the simulation
+    (:meth:`sim.backend.SimChair.restart` sets the step count back to 0)."""
+    return int(chair._restarts)
+
+
+def se3_from_quat(pos: Any, q: Any) -> np.ndarray:
+    """:func:`robchair.platform.frames.se3_from_quat` (4, 4) of a position and a quaternion ``(x, y, z,
+    w)`` built in one array, the same values bit for bit (a sensor's pose every step).
+
+    Raises:
+        ValueError: the quaternion has zero length.
+    """
+    x, y, z, w = (float(c) for c in q)
+    n = x * x + y * y + z * z + w * w
+    if not n >= 1e-24:
+        return frames.se3_from_quat(pos, q)  # raises its error
+    s = 2.0 / n  # frames.matrix_from_quat's closed form, term for term
+    px, py, pz = (float(c) for c in pos)
+    return np.array([[1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w), px],
+                     [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w), py],
+                     [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y), pz],
+                     [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
+
+
+def yaw_from_quat(q: Any) -> float:
+    """:func:`robchair.platform.frames.yaw_from_quat` of ``(x, y, z, w)`` from the two matrix entries it
+    reads, the same value bit for bit.
+
+    Raises:
+        ValueError: the quaternion has zero length.
+    """
+    x, y, z, w = (float(c) for c in q)
+    n = x * x + y * y + z * z + w * w
+    if not n >= 1e-24:
+        return frames.yaw_from_quat(q)  # raises its error
+    s = 2.0 / n
+    return math.atan2(s * (x * y + z * w), 1.0 - s * (y * y + z * z))
+
+
+#: the fault flags of a reading, by emergency stop (frozen: one instance serves every reading)
+_FAULTS = {False: MotorFaults(emergency_stop=False), True: MotorFaults(emergency_stop=True)}
 
 
 class EpisodeClock:
@@ -153,7 +225,7 @@ class EpisodeLaser:
 
     def read(self) -> Any:
         self.laser.accuracy_sigmas = self.accuracy_sigmas / max(self.noise.scale, 1e-6)
-        pose = self.chair.robot.link_transform("laser_link")
+        pose = se3_from_quat(*self.chair.robot.link_pose("laser_link"))  # link_transform's matrix
         return self.laser.scan(pose, self.chair.world.now_ns(), rng=self.noise.rng)
 
 
@@ -249,12 +321,29 @@ class GroundTruthLocalisation:
 
     def __init__(self, chair: SimChair) -> None:
         self.chair = chair
-        self.pose = chair.ground_truth_pose()
+        self._kept: tuple[tuple[int, int], Pose2D] | None = None
+        self.pose = self.now()
         self.distance = 0.0
+
+    def now(self) -> Pose2D:
+        """The chair's true pose now (:meth:`SimChair.ground_truth_pose`), read once per instant of
+        the physics: the environment's step and the runtime's next cycle share it.
+
+        Raises:
+            SimulationDivergedError: the physics produced a non-finite pose.
+        """
+        key = (self.chair.world.steps, instant(self.chair))
+        kept = self._kept
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        pos, orn = self.chair.robot.base_pose()  # SimChair.ground_truth_pose, without the rotation matrix
+        pose = Pose2D(pos[0], pos[1], yaw_from_quat(orn))
+        self._kept = (key, pose)
+        return pose
 
     def update(self, *_counts: Any) -> Pose2D:
         """The true pose now (the distance driven accumulates)."""
-        pose = self.chair.ground_truth_pose()
+        pose = self.now()
         self.distance += math.hypot(pose.x - self.pose.x, pose.y - self.pose.y)
         self.pose = pose
         return pose

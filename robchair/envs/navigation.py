@@ -50,7 +50,13 @@ from mapping.grid import GridSpec
 from robchair.envs.arguments import AGENT_HZ, NavigationSettings, load_scene_arg
 from robchair.envs.chair import GroundTruthLocalisation, build_chair, place_chair, shield_report
 from robchair.envs.episodes import EpisodeSampler, check_reset_options, scene_grid
-from robchair.envs.observation import DISCRETE_ACTIONS, ObservationBuilder, action_space, action_to_twist
+from robchair.envs.observation import (
+    DISCRETE_ACTIONS,
+    ObservationBuilder,
+    action_space,
+    action_to_twist,
+    step_info,
+)
 from robchair.envs.render import top_down_picture
 from robchair.loop_types import CycleResult
 from robchair.perception import Perception
@@ -330,6 +336,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
             sonars=self.sonars_on, laser=self.laser_on, noise=self.noise, camera_backend=st.camera_backend,
         )  # fmt: skip
         self.robot = self.chair.robot
+        self._truth = GroundTruthLocalisation(self.chair)
         self.runtime = Runtime(
             self._backend,
             spec=self.spec_robot,
@@ -398,14 +405,15 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         rt.reset(start, self._new_perception())
         if self.live is not None:
             self.live.attach(rt)
+        self._truth = GroundTruthLocalisation(self.chair)  # the true pose, read once per physics instant
         if self.pose_source == "ground_truth":
-            rt.odometry = GroundTruthLocalisation(self.chair)  # type: ignore[assignment]
+            rt.odometry = self._truth  # type: ignore[assignment]
         rt.start()
         # one cycle standing still: the runtime senses the start and the first observation shows it
         self._cycle(Command(0.0, 0.0))
         # read once: the physics stands still until the next cycle (raises SimulationDivergedError on a
         # non-finite pose)
-        gt = self.chair.ground_truth_pose()
+        gt = self._truth.now()
         pose = self._pose(gt)
         self._prev_distance = self._true_distance(gt)
         return self._observation(pose), self._info(gt, pose, False, False, None)
@@ -430,7 +438,7 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
         self._steps += 1
         # read once: the physics stands still until the next cycle (raises SimulationDivergedError on a
         # non-finite pose)
-        gt = self.chair.ground_truth_pose()
+        gt = self._truth.now()
         pose = self._pose(gt)
         distance = self._true_distance(gt)
         reached = distance <= self.goal_tolerance
@@ -520,19 +528,8 @@ class RobChairNavigationEnv(gymnasium.Env[dict[str, np.ndarray], np.ndarray], Ez
     def _info(
         self, gt: Pose2D, pose: Pose2D, collided: bool, reached: bool, terms: dict[str, float] | None
     ) -> dict[str, Any]:
-        info: dict[str, Any] = {
-            "distance": self._prev_distance,
-            "collision": collided,
-            "is_success": reached,
-            "pose": (gt.x, gt.y, gt.theta),
-            "pose_estimate": (pose.x, pose.y, pose.theta),
-            "goal": self.goal,
-            "sim_time": self.chair.world.time,
-        }
-        if terms is not None:
-            info["reward_terms"] = terms
-        info["dynamics"] = self.dynamics.as_dict()
-        return info
+        return step_info(gt, pose, self._prev_distance, collided, reached, self.goal, self.chair.world.time,
+                         terms, self.dynamics)  # fmt: skip
 
     # ---- rendering / closing -----------------------------------------------------------------
 

@@ -66,6 +66,12 @@ def action_to_twist(
     return drive.limit(min(max(v, -1.0), 1.0) * max_speed, min(max(w, -1.0), 1.0) * max_yaw_rate)
 
 
+def clip_value(x: float, lo: float, hi: float) -> float:
+    """``numpy.clip`` of one value (NaN stays, and so does the value on a tie with a bound)."""
+    x = lo if x < lo else x
+    return hi if x > hi else x
+
+
 def _bad_action(action: Any, what: str) -> NavigationEnvError:
     """The error for an action that is not two finite real numbers (its repr on one line)."""
     shown = " ".join(repr(action).split())  # built only on error: an array's repr costs ~2 ms
@@ -116,6 +122,7 @@ class ObservationBuilder:
         self.vel_high = np.array(
             [SPEED_OBS_FACTOR * drive.max_speed, SPEED_OBS_FACTOR * drive.max_yaw_rate], np.float32
         )
+        self._vh = (float(self.vel_high[0]), float(self.vel_high[1]))  # the float32 limits, exactly
         obs: dict[str, spaces.Space[Any]] = {
             "occupancy": spaces.Box(
                 0, PATCH_UNKNOWN if three_valued else 1, shape=patch_shape, dtype=np.uint8
@@ -156,15 +163,21 @@ class ObservationBuilder:
             depth_frame: the depth camera's :class:`hw.interfaces.DepthFrame` or None.
         """
         if self.sonar is not None and sonars:
-            rr = np.asarray([r for _, reading in sonars for r in reading.ranges_m], dtype=np.float64)
             rmax = float(self.sonar_max_range)  # type: ignore[arg-type]
-            self.sonar = np.where(np.isfinite(rr), np.clip(rr, 0.0, rmax), rmax).astype(np.float32)
+            # a range that is not finite (no echo) is the maximum; six values: plain floats
+            rr = [float(r) for _, reading in sonars for r in reading.ranges_m]
+            vals = [clip_value(r, 0.0, rmax) if math.isfinite(r) else rmax for r in rr]
+            self.sonar = np.array(vals, dtype=np.float32)
         if self.laser is not None and scan is not None:
-            r = np.asarray(scan.ranges, dtype=np.float64)
-            rmax = float(self.laser_model.range_max)
-            # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor)
-            rr = np.where(np.isposinf(r), rmax, np.where(np.isneginf(r), 0.0, r))
-            self.laser = np.clip(rr, 0.0, rmax).astype(np.float32)  # noise may pass range_max
+            # +inf: nothing within range_max; -inf: closer than range_min (an obstacle at the sensor);
+            # then clipped to the box (noise may pass range_max)
+            from robchair.envs._obs_kernels import laser_observation  # numba: imported when first used
+
+            r = scan.ranges
+            if isinstance(r, np.ndarray) and r.ndim == 1 and r.dtype in (np.float32, np.float64):
+                self.laser = laser_observation(r, self.laser_model.range_max)
+            else:
+                self.laser = laser_observation(np.asarray(r, dtype=np.float64), self.laser_model.range_max)
         if self.depth is not None and depth_frame is not None:  # the camera's x (REP-103); 0 = nothing
             z = np.asarray(depth_frame.points[..., 0], dtype=np.float64)
             self.depth = np.clip(np.nan_to_num(z, nan=0.0), 0.0, self.depth_max).astype(np.float32)
@@ -204,10 +217,11 @@ class ObservationBuilder:
             )
         else:
             patch = egocentric_patch(occupied, self.grid, pose, shape, cell, behind)
+        vw = (float(np.float32(v)), float(np.float32(w)))  # the float32 box's clip, value by value
         obs: dict[str, np.ndarray] = {
             "occupancy": patch,
             "goal": np.array([min(dist, self.max_goal_obs), bearing], dtype=np.float32),
-            "velocity": np.clip(np.array([v, w], dtype=np.float32), -self.vel_high, self.vel_high),
+            "velocity": np.array([clip_value(v32, -h, h) for v32, h in zip(vw, self._vh)], np.float32),
         }
         if self.sonar is not None:
             obs["sonar"] = self.sonar.copy()
@@ -222,3 +236,25 @@ class ObservationBuilder:
             top = np.clip(np.nan_to_num(top, nan=0.0), 0.0, ELEVATION_MAX).astype(np.float32)
             obs["elevation"] = egocentric_values(top, self.grid, pose, shape, cell, behind)
         return obs
+
+
+def step_info(
+    gt: Pose2D, pose: Pose2D, distance: float, collided: bool, reached: bool, goal: tuple[float, float],
+    sim_time: float, terms: dict[str, float] | None, dynamics: Any,
+) -> dict[str, Any]:  # fmt: skip
+    """The ``info`` of a step before the runtime's parts (``safety``, ``command``...): the true
+    ``distance`` to the goal, collision and success, the true and the believed pose, the goal, the
+    simulated time (s), the reward terms (None at a reset) and the episode's dynamics."""
+    info: dict[str, Any] = {
+        "distance": distance,
+        "collision": collided,
+        "is_success": reached,
+        "pose": (gt.x, gt.y, gt.theta),
+        "pose_estimate": (pose.x, pose.y, pose.theta),
+        "goal": goal,
+        "sim_time": sim_time,
+    }
+    if terms is not None:
+        info["reward_terms"] = terms
+    info["dynamics"] = dynamics.as_dict()
+    return info

@@ -21,7 +21,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
+
+# scipy's Rotation is imported where it is used: importing scipy.spatial costs every process that
+# needs a transform (each command, test worker and Ray worker) about half a second, and the hot paths
+# here use closed forms
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -66,6 +69,8 @@ def rotation_rpy(roll: float, pitch: float, yaw: float) -> FloatArray:
 
 def rpy_from_matrix(r: Any) -> tuple[float, float, float]:
     """Fixed-axis (roll, pitch, yaw) in rad of a rotation matrix (3, 3); inverse of :func:`rotation_rpy`."""
+    from scipy.spatial.transform import Rotation
+
     roll, pitch, yaw = Rotation.from_matrix(np.asarray(r, dtype=float)).as_euler("xyz")
     return float(roll), float(pitch), float(yaw)
 
@@ -96,6 +101,8 @@ def rotation_axis_angle(axis: npt.ArrayLike, angle: float) -> FloatArray:
 
 def quat_from_matrix(r: Any) -> tuple[float, float, float, float]:
     """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (3, 3), with ``w >= 0``."""
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(np.asarray(r, dtype=float)[:3, :3]).as_quat()
     if q[3] < 0:
         q = -q
@@ -169,7 +176,7 @@ def se3(rotation: Any = None, translation: npt.ArrayLike = (0.0, 0.0, 0.0)) -> F
     t = np.eye(4)
     if rotation is not None:
         t[:3, :3] = (
-            rotation.as_matrix() if isinstance(rotation, Rotation) else np.asarray(rotation, dtype=float)
+            rotation.as_matrix() if hasattr(rotation, "as_matrix") else np.asarray(rotation, dtype=float)
         )
     t[:3, 3] = np.asarray(translation, dtype=float)
     return t

@@ -386,7 +386,9 @@ class SafetyLayer:
             return 1.0, ""
         # only points the footprint can reach within the full twist's stop can matter
         reach = fp.reach + abs(v) * self.stopping_time(v, w) + lim.sweep_margin_m + SWEEP_STEP_M
-        near = pts[np.einsum("ij,ij->i", pts, pts) <= reach * reach]
+        from robchair.platform._safety_kernels import within_reach  # numba: imported when first needed
+
+        near = within_reach(pts, reach * reach)  # pts[einsum("ij,ij->i", pts, pts) <= reach**2]
         if len(near) == 0:
             return 1.0, ""
         d0 = self.footprint.signed_distance(near)

@@ -155,3 +155,16 @@ def test_axis_angle_rotation_is_scipys_rotation_vector(x: float, y: float, z: fl
 def test_a_zero_length_rotation_axis_is_refused() -> None:
     with pytest.raises(ValueError, match="zero length"):
         frames.rotation_axis_angle((0.0, 0.0, 0.0), 1.0)
+
+
+def test_se3_takes_a_scipy_rotation_and_importing_frames_leaves_scipy_spatial_out() -> None:
+    """``se3`` accepts a :class:`Rotation` without the module importing scipy.spatial at its top (each
+    command that needs no Rotation would pay its import)."""
+    import subprocess
+    import sys
+
+    r = Rotation.from_euler("z", 0.5)
+    np.testing.assert_array_equal(frames.se3(r, (1, 2, 3))[:3, :3], r.as_matrix())
+    code = "import sys, robchair.platform.frames; print('scipy.spatial' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

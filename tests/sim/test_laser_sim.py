@@ -57,7 +57,7 @@ def test_beam_layout_is_the_datasheet_one():
     assert m.time_increment == pytest.approx(0.1 / 1024)
 
 
-@pytest.mark.parametrize("caster", ["embree", "pybullet"])
+@pytest.mark.parametrize("caster", ["raster", "embree", "pybullet"])
 def test_a_wall_gives_the_analytic_range_on_every_beam(client, caster):
     wall_world(client)
     laser = LaserSim(client, caster=caster, noise=False)
