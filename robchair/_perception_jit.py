@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import sys
+
 import numba
 import numpy as np
+
+from mapping._deps import announce_compilation
 
 
 @numba.njit(cache=True, nogil=True)
@@ -48,3 +52,7 @@ def _arc_to_base(out, k0, arc, p0x, p0y, c0, s0, px, py, c, s):  # type: ignore[
         wy = p0y + s0 * ax + c0 * ay - py
         out[k0 + i, 0] = c * wx + s * wy
         out[k0 + i, 1] = c * wy - s * wx
+
+
+# first run after an install or a change here: say why the first cycle takes seconds
+announce_compilation(sys.modules[__name__], "perception point kernels")

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from mapping._deps import announce_compilation
 from robchair.perception_queries import points_in_base
 from robchair.platform.kinematics import Pose2D
 
@@ -27,9 +26,8 @@ def _jit() -> Any:
     """The compiled kernels' module (numba is imported at the first call, not with the stage)."""
     global _JIT
     if _JIT is None:
-        import robchair._perception_jit as jit
+        import robchair._perception_jit as jit  # says so when its kernels compile
 
-        announce_compilation(jit, "perception point kernels")
         _JIT = jit
     return _JIT
 
