@@ -188,6 +188,9 @@ class LaserSim(Device):
         self._dirs = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)  # sensor frame
         self._rays = np.empty((len(a), 6), dtype=np.float32)  # Embree's (origin, direction) rows, reused
         self._cos, self._sin = np.cos(a), np.sin(a)  # the raster caster's beam directions (sensor frame)
+        # the raster caster's chunks of the mirror's triangles: (the vertex array they are of, chunks,
+        # bounds), remade when the mirror is rebuilt (sim._sonar_raster.mesh_chunks)
+        self._mesh: tuple[Any, Any, Any] = (None, None, None)
 
     # ---- casting ----------------------------------------------------------------------------
 
@@ -204,15 +207,20 @@ class LaserSim(Device):
         """:meth:`true_ranges` and, from Embree's hits, how many beams are measurements."""
         rmax = self.model.range_max
         if self.caster == "raster":
-            from sim._laser_raster import planar_first_hits  # numba, imported when first used
+            from sim._laser_raster import planar_first_hits_chunked  # numba, imported when first used
 
             assert self.mirror is not None
             t = pose_matrix(pose)  # refuses a pose that is not finite
             mirror = self.mirror
             mirror.sync()
+            verts = mirror.tri_vertices
+            if self._mesh[0] is not verts:  # each mirror rebuild makes new flat arrays
+                from sim._sonar_raster import mesh_chunks
+
+                self._mesh = (verts, *mesh_chunks(verts, mirror.tri_faces, mirror.tri_geometry))
             m = self.model
-            r = planar_first_hits(
-                mirror.tri_vertices, mirror.tri_faces, np.ascontiguousarray(t[:3, :3]),
+            r = planar_first_hits_chunked(
+                verts, mirror.tri_faces, self._mesh[1], self._mesh[2], np.ascontiguousarray(t[:3, :3]),
                 np.ascontiguousarray(t[:3, 3]), m.angle_min, m.angle_increment, self._cos, self._sin, rmax,
             )  # fmt: skip
             return r, None

@@ -127,3 +127,25 @@ def test_a_laser_scan_needs_no_open3d() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_skipping_chunks_off_the_plane_or_out_of_range_changes_no_beam(office) -> None:
+    """The chunked cut (the chair's) against cutting every triangle: bit for bit over office poses."""
+    from sim._laser_raster import planar_first_hits_chunked
+    from sim._sonar_raster import mesh_chunks
+
+    mirror = LaserSim(office.world.client, noise=False).mirror  # the office's triangles, the chair left out
+    mirror.sync()
+    chunks, bounds = mesh_chunks(mirror.tri_vertices, mirror.tri_faces, mirror.tri_geometry)
+    a = np.radians(np.arange(-120.0, 120.0, 0.35))
+    rng = np.random.default_rng(11)
+    culled = 0
+    for _ in range(100):
+        t = _pose(rng)
+        rot, o = np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3])
+        args = (a[0], math.radians(0.35), np.cos(a), np.sin(a), 4.0)
+        flat = planar_first_hits(mirror.tri_vertices, mirror.tri_faces, rot, o, *args)
+        fast = planar_first_hits_chunked(mirror.tri_vertices, mirror.tri_faces, chunks, bounds, rot, o, *args)
+        assert np.array_equal(flat, fast)
+        culled += int(np.isfinite(flat).sum())
+    assert culled > 100 * len(a) // 4  # the poses see things
