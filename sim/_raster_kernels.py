@@ -97,6 +97,37 @@ def _refresh_tiles(zbuf, tmax, dirty):  # type: ignore[no-untyped-def]  # pragma
             tmax[tv, tu] = m
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def clipped_box(x0, y0, z0, x1, y1, z1, x2, y2, z2, eps, cx, cy, cz):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """A camera-frame triangle clipped against the plane x = ``eps`` (Sutherland-Hodgman, one plane)
+    and the box of its projection: ``(nc, amin, amax, bmin, bmax)``, ``nc`` the clipped polygon's
+    vertices (written to ``cx, cy, cz``, (4,) each) and the extremes of ``y / x`` and ``z / x`` over
+    them (an empty polygon: an empty box, inf / -inf). Shared by the Kinect raster and the sonar
+    beam's (:mod:`sim._sonar_raster`)."""
+    nc = 0
+    for e in range(3):
+        if e == 0:
+            px, py, pz, qx, qy, qz = x0, y0, z0, x1, y1, z1
+        elif e == 1:
+            px, py, pz, qx, qy, qz = x1, y1, z1, x2, y2, z2
+        else:
+            px, py, pz, qx, qy, qz = x2, y2, z2, x0, y0, z0
+        if px > eps:
+            cx[nc], cy[nc], cz[nc] = px, py, pz
+            nc += 1
+        if (px > eps) != (qx > eps):
+            s = (eps - px) / (qx - px)
+            cx[nc], cy[nc], cz[nc] = eps, py + s * (qy - py), pz + s * (qz - pz)
+            nc += 1
+    amin, amax, bmin, bmax = np.inf, -np.inf, np.inf, -np.inf
+    for k in range(nc):
+        a = cy[k] / cx[k]
+        b = cz[k] / cx[k]
+        amin, amax = min(amin, a), max(amax, a)
+        bmin, bmax = min(bmin, b), max(bmax, b)
+    return nc, amin, amax, bmin, bmax
+
+
 # error_model="numpy": a division by zero gives inf instead of raising (the pixel loop relies on it)
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _draw_rows(pc, faces, chunks, ax, by, far, row0, row1, zbuf, tri):  # type: ignore[no-untyped-def]  # pragma: no cover
@@ -173,28 +204,7 @@ def _draw_rows(pc, faces, chunks, ax, by, far, row0, row1, zbuf, tri):  # type: 
                 continue  # wholly behind the camera
             if x0 > far and x1 > far and x2 > far:
                 continue  # every point of it is deeper than the range
-            # clip against x = eps (Sutherland-Hodgman, one plane) to bound the projection
-            nc = 0
-            for e in range(3):
-                if e == 0:
-                    px, py, pz, qx, qy, qz = x0, y0, z0, x1, y1, z1
-                elif e == 1:
-                    px, py, pz, qx, qy, qz = x1, y1, z1, x2, y2, z2
-                else:
-                    px, py, pz, qx, qy, qz = x2, y2, z2, x0, y0, z0
-                if px > eps:
-                    cx[nc], cy[nc], cz[nc] = px, py, pz
-                    nc += 1
-                if (px > eps) != (qx > eps):
-                    s = (eps - px) / (qx - px)
-                    cx[nc], cy[nc], cz[nc] = eps, py + s * (qy - py), pz + s * (qz - pz)
-                    nc += 1
-            amin, amax, bmin, bmax = np.inf, -np.inf, np.inf, -np.inf
-            for k in range(nc):
-                a = cy[k] / cx[k]
-                b = cz[k] / cx[k]
-                amin, amax = min(amin, a), max(amax, a)
-                bmin, bmax = min(bmin, b), max(bmax, b)
+            nc, amin, amax, bmin, bmax = clipped_box(x0, y0, z0, x1, y1, z1, x2, y2, z2, eps, cx, cy, cz)
             # columns u with amin <= ax[u] <= amax (one pixel of margin for rounding)
             # (clamped as floats first: a vertex just in front of the camera projects near infinity)
             u0 = math.floor(min(max((amax - a0) / da, -2.0), w + 2.0)) - 1

@@ -49,6 +49,7 @@ import numpy.typing as npt
 
 from mapping._deps import announce_compilation
 from sim._kinect_kernels import _interp_uniform
+from sim._raster_kernels import clipped_box
 
 #: Faces per chunk at most (a geometry with more is culled in several chunks).
 CHUNK_FACES = 32
@@ -348,28 +349,8 @@ def _cast_one(
                 amin, amax = min(pv[i0, 3], pv[i1, 3], pv[i2, 3]), max(pv[i0, 3], pv[i1, 3], pv[i2, 3])
                 cmin, cmax = min(pv[i0, 4], pv[i1, 4], pv[i2, 4]), max(pv[i0, 4], pv[i1, 4], pv[i2, 4])
             else:
-                # clip against x = eps (Sutherland-Hodgman, one plane) to bound the projection
-                nc = 0
-                for e in range(3):
-                    if e == 0:
-                        px, py, pz, sx, sy, sz = x0, y0, z0, x1, y1, z1
-                    elif e == 1:
-                        px, py, pz, sx, sy, sz = x1, y1, z1, x2, y2, z2
-                    else:
-                        px, py, pz, sx, sy, sz = x2, y2, z2, x0, y0, z0
-                    if px > eps:
-                        cx[nc], cy[nc], cz[nc] = px, py, pz
-                        nc += 1
-                    if (px > eps) != (sx > eps):
-                        s = (eps - px) / (sx - px)
-                        cx[nc], cy[nc], cz[nc] = eps, py + s * (sy - py), pz + s * (sz - pz)
-                        nc += 1
-                amin, amax, cmin, cmax = np.inf, -np.inf, np.inf, -np.inf
-                for k in range(nc):
-                    a = cy[k] / cx[k]
-                    c = cz[k] / cx[k]
-                    amin, amax = min(amin, a), max(amax, a)
-                    cmin, cmax = min(cmin, c), max(cmax, c)
+                # clipped against x = eps to bound the projection
+                _, amin, amax, cmin, cmax = clipped_box(x0, y0, z0, x1, y1, z1, x2, y2, z2, eps, cx, cy, cz)
             # the box's own rounding is relative to its coordinates (a vertex just in front of the
             # sonar projects far out)
             margin = _BOX_MARGIN * (1.0 + max(-amin, amax, -cmin, cmax))

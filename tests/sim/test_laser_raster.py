@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from robchair.platform.frames import se3_rpy
 from robchair.platform.paths import SCENES
 from sim._laser_raster import planar_first_hits
 from sim.chair import SimChair
@@ -32,22 +33,7 @@ def office():
 def _pose(rng: np.random.Generator) -> np.ndarray:
     x, y, yaw = rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(-math.pi, math.pi)
     roll, pitch = rng.normal(0, 0.03, 2)
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(roll),
-        math.sin(roll),
-        math.cos(pitch),
-        math.sin(pitch),
-        math.cos(yaw),
-        math.sin(yaw),
-    )
-    t = np.eye(4)
-    t[:3, :3] = [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-    t[:3, 3] = (x, y, rng.uniform(0.1, 1.2))
-    return t
+    return se3_rpy((x, y, rng.uniform(0.1, 1.2)), (roll, pitch, yaw))
 
 
 def test_the_plane_cut_sees_what_embree_sees_on_the_office_floor(office) -> None:
