@@ -15,20 +15,12 @@ of :func:`mapping._vhv_kernels.merge_structures`, so the map comes out the same 
 from __future__ import annotations
 
 import sys
-from typing import Any
 
 import numba
 import numpy as np
 
 from mapping._deps import announce_compilation
-
-_JIT: dict[str, Any] = {
-    "cache": True,
-    "nogil": True,
-    "nopython": True,
-    "error_model": "numpy",
-    "boundscheck": False,
-}
+from mapping._vhv_kernels import _JIT  # the map kernels' compile options
 
 
 @numba.jit(**_JIT)
@@ -43,6 +35,16 @@ def _sort_run(h, a, b):  # type: ignore[no-untyped-def]  # pragma: no cover - co
             h[r + 1] = h[r]
             r -= 1
         h[r + 1] = z
+
+
+@numba.jit(inline="always", **_JIT)
+def _copy_block(k1, b1, t1, a, b, ok, ob, ot, o):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Copy the map's structures [a, b) to the output at ``o``; the new output length."""
+    w = b - a
+    ok[o : o + w] = k1[a:b]
+    ob[o : o + w] = b1[a:b]
+    ot[o : o + w] = t1[a:b]
+    return o + w
 
 
 @numba.jit(**_JIT)
@@ -157,11 +159,7 @@ def insert_few(pts, gf, gi, k1, b1, t1):  # type: ignore[no-untyped-def]  # prag
         hi = lo
         while hi < n1 and k1[hi] == key:
             hi += 1
-        w = lo - p
-        ok[o : o + w] = k1[p:lo]
-        ob[o : o + w] = b1[p:lo]
-        ot[o : o + w] = t1[p:lo]
-        o += w
+        o = _copy_block(k1, b1, t1, p, lo, ok, ob, ot, o)
         first = o
         i = lo
         j = q
@@ -184,11 +182,7 @@ def insert_few(pts, gf, gi, k1, b1, t1):  # type: ignore[no-untyped-def]  # prag
                 o += 1
         p = hi
         q = qe
-    w = n1 - p
-    ok[o : o + w] = k1[p:n1]
-    ob[o : o + w] = b1[p:n1]
-    ot[o : o + w] = t1[p:n1]
-    o += w
+    o = _copy_block(k1, b1, t1, p, n1, ok, ob, ot, o)
     return ok[:o], ob[:o], ot[:o], n_nonfinite, n_outside, n2
 
 

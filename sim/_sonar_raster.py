@@ -194,6 +194,34 @@ def _echo_of(
     return np.inf
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _judge(limit, best, zbuf, tri, done, verts, faces, pose, rays, rule, bearing, elevation, tables):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Judge (once each: ``done``) the rays whose nearest hit is no farther than ``limit`` by the echo
+    rule (:func:`_echo_of`); the smaller of ``best`` and their smallest echo. ``tables``: (table_m,
+    table_left, table_right)."""
+    table_m, table_left, table_right = tables
+    for j in range(zbuf.shape[0]):
+        if zbuf[j] <= limit and not done[j]:
+            done[j] = True
+            e = _echo_of(
+                j,
+                zbuf[j],
+                tri[j],
+                verts,
+                faces,
+                pose,
+                rays,
+                rule,
+                bearing,
+                elevation,
+                table_m,
+                table_left,
+                table_right,
+            )
+            best = min(best, e)
+    return best
+
+
 # error_model="numpy": a division by zero gives inf instead of raising (the ray loop relies on it)
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _cast_one(
@@ -287,7 +315,7 @@ def _cast_one(
         nk += 1
     by_key = np.argsort(key[:nk])
     best = np.inf  # the smallest echo among the rays judged (those whose hit is final)
-    n = zbuf.shape[0]
+    tables = (table_m, table_left, table_right)
     for q in range(nk):
         ch = kept[by_key[q]]
         near = key[by_key[q]]
@@ -295,27 +323,9 @@ def _cast_one(
             # rays whose hit is no farther than this chunk's near side hold their final hit: judge
             # them (once each); when one echoes (no farther than that), nothing left can give a
             # smaller echo
-            for j in range(n):
-                if zbuf[j] <= near and not done[j]:
-                    done[j] = True
-                    best = min(
-                        best,
-                        _echo_of(
-                            j,
-                            zbuf[j],
-                            tri[j],
-                            verts,
-                            faces,
-                            pose,
-                            rays,
-                            rule,
-                            bearing,
-                            elevation,
-                            table_m,
-                            table_left,
-                            table_right,
-                        ),
-                    )
+            best = _judge(
+                near, best, zbuf, tri, done, verts, faces, pose, rays, rule, bearing, elevation, tables
+            )
             if best < np.inf:
                 return best
         # the chunk's vertices (a range of indices) in the sonar frame, once each, with outcodes:
@@ -393,27 +403,8 @@ def _cast_one(
                     tr[j] = f if ok else tr[j]
     if not early:
         return np.inf
-    for j in range(n):
-        if not done[j]:
-            best = min(
-                best,
-                _echo_of(
-                    j,
-                    zbuf[j],
-                    tri[j],
-                    verts,
-                    faces,
-                    pose,
-                    rays,
-                    rule,
-                    bearing,
-                    elevation,
-                    table_m,
-                    table_left,
-                    table_right,
-                ),
-            )
-    return best
+    # the rest: every ray not judged yet (a ray without a hit has inf, which is <= inf, and no echo)
+    return _judge(np.inf, best, zbuf, tri, done, verts, faces, pose, rays, rule, bearing, elevation, tables)
 
 
 @numba.njit(cache=True, nogil=True)
