@@ -13,6 +13,10 @@ from typing import Any
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from mapping._deps import announce_compilation
 
@@ -56,6 +60,48 @@ def scan(pts, cu, cv, ch, step):  # type: ignore[no-untyped-def]
         h_min = min(h_min, h)
         h_max = max(h_max, h)
     return n_nonfinite, u_min, u_max, v_min, v_max, h_min, h_max
+
+
+@intrinsic
+def _minmax_pair(typingctx, mm, i, h):  # type: ignore[no-untyped-def]
+    """``mm[i] = min(mm[i], h)`` and ``mm[i + 1] = max(mm[i + 1], h)`` through one 2-lane load, compare,
+    select and store (``mm`` a 1-D float array, ``i`` in bounds).
+
+    Two scalar updates cost two loads and two stores; a bin's (min, max) pair is adjacent, so one 8-byte
+    (float32) or 16-byte (float64) access serves both: the scatter's memory operations per point drop
+    from six to four (HD frame: the whole build 5 % faster). Lane 1 is a minimum of sign-flipped values
+    (``max(y, h) = -min(-y, -h)``), so that one vector minimum serves both lanes. The result is numba's
+    ``min`` and ``max`` bit for bit: lane 0 takes ``h`` when ``h < mm[i]``, lane 1 when ``h > mm[i + 1]``
+    (ties, signed zeros included, keep the stored value; a NaN height changes nothing)."""
+    sig = types.void(mm, i, h)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        aty = signature.args[0]
+        ary = context.make_array(aty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(
+            context, builder, aty, ary, [args[1]], wraparound=False, boundscheck=False
+        )
+        vt = ir.VectorType(context.get_data_type(aty.dtype), 2)
+        i32 = ir.IntType(32)
+        hv = context.cast(builder, args[2], signature.args[2], aty.dtype)
+        a = builder.insert_element(ir.Constant(vt, ir.Undefined), hv, ir.Constant(i32, 0))
+        a = builder.shuffle_vector(a, a, ir.Constant(ir.VectorType(i32, 2), [0, 0]))
+        vp = builder.bitcast(ptr, vt.as_pointer())
+        align = aty.dtype.bitwidth // 8
+        x = builder.load(vp, align=align)
+        # lane 1 as a minimum of negated values: max(y, h) = -min(-y, -h), ties keep y
+        neg = ir.Constant(vt, [0.0, -0.0])
+        it = ir.VectorType(ir.IntType(aty.dtype.bitwidth), 2)
+        sign = builder.bitcast(neg, it)
+
+        def flip(v):  # type: ignore[no-untyped-def]
+            return builder.bitcast(builder.xor(builder.bitcast(v, it), sign), vt)
+
+        a, x = flip(a), flip(x)
+        builder.store(flip(builder.select(builder.fcmp_ordered("<", a, x), a, x)), vp, align=align)
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 # Points per chunk of the binning pass: its slot buffer (int32) and the chunk's points stay in the L1/L2
@@ -133,7 +179,8 @@ def _box_misses(pc, m, cu, cv, ch, ics, fou, fov, fnx, fny, trash, buf, base, ov
 
 @numba.jit(**_JIT)
 def _scatter_chunk(pc, m, xh, buf, mm):  # type: ignore[no-untyped-def]
-    """``mm[slot] = min(mm[slot], h)``, ``mm[slot + 1] = max(mm[slot + 1], h)`` for the chunk's points.
+    """``mm[slot] = min(mm[slot], h)``, ``mm[slot + 1] = max(mm[slot + 1], h)`` for the chunk's points
+    (one paired access each, :func:`_minmax_pair`).
 
     Branch-free (which point is extreme in its bin is unpredictable) and in :data:`_STREAMS`
     interleaved streams; the order of the updates does not matter, min and max are exact.
@@ -142,15 +189,10 @@ def _scatter_chunk(pc, m, xh, buf, mm):  # type: ignore[no-untyped-def]
     for q in range(ms):
         for k in range(_STREAMS):
             r = q + k * ms
-            i = np.uint32(buf[r])  # unsigned: no negative-index wraparound in the address
-            hv = pc[3 * r + xh]
-            mm[i] = min(mm[i], hv)
-            mm[i + np.uint32(1)] = max(mm[i + np.uint32(1)], hv)
+            # unsigned: no negative-index wraparound in the address
+            _minmax_pair(mm, np.uint32(buf[r]), pc[3 * r + xh])  # type: ignore[call-arg]
     for r in range(_STREAMS * ms, m):
-        i = np.uint32(buf[r])
-        hv = pc[3 * r + xh]
-        mm[i] = min(mm[i], hv)
-        mm[i + np.uint32(1)] = max(mm[i + np.uint32(1)], hv)
+        _minmax_pair(mm, np.uint32(buf[r]), pc[3 * r + xh])  # type: ignore[call-arg]
 
 
 @numba.jit(**_JIT)
@@ -166,13 +208,13 @@ def bin_minmax(pts, ics, ou, ov, nx, ny, cu, cv, ch, i0, j0, ni, nj, iw, b0, nb,
     """Min and max height per (cell, height bin of width ``1 / iw``) inside a box of cells and bins.
 
     ``mm`` is a flat dense table of ``2 * ni * nj * nb + 2`` entries, (min, max) side by side so that
-    one cache line serves both, pre-filled with (+inf, -inf), for the box ``[i0, i0 + ni) x [j0, j0 +
-    nj) x [b0, b0 + nb)`` (grid indices, bin indices); the last two entries are scratch (points that
-    are not binned write there, so that the scatter has no branch). ``2 * ni * nj * nb + 2`` must fit
-    an int32, and the box must lie inside the grid. ``pts`` is C-contiguous ``(N, 3)``. Points with a
-    non-finite coordinate are counted and dropped; finite in-grid points whose cell or bin falls
-    outside the box are not binned: their indices go to ``overflow`` (as many as fit, in increasing
-    order) for the exact slow path.
+    one access updates both (:func:`_minmax_pair`), pre-filled with (+inf, -inf), for the box
+    ``[i0, i0 + ni) x [j0, j0 + nj) x [b0, b0 + nb)`` (grid indices, bin indices); the last two entries
+    are scratch (points that are not binned write there, so that the scatter has no branch).
+    ``2 * ni * nj * nb + 2`` must fit an int32, and the box must lie inside the grid. ``pts`` is
+    C-contiguous ``(N, 3)``. Points with a non-finite coordinate are counted and dropped; finite in-grid
+    points whose cell or bin falls outside the box are not binned: their indices go to ``overflow`` (as
+    many as fit, in increasing order) for the exact slow path.
 
     Per chunk of points: a vectorised pass computes every point's slot, then a scalar pass updates
     the table; a chunk with finite points outside the box is walked once more to classify them.
