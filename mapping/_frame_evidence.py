@@ -163,8 +163,18 @@ class FrameEvidence:
         nbins = math.ceil(span / m)
         erode = math.ceil(self._margin / (m * r) - 1e-9)
         gap = math.floor(self._gap / (m * r) + 1e-9)
+        nw = _row_words(nbins, words_budget)
         return FanJob(key, bot, top, okey, olo, ohi, spec, (su, sv, sh), (i0, j0, ni, nj), inv_r, b0, m,
-                      nbins, erode, gap)  # fmt: skip
+                      nbins, erode, gap, nw)  # fmt: skip
+
+
+def _row_words(nbins: int, words_budget: int) -> int:
+    """uint64 words per cell row of a fan bit table of ``nbins`` bins: ``ceil(nbins / 64)``, rows of 5 to
+    7 words padded to 8 when ``words_budget`` (words per cell the table may take) allows it, so that
+    :func:`mapping._evidence_kernels.fan_bits` sets runs four aligned words per access (the bins past
+    ``nbins`` stay empty)."""
+    nw = (nbins + 63) // 64
+    return 8 if 4 < nw < 8 and 8 <= words_budget else nw
 
 
 @dataclass
@@ -188,6 +198,7 @@ class FanJob:
     nbins: int
     erode: int
     gap: int
+    nw: int  # uint64 words per cell row of the bit table (>= ceil(nbins / 64); the bins past nbins stay 0)
     bits: NDArray[np.uint64] | None = None
     passages: int = 0
 
@@ -200,7 +211,7 @@ class FanJob:
         ny = self.spec.shape[1]
         (ou, ov), cs = self.spec.origin, self.spec.cell_size
         i0, j0, ni, nj = self.box
-        nw = (self.nbins + 63) // 64
+        nw = self.nw
         self.bits = np.zeros(ni * nj * nw, np.uint64)
         self.passages = int(
             E.fan_bits(self.key, self.bot, self.top, ny, cs, ou, ov, *self.sensor, i0, j0, ni, nj, nw,
@@ -213,7 +224,7 @@ class FanJob:
 
         self.mark()
         i0, j0, ni, nj = self.box
-        nw = (self.nbins + 63) // 64
+        nw = self.nw
         fkey, flo, fhi = E.extract_free(
             self.bits, i0, j0, ni, nj, nw, self.nbins, self.spec.shape[1], self.b0, self.m, self.gap,
             self.erode, self.okey, self.olo, self.ohi,
