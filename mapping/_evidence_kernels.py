@@ -246,12 +246,17 @@ def fan_bits(  # type: ignore[no-untyped-def]
                                 bits[base + w1] |= to_hi
                     passages += g1 - g0
             s_in = s_out
-            # branch-free step (which axis comes next is unpredictable)
-            fu = np.int64(tmu <= tmv)
-            ci += stu * fu
-            cj += stv * (1 - fu)
-            tmu += tdu * fu
-            tmv += tdv * (1 - fu)
+            # branch-free step (which axis comes next is unpredictable): selects, so that the walk's
+            # chain is a compare and a blend per step, not a compare, a conversion, a multiply and an add
+            # (a skipped update adds nothing: the old ``tmu + tdu * 0`` only turned a -0.0 into +0.0,
+            # which no comparison, product or truncation below can tell apart)
+            go_u = tmu <= tmv
+            nu = tmu + tdu
+            nv = tmv + tdv
+            ci = ci + stu if go_u else ci
+            cj = cj if go_u else cj + stv
+            tmu = nu if go_u else tmu
+            tmv = tmv if go_u else nv
         g0 = g1
     return passages
 
