@@ -138,7 +138,7 @@ def fan_bits(  # type: ignore[no-untyped-def]
     The table has ``nw`` uint64 words per cell; bin ``k`` is lattice ``[b0 + k m, b0 + (k + 1) m)``.
     Structures come sorted by key (those of one cell consecutive: their cell's segment is walked once).
     Rows of 4 or 8 words (``FanJob`` pads 5 to 7 to 8) set each run with one or two branch-free 4-word
-    accesses (:func:`_or_run4`; 15-20 % faster on the HD and the Kinect frames), other widths word by
+    accesses (:func:`_or_run4`; about 20 % less CPU on the HD and the Kinect frames), other widths word by
     word; the bits are the same.
 
     Returns:
