@@ -3,7 +3,8 @@
 Each module in COMMANDS / BENCHES exposes ``register(subparsers)`` which adds its parser and sets
 ``func`` (a callable taking the parsed ``argparse.Namespace`` and returning an exit code); a listed
 module that cannot be imported is an error of the installation, raised as such. Modules import their
-heavy dependencies inside ``func`` so ``robchair --help`` stays fast.
+heavy dependencies inside ``func`` so ``robchair --help`` stays fast, and a command line that names one
+command imports only that command's module (:func:`build_parser`).
 
 Any error the project raises on purpose (MappingError, HardwareError, SimError, RobChairError), and
 file-system errors, become one line on stderr and exit code 2.
