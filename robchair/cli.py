@@ -3,7 +3,8 @@
 Each module in COMMANDS / BENCHES exposes ``register(subparsers)`` which adds its parser and sets
 ``func`` (a callable taking the parsed ``argparse.Namespace`` and returning an exit code); a listed
 module that cannot be imported is an error of the installation, raised as such. Modules import their
-heavy dependencies inside ``func`` so ``robchair --help`` stays fast.
+heavy dependencies inside ``func`` so ``robchair --help`` stays fast, and a command line that names one
+command imports only that command's module (:func:`build_parser`).
 
 Any error the project raises on purpose (MappingError, HardwareError, SimError, RobChairError), and
 file-system errors, become one line on stderr and exit code 2.
@@ -68,18 +69,55 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_name(module: str) -> str:
+    """The sub-command a module of :data:`COMMANDS` / :data:`BENCHES` registers: its last name without
+    ``bench_``, ``_`` as ``-`` (``robchair.commands.nav_eval`` -> ``nav-eval``)."""
+    return module.rsplit(".", 1)[-1].removeprefix("bench_").replace("_", "-")
+
+
+def _first_word(words: Sequence[str]) -> tuple[str | None, Sequence[str]]:
+    """The first of ``words`` that is not an option, and the words after it; None before a help option
+    or when every word is an option."""
+    for i, word in enumerate(words):
+        if word in ("-h", "--help"):
+            break
+        if not word.startswith("-"):
+            return word, words[i + 1 :]
+    return None, ()
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``robchair`` parser with every listed command, or, given the command line ``argv`` it will
+    parse, with the one command that line names (``sim ...``; ``bench map ...``: the bench with that one
+    benchmark): each command's module costs its import (all of them ~0.3 s of CPU, what every command
+    paid before its work). A line naming no listed command (``--help``, a typo) gets every command, so
+    help and errors list them all; one command's own parser and its help are the same either way.
+
+    Raises:
+        ModuleNotFoundError: A listed module that is imported cannot be found (an installation error).
+    """
+    commands: Sequence[str] = COMMANDS
+    benches: Sequence[str] | None = BENCHES
+    if argv is not None:
+        first, rest = _first_word(argv)
+        if first == "bench":
+            commands = ()
+            benches = [m for m in BENCHES if command_name(m) == _first_word(rest)[0]] or BENCHES
+        elif chosen := [m for m in COMMANDS if command_name(m) == first]:
+            commands, benches = chosen, None
     parser = OneLineParser(
         prog="robchair",
         description="RobChair digital twin: mapping, simulation, hardware and motor control.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    for name in commands:
         importlib.import_module(name).register(sub)
+    if benches is None:
+        return parser
     bench = sub.add_parser("bench", help="benchmarks against named baselines (prints a table, writes JSON)")
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCH")
-    for name in BENCHES:
+    for name in benches:
         importlib.import_module(name).register(bench_sub)
 
     def _bench_help(_args: argparse.Namespace) -> int:
@@ -173,8 +211,9 @@ def _raise_after_compiling(deferred: list[int]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(words)
+    args = parser.parse_args(words)
     logging.basicConfig(
         level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)],
         format="%(levelname)s %(name)s: %(message)s",

@@ -69,11 +69,10 @@ def emulated_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def ray_2cpu() -> Iterator[Any]:
     """A local Ray instance of 2 CPUs (the ``ray`` module), started once for every test that runs work on
     Ray (a `--ray` command joins it: an initialised Ray is reused and left running), shut down at the end
-    of the session; its workers run with :data:`robchair.sweep.harness.THREAD_ENV`."""
-    ray = pytest.importorskip("ray")
-    from robchair.sweep.harness import THREAD_ENV
+    of the session; started as the commands start theirs (:func:`robchair.sweep.executor.ray_session`),
+    so its workers run with :data:`robchair.sweep.harness.THREAD_ENV`."""
+    pytest.importorskip("ray")
+    from robchair.sweep.executor import ray_session
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             runtime_env={"env_vars": dict(THREAD_ENV)})  # fmt: skip
-    yield ray
-    ray.shutdown()
+    with ray_session(num_cpus=2) as ray:
+        yield ray

@@ -31,7 +31,7 @@ def test_project_error_becomes_one_line_and_exit_code_2(
         return ns
 
     monkeypatch.setattr(parser, "parse_args", parse)
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda *_argv: parser)
     assert cli.main([]) == 2
     err = capsys.readouterr().err
     assert err.strip().splitlines() == ["robchair demo: error: input.pcd: truncated data section"]
@@ -47,7 +47,7 @@ def test_unexpected_errors_are_not_swallowed(monkeypatch: pytest.MonkeyPatch) ->
         return ns
 
     monkeypatch.setattr(parser, "parse_args", parse)
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda *_argv: parser)
     with pytest.raises(ZeroDivisionError):
         cli.main([])
 
@@ -96,3 +96,51 @@ def test_a_listed_command_module_that_is_missing_is_an_error_not_a_silent_skip(
     monkeypatch.setattr(cli, "COMMANDS", cli.COMMANDS[:-1])
     with pytest.raises(ModuleNotFoundError, match=r"robchair\.commands\.bench_nothing"):
         cli.build_parser()
+
+
+def _choices(parser: object) -> dict[str, object]:
+    return dict(parser._subparsers._group_actions[0].choices)  # type: ignore[attr-defined]
+
+
+def test_each_listed_module_registers_the_command_its_name_says() -> None:
+    """What a command line's one-module parser relies on: the name it looks for is the name registered."""
+    parser = cli.build_parser()
+    assert set(_choices(parser)) == {cli.command_name(m) for m in cli.COMMANDS} | {"bench"}
+    assert set(_choices(_choices(parser)["bench"])) == {cli.command_name(m) for m in cli.BENCHES}
+
+
+@pytest.mark.parametrize(
+    ("argv", "commands", "benches"),
+    [
+        (["-v", "sim", "--duration", "1"], {"sim"}, None),
+        (["bench", "map", "--help"], {"bench"}, {"map"}),
+        (["bench"], {"bench"}, {cli.command_name(m) for m in cli.BENCHES}),
+        (["--help", "sim"], {cli.command_name(m) for m in cli.COMMANDS} | {"bench"}, None),
+        (["simm"], {cli.command_name(m) for m in cli.COMMANDS} | {"bench"}, None),
+    ],
+)
+def test_a_command_line_gets_the_parser_of_the_command_it_names_with_the_same_help(
+    argv: list[str], commands: set[str], benches: set[str] | None
+) -> None:
+    full = cli.build_parser()
+    parser = cli.build_parser(argv)
+    assert set(_choices(parser)) == commands
+    for name, sub in _choices(parser).items():
+        if name != "bench":  # the bench parser's own help lists the benchmarks it has
+            assert sub.format_help() == _choices(full)[name].format_help()  # type: ignore[attr-defined]
+    if benches is not None:
+        got = _choices(_choices(parser)["bench"])
+        assert set(got) == benches
+        for name, sub in got.items():
+            assert sub.format_help() == _choices(_choices(full)["bench"])[name].format_help()  # type: ignore[attr-defined]
+
+
+def test_a_command_imports_no_other_commands_module() -> None:
+    """`robchair sim` no longer imports the modules of map, pid, bench ... (~0.3 s of CPU each run); its
+    own module takes the live view's options from robchair.commands.live."""
+    code = (
+        "import sys\nfrom robchair import cli\ncli.build_parser(['sim', '--list'])\n"
+        "print(sorted(m for m in sys.modules if m.startswith('robchair.commands.')))"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.strip() == "['robchair.commands.live', 'robchair.commands.sim']"

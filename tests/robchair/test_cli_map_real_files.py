@@ -23,6 +23,10 @@ from robchair.cli import main
 PC2 = "sensor_msgs/msg/PointCloud2"
 
 
+# the map commands whose pictures these tests do not look at (test_cli_map.py checks them): ~1 s each
+MAP = ("map", "--no-pictures")
+
+
 def _summary(out):
     return json.loads((out / "summary.json").read_text())
 
@@ -51,7 +55,7 @@ def test_nuscenes_pcd_bin_is_read_as_five_floats_per_point(tmp_path, capsys):
     (frame,) = read_clouds(tmp_path / "n015__LIDAR_TOP__0.pcd.bin")
     np.testing.assert_array_equal(frame.points, pts[:, :3])
     out = tmp_path / "out"
-    assert main(["map", str(tmp_path / "n015__LIDAR_TOP__0.pcd.bin"), "--out", str(out)]) == 0
+    assert main([*MAP, str(tmp_path / "n015__LIDAR_TOP__0.pcd.bin"), "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 400
     assert _summary(out)["parameters"]["bin_layout"] == "nuscenes"
 
@@ -64,7 +68,7 @@ def test_nuscenes_scan_without_its_file_name_is_refused_not_read_as_kitti(tmp_pa
     assert "fits: kitti, nuscenes" in line and "--bin-layout" in line
     assert not (tmp_path / "out").exists()
     out = tmp_path / "out"
-    assert main(["map", str(tmp_path / "scan.bin"), "--bin-layout", "nuscenes", "--out", str(out)]) == 0
+    assert main([*MAP, str(tmp_path / "scan.bin"), "--bin-layout", "nuscenes", "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 400
 
 
@@ -77,7 +81,7 @@ def test_indoor_xyzrgb_bin_is_refused_by_default_and_read_with_its_layout(tmp_pa
     assert main(["map", str(tmp_path / "room.bin"), "--out", str(tmp_path / "o")]) == 2
     assert "room.bin: not a KITTI scan" in _one_error_line(capsys)
     out = tmp_path / "out"
-    assert main(["map", str(tmp_path / "room.bin"), "--bin-layout", "xyzrgb", "--out", str(out)]) == 0
+    assert main([*MAP, str(tmp_path / "room.bin"), "--bin-layout", "xyzrgb", "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 200
     (frame,) = read_clouds(tmp_path / "room.bin", bin_layout="xyzrgb")
     np.testing.assert_array_equal(frame.points, pts[:, :3])
@@ -116,7 +120,7 @@ def test_xyzrgb_bin_whose_colours_pass_for_intensities_is_refused_naming_the_lay
     assert "fits: kitti, nuscenes, xyz, xyzrgb" in line and "--bin-layout" in line
     assert not (tmp_path / "o").exists()
     out = tmp_path / "out"
-    assert main(["map", str(tmp_path / "room.bin"), "--bin-layout", "xyzrgb", "--out", str(out)]) == 0
+    assert main([*MAP, str(tmp_path / "room.bin"), "--bin-layout", "xyzrgb", "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 50_000
 
 
@@ -168,7 +172,7 @@ def test_blender_ply_with_triangles_and_quads_is_mapped_from_its_vertices(tmp_pa
     # the quad becomes two triangles of a fan, the triangle stays
     assert read_ply_mesh(path).faces.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 2]]
     out = tmp_path / "out"
-    assert main(["map", str(path), "--out", str(out)]) == 0
+    assert main([*MAP, str(path), "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 5
 
 
@@ -198,7 +202,7 @@ def test_message_compressed_db3_without_its_folder_is_decoded_from_its_metadata_
     np.testing.assert_array_equal(from_file.points, pts)
     np.testing.assert_array_equal(from_file.points, from_folder.points)
     out = tmp_path / "out"
-    assert main(["map", str(bare), "--out", str(out)]) == 0
+    assert main([*MAP, str(bare), "--out", str(out)]) == 0
     assert _summary(out)["points_in"] == 3
 
 
@@ -222,7 +226,7 @@ def test_lidar_no_return_zeros_are_dropped_and_counted(tmp_path, capsys):
     pts[::4] = 0.0  # 25 "no return" points at the sensor
     np.save(tmp_path / "scan.npy", pts)
     out = tmp_path / "out"
-    assert main(["map", str(tmp_path / "scan.npy"), "--out", str(out)]) == 0
+    assert main([*MAP, str(tmp_path / "scan.npy"), "--out", str(out)]) == 0
     s = _summary(out)
     assert s["points_dropped_min_range"] == 25
     assert s["points_in"] == 100 and s["points_inserted"] == 75
@@ -230,7 +234,7 @@ def test_lidar_no_return_zeros_are_dropped_and_counted(tmp_path, capsys):
     # a real minimum range counts every point inside it
     near = int(np.count_nonzero(np.linalg.norm(pts.astype(np.float64), axis=1) <= 3.0))
     out2 = tmp_path / "out2"
-    assert main(["map", str(tmp_path / "scan.npy"), "--min-range", "3", "--out", str(out2)]) == 0
+    assert main([*MAP, str(tmp_path / "scan.npy"), "--min-range", "3", "--out", str(out2)]) == 0
     assert _summary(out2)["points_dropped_min_range"] == near > 25
 
 

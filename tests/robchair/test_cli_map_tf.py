@@ -23,6 +23,10 @@ TF = "tf2_msgs/msg/TFMessage"
 S = 1_000_000_000
 
 
+# the map commands whose pictures these tests do not look at (test_cli_map.py checks them): ~1 s each
+MAP = ("map", "--no-pictures")
+
+
 def _types(ros2: bool):  # type: ignore[no-untyped-def]
     return _typestore(ros2).types
 
@@ -122,7 +126,7 @@ def test_ros1_bag_with_tf_maps_every_cloud_at_its_stamp_in_odom(tmp_path, capsys
     bag = _moving_bag(tmp_path / "moving.bag", ros2=False, odometry=odometry)
     out = tmp_path / "out"
     extra = ["--pose-topic", "/wheel_odom"] if odometry else []
-    assert main(["map", str(bag), "--out", str(out), "--size", "6", "6", *extra]) == 0
+    assert main([*MAP, str(bag), "--out", str(out), "--size", "6", "6", *extra]) == 0
     cells, summary = _occupied_world(out)
     h = math.sqrt(0.5)
     expected = [(1.02, 0.02), (1 + 1.02 * h - 0.02 * h, 1.02 * h + 0.02 * h), (1.98, 1.02)]
@@ -138,7 +142,7 @@ def test_ros1_bag_with_tf_maps_in_a_chosen_fixed_frame(tmp_path):
     """--fixed-frame laser: every column stays at (1.02, 0.02), its place in the laser frame."""
     bag = _moving_bag(tmp_path / "moving.bag", ros2=False)
     out = tmp_path / "out"
-    assert main(["map", str(bag), "--out", str(out), "--fixed-frame", "laser", "--size", "6", "6"]) == 0
+    assert main([*MAP, str(bag), "--out", str(out), "--fixed-frame", "laser", "--size", "6", "6"]) == 0
     cells, summary = _occupied_world(out)
     assert _holds(cells, 1.02, 0.02) and len(cells) == 1
     assert summary["tf"]["fixed_frame"] == "laser"
@@ -161,7 +165,7 @@ def test_a_bag_without_tf_is_mapped_as_recorded_and_says_so(tmp_path, capsys):
     msgs = [("/points", PC2, k * S, _column("laser", k * S, 1.02, 0.02, True)) for k in (1, 2)]
     bag = write_bag(tmp_path / "still", msgs, ros2=True)
     out = tmp_path / "out"
-    assert main(["map", str(bag), "--out", str(out), "--size", "6", "6"]) == 0
+    assert main([*MAP, str(bag), "--out", str(out), "--size", "6", "6"]) == 0
     assert "no /tf or /tf_static in the bag" in capsys.readouterr().err
     cells, summary = _occupied_world(out)
     assert _holds(cells, 1.02, 0.02) and len(cells) == 1 and summary["tf"]["fixed_frame"] is None
@@ -175,7 +179,7 @@ def test_planar_lidar_bag_below_the_band_warns_with_the_band_and_the_height_rang
     msgs = [("/scan_cloud", PC2, S, to_ros_pointcloud2(encode(pts, frame_id="base_laser"), ros2=True))]
     bag = write_bag(tmp_path / "neato", msgs, ros2=True)
     out = tmp_path / "out"
-    assert main(["map", str(bag), "--out", str(out)]) == 0
+    assert main([*MAP, str(bag), "--out", str(out)]) == 0
     err = capsys.readouterr().err
     (warning,) = [ln for ln in err.splitlines() if "warning" in ln]
     assert "100% of the points lie outside the 2D band z 0.10 to 1.50 m" in warning
@@ -185,7 +189,7 @@ def test_planar_lidar_bag_below_the_band_warns_with_the_band_and_the_height_rang
     assert check["height_range_m"] == pytest.approx([0.089, 0.089])
     assert check["warning"] == warning
     out2 = tmp_path / "out2"
-    assert main(["map", str(bag), "--out", str(out2), "--band", "0.05", "0.5"]) == 0
+    assert main([*MAP, str(bag), "--out", str(out2), "--band", "0.05", "0.5"]) == 0
     assert "warning" not in capsys.readouterr().err
 
 
@@ -222,8 +226,7 @@ def _mapped_back_iou(run, out, capsys, name: str = "odometry") -> float:  # type
     assert metrics["kind"] == "probabilistic"
     band = [str(v) for v in metrics["occupancy_band_m"]]
     assert (
-        main(["map", str(run / "bag"), "--map-kind", "probabilistic", "--band", *band, "--out", str(out)])
-        == 0
+        main([*MAP, str(run / "bag"), "--map-kind", "probabilistic", "--band", *band, "--out", str(out)]) == 0
     )
     assert "no /tf" not in capsys.readouterr().err
     ref, cell = _run_occupied(run, name)

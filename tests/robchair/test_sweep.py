@@ -172,3 +172,33 @@ def test_the_example_sweep_files_parse() -> None:
     assert examples
     for f in examples:
         assert load_sweep(f, ALLOWED).points
+
+
+def test_a_local_ray_sessions_workers_have_the_thread_env_without_a_runtime_env(ray_2cpu) -> None:
+    """ray_session starts a local instance with THREAD_ENV in its processes' environment, not as a
+    runtime_env (which made Ray start a runtime-env agent and fresh workers: ~3 s a session); the driver's
+    own environment is as it was once Ray has started (ray_2cpu is started by ray_session)."""
+    from robchair.sweep.harness import THREAD_ENV
+
+    def _worker_env() -> tuple[dict[str, str | None], str]:  # a local function: pickled by value
+        import os
+
+        import ray
+
+        return {k: os.environ.get(k) for k in THREAD_ENV}, ray.get_runtime_context().get_runtime_env_string()
+
+    env, runtime_env = ray_2cpu.get(ray_2cpu.remote(num_cpus=1)(_worker_env).remote())
+    assert env == THREAD_ENV
+    assert json.loads(runtime_env) == {}
+
+
+def test_the_environment_ray_starts_in_is_the_drivers_again_afterwards(monkeypatch) -> None:
+    import os
+
+    from robchair.sweep.executor import _environment
+
+    monkeypatch.setenv("ROBCHAIR_T_KEPT", "before")
+    monkeypatch.delenv("ROBCHAIR_T_NEW", raising=False)
+    with _environment({"ROBCHAIR_T_KEPT": "during", "ROBCHAIR_T_NEW": "during"}):
+        assert os.environ["ROBCHAIR_T_KEPT"] == os.environ["ROBCHAIR_T_NEW"] == "during"
+    assert os.environ["ROBCHAIR_T_KEPT"] == "before" and "ROBCHAIR_T_NEW" not in os.environ
