@@ -66,7 +66,6 @@ from robchair.platform.config import ConfigSource, ConfigTable, load_toml
 from robchair.platform.frames import quat_from_rpy, rotation_rpy
 from robchair.platform.paths import ASSETS, SCENES
 from sim.errors import ScenarioError
-from sim.hull2d import convex_hull_2d, inside_by
 from sim.meshgen import Mesh, box, capsule, cylinder, read_obj, sphere
 
 MESHES_DIR = ASSETS / "meshes"
@@ -387,14 +386,19 @@ def _check_waypoints_clear(
     table: ConfigTable, scene: Scene, waypoints: Sequence[tuple[float, float]]
 ) -> None:
     """Refuse a route waypoint inside the footprint (convex hull from above) of a static object."""
+    from scipy.spatial import ConvexHull, QhullError
+
     for obj in scene.objects:
         if obj.is_dynamic:
             continue
         xy = obj.world_mesh().vertices[:, :2]
-        hull = convex_hull_2d(xy)  # fewer than 3 corners: a flat object seen edge-on has no area
-        # 1 mm of slack keeps a waypoint on the surface outside
+        try:
+            hull = ConvexHull(xy)
+        except QhullError:  # a flat object seen edge-on from above has no area
+            continue
+        # facets: a . p + b <= 0 inside; 1 mm of slack keeps a waypoint on the surface outside
         for i, wp in enumerate(waypoints):
-            if inside_by(xy, hull, wp, margin=1e-3):
+            if bool(np.all(hull.equations[:, :2] @ np.asarray(wp) + hull.equations[:, 2] < -1e-3)):
                 raise table.problem(
                     "waypoints",
                     f"waypoint {i} {tuple(wp)} lies inside object {obj.name!r} of scene {scene.path.name}",

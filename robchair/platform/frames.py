@@ -100,38 +100,13 @@ def rotation_axis_angle(axis: npt.ArrayLike, angle: float) -> FloatArray:
 
 
 def quat_from_matrix(r: Any) -> tuple[float, float, float, float]:
-    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (3, 3), with ``w >= 0``.
+    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix (3, 3), with ``w >= 0``."""
+    from scipy.spatial.transform import Rotation
 
-    scipy's ``Rotation.from_matrix`` method in numpy alone (a run's bag writes its static transforms
-    with it, and importing scipy.spatial cost each ``robchair sim`` ~0.3 s): a matrix not orthogonal
-    to 1e-12 is first replaced by the nearest orthogonal one (``U Vt`` of its SVD), then the quaternion
-    comes from the largest of the diagonal and the trace (Shepperd), normalised.
-
-    Raises:
-        ValueError: the matrix is not (3, 3) or its determinant is not positive (not a rotation).
-    """
-    m = np.asarray(r, dtype=float)[:3, :3]
-    if m.shape != (3, 3):
-        raise ValueError(f"rotation matrix must be (3, 3), got {m.shape}")
-    if not np.linalg.det(m) > 0:
-        raise ValueError(f"Non-positive determinant (left-handed or null coordinate frame) in {m.tolist()}")
-    if not np.allclose(m @ m.T, np.eye(3), rtol=1e-5, atol=1e-12):
-        u, _, vt = np.linalg.svd(m)
-        m = u @ vt
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    i = int(np.argmax([m[0, 0], m[1, 1], m[2, 2], trace]))
-    q = [0.0, 0.0, 0.0, 0.0]
-    if i == 3:
-        q = [m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 1.0 + trace]
-    else:
-        j, k = (i + 1) % 3, (i + 2) % 3
-        q[i] = 1.0 - trace + 2.0 * m[i, i]
-        q[j] = m[j, i] + m[i, j]
-        q[k] = m[k, i] + m[i, k]
-        q[3] = m[k, j] - m[j, k]
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    n = -n if q[3] < 0 else n
-    return float(q[0] / n), float(q[1] / n), float(q[2] / n), float(q[3] / n)
+    q = Rotation.from_matrix(np.asarray(r, dtype=float)[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
 
 
 def matrix_from_quat(q: npt.ArrayLike) -> FloatArray:

@@ -98,16 +98,6 @@ def test_rise_time_definitions_match_independent_step_responses(xi):
     assert plant.rise_time_10_90 == pytest.approx(info["RiseTime"], abs=4.1e-4)
 
 
-@pytest.mark.parametrize("xi", [0.2, 0.5912, 0.9, 1.0, 1.5])
-def test_the_10_and_90_percent_crossings_are_found_to_1e_14_s(xi):
-    from robchair.platform.control.plant import _crossing_time
-
-    plant = SecondOrderPlant(omega_n=9.0, xi=xi)
-    for fraction in (0.1, 0.9):
-        t = _crossing_time(plant, fraction)
-        assert plant.step(np.array([t - 2e-14]))[0] < fraction <= plant.step(np.array([t + 2e-14]))[0]
-
-
 def test_rise_time_residual_is_reported_for_the_thesis_motors():
     for t_r, t_p, m_p in MOTORS.values():
         ident = identify_from_step_metrics(t_r, t_p, m_p)

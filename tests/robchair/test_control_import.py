@@ -27,14 +27,13 @@ import sim.backend, sim.robot, sim._wheel_kernels, robchair.platform.control
 from robchair.platform.spec import default_spec
 left, right = sim.robot.make_wheel_motors(default_spec(), 1e-3)
 left.plant.step(100.0)
-print(sorted(m for m in ("control", "scipy.signal", "scipy.optimize", "matplotlib") if m in sys.modules))
+print(sorted(m for m in ("control", "scipy.signal", "matplotlib") if m in sys.modules))
 """
 
 
 def test_the_simulated_wheel_motors_are_built_without_importing_python_control() -> None:
     """Breaks when a module on the simulator's path imports ``control`` at module level again (as
-    ``sim._wheel_kernels`` did through ``robchair.platform.control``) or the motors use it; nor
-    ``scipy.optimize`` (the model's 10-90 % rise time was a ``brentq``: ~0.15 s of every sim's start)."""
+    ``sim._wheel_kernels`` did through ``robchair.platform.control``) or the motors use it."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     res = subprocess.run([sys.executable, "-c", _SIM_START], env=env, capture_output=True, text=True,
                          timeout=120, check=True, cwd=ROOT)  # fmt: skip
@@ -112,7 +111,7 @@ from robchair.backends import design_pid_configs
 from robchair.platform.spec import default_spec
 emu = RoboteqEmulator(default_spec())
 design_pid_configs(default_spec())
-print(sorted(m for m in ("control", "scipy.signal", "scipy.optimize", "matplotlib") if m in sys.modules))
+print(sorted(m for m in ("control", "scipy.signal", "matplotlib") if m in sys.modules))
 """
 
 

@@ -168,34 +168,3 @@ def test_se3_takes_a_scipy_rotation_and_importing_frames_leaves_scipy_spatial_ou
     code = "import sys, robchair.platform.frames; print('scipy.spatial' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
-
-
-def test_quat_from_matrix_is_scipys_bit_for_bit_and_imports_no_scipy_spatial() -> None:
-    """The numpy quaternion (what a run's bag writes its static transforms with) is scipy's
-    ``Rotation.from_matrix`` with ``w >= 0``, to the bit: random rotations, rotations off orthogonal by
-    1e-9 (scipy orthogonalises those first) and the axis-aligned ones (every branch of the largest
-    diagonal / trace); and it does not import scipy.spatial (~0.3 s of each command's start)."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    rng = np.random.default_rng(5)
-    for k in range(3000):
-        r = Rotation.random(random_state=rng).as_matrix()
-        if k % 3 == 0:
-            r = r + rng.normal(scale=1e-9, size=(3, 3))
-        if k % 7 == 0:
-            r = frames.rotation_rpy(*rng.choice([0.0, math.pi / 2, math.pi, -math.pi / 2], 3))
-        q = Rotation.from_matrix(r).as_quat()
-        assert frames.quat_from_matrix(r) == tuple(float(v) for v in (-q if q[3] < 0 else q))
-    with pytest.raises(ValueError, match="determinant"):
-        frames.quat_from_matrix(np.diag([1.0, 1.0, -1.0]))
-    code = (
-        "import sys\nfrom robchair.platform import frames\n"
-        "frames.quat_from_matrix(frames.rotation_rpy(0.3, -0.2, 1.0))\n"
-        "print('scipy.spatial' in sys.modules)"
-    )
-    root = Path(__file__).resolve().parents[2]
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                         env={"PYTHONPATH": str(root), "PATH": ""}, cwd=root)  # fmt: skip
-    assert res.returncode == 0 and res.stdout.strip() == "False", res.stderr

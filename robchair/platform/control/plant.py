@@ -147,20 +147,12 @@ def step_response_2nd(t: np.ndarray, omega_n: float, xi: float, gain: float = 1.
 
 
 def _crossing_time(plant: SecondOrderPlant, fraction: float) -> float:
-    """First time the analytic step response reaches ``fraction`` of its final value, s (bisection to
-    1e-14 s; plain Python: scipy.optimize's import would cost every process that builds a motor, a
-    simulation's included, more than the whole search)."""
+    """First time the analytic step response reaches ``fraction`` of its final value (bisection)."""
+    from scipy.optimize import brentq
+
     hi = 1.0 / plant.omega_n
     while step_response_2nd(np.array([hi]), plant.omega_n, plant.xi)[0] < fraction:
         hi *= 2.0
     # The response rises monotonically until the first peak, so the first crossing is unique below it.
-    lo, hi = 0.0, min(hi, plant.peak_time)
-    while hi - lo > 1e-14 * (1.0 + hi):
-        mid = 0.5 * (lo + hi)
-        if mid <= lo or mid >= hi:  # no float strictly between: as close as the grid allows
-            break
-        if float(step_response_2nd(np.array([mid]), plant.omega_n, plant.xi)[0]) < fraction:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+    f = lambda x: float(step_response_2nd(np.array([x]), plant.omega_n, plant.xi)[0]) - fraction  # noqa: E731
+    return float(brentq(f, 0.0, min(hi, plant.peak_time), xtol=1e-14, rtol=1e-14))
