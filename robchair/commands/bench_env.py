@@ -12,6 +12,9 @@ Configurations, all measured in the same run with the same seed and the same ran
 * ``light, 2 Async workers`` and ``Kinect, 2 Async workers``: the same ids in a
   :class:`gymnasium.vector.AsyncVectorEnv` of two worker processes; steps/s counts the agent steps of
   both workers, and the last column gives the speed-up over one env of the same id.
+* ``light, 2 spinning Async workers`` and ``Kinect, ...``: the same, with workers that poll their pipe
+  for up to 2 ms before they block (:mod:`robchair.envs.vector`), so their vCPU does not idle between
+  steps (no target of their own: the targets are Gymnasium's default worker's).
 * ``light, 2 independent processes`` and ``Kinect, ...``: two forked processes, each stepping its own
   env, started together: the machine's ceiling for two workers (no vector env between them);
 * ``light, 1 ms idle per step``: the light env with a 1 ms sleep before each step (the sleep is in the
@@ -49,6 +52,21 @@ CONFIGS: tuple[dict[str, Any], ...] = (
     {"name": "Navigation-v0", "id": "RobChair/Navigation-v0", "kwargs": {}},
     {"name": "light, 2 Async workers", "id": "RobChair/Navigation-v1", "kwargs": {}, "workers": 2},
     {"name": "Kinect, 2 Async workers", "id": "RobChair/NavigationKinect-v1", "kwargs": {}, "workers": 2},
+    # the same with workers that spin on their pipe before blocking (robchair.envs.vector)
+    {
+        "name": "light, 2 spinning Async workers",
+        "id": "RobChair/Navigation-v1",
+        "kwargs": {},
+        "workers": 2,
+        "spin": True,
+    },
+    {
+        "name": "Kinect, 2 spinning Async workers",
+        "id": "RobChair/NavigationKinect-v1",
+        "kwargs": {},
+        "workers": 2,
+        "spin": True,
+    },
     # the machine's ceiling for two workers: two processes each stepping its own env, nothing between them
     {"name": "light, 2 independent processes", "id": "RobChair/Navigation-v1", "kwargs": {}, "processes": 2},
     {
@@ -274,9 +292,14 @@ def measure(config: dict[str, Any], steps: int, repeats: int, seed: int) -> dict
         import sim.envs
 
         with _v1_ids():
-            envs = gymnasium.make_vec(
-                config["id"], num_envs=workers, vectorization_mode="async", **config["kwargs"]
-            )
+            if config.get("spin"):
+                from robchair.envs.vector import make_spinning_async
+
+                envs = make_spinning_async(config["id"], workers, **config["kwargs"])
+            else:
+                envs = gymnasium.make_vec(
+                    config["id"], num_envs=workers, vectorization_mode="async", **config["kwargs"]
+                )
         try:
             _vec_run(envs, 5, seed)  # warm-up in every worker
             vec_runs = [_vec_run(envs, steps, seed + k) for k in range(repeats)]
