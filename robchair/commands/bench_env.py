@@ -22,7 +22,8 @@ Configurations, all measured in the same run with the same seed and the same ran
   after a sleep can cost more CPU than one back to back (caches, a vCPU given away), and this row's
   CPU over the light row's says how much of an Async worker's extra CPU that is.
 
-Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps (setup, one
+Each row gives the median agent steps per second over ``--repeats`` runs of ``--steps`` steps, run in
+rounds (each round runs every configuration once: a drifting machine slows all rows alike; setup, one
 warm-up episode and the drawing of the seeded random actions excluded; episodes that end are reset inside
 the timed loop, as a training loop would), its real-time factor (steps/s divided by the agent rate) and
 its ratio to the physics-only baseline. Every step of an environment is one cycle of the chair's runtime
@@ -372,6 +373,45 @@ def _standin_row(rows: list[dict[str, Any]], args: argparse.Namespace) -> dict[s
     return res
 
 
+def measure_rounds(
+    configs: tuple[dict[str, Any], ...], steps: int, repeats: int, seed: int
+) -> list[dict[str, Any]]:
+    """:func:`measure` of every configuration, in ``repeats`` rounds: round ``k`` runs each configuration
+    once (seed ``seed + k``, its own set-up and warm-up), so that a machine whose speed drifts over
+    a minute (a shared VM does) slows every row alike instead of the rows measured in its slow spell;
+    the runs of the rounds are then one row's runs, with the medians over them."""
+    import statistics
+
+    rounds = [[measure(cfg, steps, 1, seed + k) for cfg in configs] for k in range(repeats)]
+    merged = []
+    for i in range(len(configs)):
+        runs = [r[i] for r in rounds]
+        row: dict[str, Any] = {}
+        for key, first in runs[0].items():
+            if key.startswith("median_"):
+                continue
+            if isinstance(first, list) and key != "worker_threads":
+                row[key] = [x for run in runs for x in run[key]]
+            elif key == "safety_stop_steps":
+                row[key] = sum(run[key] for run in runs)
+            else:
+                row[key] = runs[-1][key]
+        for key in runs[0]:
+            if not key.startswith("median_"):
+                continue
+            base = key.removeprefix("median_")
+            if base == "worker_cpu_ms_per_step":
+                each = [c for run in row[base] if run is not None for c in run]
+                row[key] = statistics.median(each) if each else None
+            elif base in row:
+                row[key] = statistics.median(row[base])
+            else:  # a median of per-run figures the row does not keep: the median of the rounds'
+                vals = [run[key] for run in runs if run[key] is not None]
+                row[key] = statistics.median(vals) if vals else None
+        merged.append(row)
+    return merged
+
+
 def _run(args: argparse.Namespace) -> int:
     import statistics
 
@@ -382,10 +422,8 @@ def _run(args: argparse.Namespace) -> int:
         raise RobChairError(f"--steps and --repeats must be >= 1, got {args.steps}, {args.repeats}")
     out = results_dir(args, "env")  # refused before anything is measured
     load0 = os.getloadavg()
-    rows = []
-    for cfg in CONFIGS:
-        res = measure(cfg, args.steps, args.repeats, args.seed)
-        rows.append({"config": cfg["name"], **res})
+    rows = [{"config": cfg["name"], **res} for cfg, res in zip(CONFIGS, measure_rounds(CONFIGS, args.steps,
+            args.repeats, args.seed), strict=True)]  # fmt: skip
     load1 = os.getloadavg()
     base = rows[0]["median_steps_per_s"]
     print(f"robchair bench env: {args.steps} agent steps at {AGENT_HZ} Hz per run, median of {args.repeats}")

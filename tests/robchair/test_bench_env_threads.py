@@ -109,3 +109,30 @@ def test_the_stand_in_env_does_the_asked_work_and_returns_the_light_envs_info() 
     assert res["speedup"] == res["async2_steps_per_s"] / res["one_steps_per_s"]
     assert res["speedup_with_info"] == res["async2_with_info_steps_per_s"] / res["one_steps_per_s"]
     assert isinstance(gymnasium.vector.AsyncVectorEnv, type)
+
+
+def test_the_rows_are_measured_in_rounds_and_their_runs_merged_with_medians_over_them(monkeypatch) -> None:
+    """Round k runs every configuration once with seed + k (a drifting machine slows all rows alike);
+    a row's runs are those of the rounds, medians recomputed over them, safety stops summed."""
+    from robchair.commands import bench_env
+
+    calls = []
+
+    def fake(config, steps, repeats, seed):  # type: ignore[no-untyped-def]
+        calls.append((config["name"], repeats, seed))
+        k = seed - 10
+        out = {"steps_per_s": [100.0 * (k + 1)], "median_steps_per_s": 0.0, "safety_stop_steps": k}
+        if config["name"] == "vec":
+            out |= {"worker_cpu_ms_per_step": [[1.0 + k, 2.0 + k]], "median_worker_cpu_ms_per_step": 0.0,
+                    "worker_threads": [k, k]}  # fmt: skip
+        return out
+
+    monkeypatch.setattr(bench_env, "measure", fake)
+    rows = bench_env.measure_rounds(({"name": "a"}, {"name": "vec"}), 50, 3, 10)
+    assert calls == [("a", 1, 10), ("vec", 1, 10), ("a", 1, 11), ("vec", 1, 11), ("a", 1, 12), ("vec", 1, 12)]
+    a, vec = rows
+    assert a["steps_per_s"] == [100.0, 200.0, 300.0] and a["median_steps_per_s"] == 200.0
+    assert a["safety_stop_steps"] == 0 + 1 + 2
+    assert vec["worker_cpu_ms_per_step"] == [[1.0, 2.0], [2.0, 3.0], [3.0, 4.0]]
+    assert vec["median_worker_cpu_ms_per_step"] == 2.5
+    assert vec["worker_threads"] == [2, 2]
