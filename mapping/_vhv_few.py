@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from mapping._deps import announce_compilation
-from mapping._vhv_kernels import _JIT  # the map kernels' compile options
+from mapping._vhv_kernels import _JIT, append_joined  # the map kernels' compile options and join rule
 
 
 @numba.jit(**_JIT)
@@ -172,14 +172,7 @@ def insert_few(pts, gf, gi, k1, b1, t1):  # type: ignore[no-untyped-def]  # prag
                 lo_h = b2[j]
                 hi_h = t2[j]
                 j += 1
-            if o > first and lo_h - ot[o - 1] <= tol:
-                if hi_h > ot[o - 1]:
-                    ot[o - 1] = hi_h
-            else:
-                ok[o] = key
-                ob[o] = lo_h
-                ot[o] = hi_h
-                o += 1
+            o = append_joined(ok, ob, ot, o, o > first, key, lo_h, hi_h, tol)
         p = hi
         q = qe
     o = _copy_block(k1, b1, t1, p, n1, ok, ob, ot, o)

@@ -321,6 +321,22 @@ def count_bin_structures(mm, nb, tol):  # type: ignore[no-untyped-def]
     return n_out
 
 
+@numba.jit(inline="always", **_JIT)
+def append_joined(ok, ob, ot, o, joinable, key, lo, hi, tol):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """The VHV join rule at the end of an output ``(ok, ob, ot)`` of length ``o``: ``[lo, hi]`` of cell
+    ``key`` (taken in bottom order) joins the last structure when ``joinable`` (it is of the same cell)
+    and ``lo - last.top <= tol``, raising its top to ``hi`` if higher; else it is appended. The new
+    length."""
+    if joinable and lo - ot[o - 1] <= tol:
+        if hi > ot[o - 1]:
+            ot[o - 1] = hi
+        return o
+    ok[o] = key
+    ob[o] = lo
+    ot[o] = hi
+    return o + 1
+
+
 @numba.jit(**_JIT)
 def merge_structures(k1, b1, t1, k2, b2, t2, tol):  # type: ignore[no-untyped-def]
     """Merge two structure lists (each sorted by key then bottom, disjoint per cell) into one.
@@ -348,14 +364,8 @@ def merge_structures(k1, b1, t1, k2, b2, t2, tol):  # type: ignore[no-untyped-de
             lo = b2[q]
             hi = t2[q]
             q += 1
-        if n_out > 0 and out_key[n_out - 1] == key and lo - out_t[n_out - 1] <= tol:
-            if hi > out_t[n_out - 1]:
-                out_t[n_out - 1] = hi
-        else:
-            out_key[n_out] = key
-            out_b[n_out] = lo
-            out_t[n_out] = hi
-            n_out += 1
+        joinable = n_out > 0 and out_key[n_out - 1] == key
+        n_out = append_joined(out_key, out_b, out_t, n_out, joinable, key, lo, hi, tol)
     return out_key[:n_out].copy(), out_b[:n_out].copy(), out_t[:n_out].copy()
 
 
