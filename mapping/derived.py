@@ -97,8 +97,8 @@ def occupancy_codes(
     s = m.structures()
     codes[s.i, s.j] = 0
     if sensor_origin is not None and m.n_structures:
-        fs = free_space(m, sensor_origin)
-        codes[np.asarray(fs.i, np.intp), np.asarray(fs.j, np.intp)] = 0
+        fi, fj = free_cells(m, sensor_origin)  # the cells of free_space(m, sensor_origin)
+        codes[fi, fj] = 0
     codes[occ] = 100
     return codes
 
@@ -208,10 +208,51 @@ def free_space(m: VHVMap, sensor_origin: ArrayLike | None = None, merge: bool = 
     Raises:
         MappingError: no sensor origin is known or it is not a finite xyz.
     """
-    su, sv, sh = _sensor_uvh(m, sensor_origin)
     s = m.structures()
     if len(s) == 0:
+        _sensor_uvh(m, sensor_origin)  # the same errors as with structures
         return Structures.empty()
+    sh, i, j, ray, mid = _free_passages(m, s, sensor_origin)
+    spec = m.spec
+    bottom = sh + mid * (s.bottom[ray] - sh)
+    top = sh + mid * (s.top[ray] - sh)
+    key = i * spec.shape[1] + j
+    order = np.lexsort((bottom, key))
+    key, bottom, top = key[order], bottom[order], top[order]
+    if merge and key.shape[0]:
+        key, bottom, top = _union_intervals(key, bottom, top)
+    ny = spec.shape[1]
+    return Structures.from_bounds(key // ny, key % ny, bottom, top)
+
+
+def free_cells(
+    m: VHVMap, sensor_origin: ArrayLike | None = None
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Grid indices ``(i, j)`` (M,) each of the cells holding a :func:`free_space` structure, with
+    repeats (one per passage of a line through the cell), in no particular order.
+
+    The cells of ``free_space(m, sensor_origin)`` without its heights, sort by height and merge (two
+    thirds of its time on a map of 8 000 structures): what a 2D map needs.
+
+    Raises:
+        MappingError: no sensor origin is known or it is not a finite xyz.
+    """
+    s = m.structures()
+    if len(s) == 0:
+        _sensor_uvh(m, sensor_origin)
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    _sh, i, j, _ray, _mid = _free_passages(m, s, sensor_origin)
+    return i, j
+
+
+def _free_passages(
+    m: VHVMap, s: Structures, sensor_origin: ArrayLike | None
+) -> tuple[float, NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """``(sh, i, j, ray, mid)``: the sensor's height and, for each passage of a sensor-to-structure line
+    through a grid cell inside the grid, the cell ``(i, j)``, the structure ``ray`` of ``s`` (a
+    non-empty ``m.structures()``) and the line parameter ``mid`` of the passage's middle."""
+    su, sv, sh = _sensor_uvh(m, sensor_origin)
     spec = m.spec
     ics = spec.inv_cell_size
     cu, cv = spec.index_to_world(s.i, s.j)
@@ -230,16 +271,7 @@ def free_space(m: VHVMap, sensor_origin: ArrayLike | None = None, merge: bool = 
     pv = sv + mid * (cv[ray] - sv)
     i, j = spec.world_to_index(pu, pv)
     inside = spec.contains_index(i, j)
-    i, j, ray, mid = i[inside], j[inside], ray[inside], mid[inside]
-    bottom = sh + mid * (s.bottom[ray] - sh)
-    top = sh + mid * (s.top[ray] - sh)
-    key = i * spec.shape[1] + j
-    order = np.lexsort((bottom, key))
-    key, bottom, top = key[order], bottom[order], top[order]
-    if merge and key.shape[0]:
-        key, bottom, top = _union_intervals(key, bottom, top)
-    ny = spec.shape[1]
-    return Structures.from_bounds(key // ny, key % ny, bottom, top)
+    return float(sh), i[inside], j[inside], ray[inside], mid[inside]
 
 
 def _union_intervals(

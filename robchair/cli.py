@@ -18,6 +18,15 @@ A signal that arrives while this thread compiles or loads a numba kernel (numba'
 code driving LLVM; an exception raised in the middle of it leaves LLVM objects half-owned, which was
 seen as a lost signal, a "no compiled object yet" error, or a double free at exit) first stops the
 running drive loops' motors from the handler, then is raised once the compiler lock is released.
+
+A command runs with numpy on one BLAS thread and without transparent huge pages for its arrays, unless
+the environment says otherwise (``OPENBLAS_NUM_THREADS``, ``NUMPY_MADVISE_HUGEPAGE``; a process that
+imported numpy before :func:`main` keeps its own, its child processes get these). On Linux numpy asks
+the kernel for huge pages (``madvise``) for every array of 4 MB or more; the commands' arrays of that
+size are mostly made, filled and freed once a frame (a Kinect frame and what is computed from it), and
+there the kernel's huge-page faults cost more than they give back: on the 2-vCPU VM of the benchmarks
+a 0.1 s `robchair sim office_tour --sensor kinect2-hd` took 5.3-7.8 s of CPU with them and 4.3-4.4 s
+without (half of it system time spent faulting the pages in).
 """
 
 from __future__ import annotations
@@ -211,6 +220,7 @@ def _raise_after_compiling(deferred: list[int]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")  # read by numpy's import (module docstring)
     words = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(words)
     args = parser.parse_args(words)

@@ -25,6 +25,10 @@ holds that kernel's lock file, and the other worker, needing it too, waits and l
 The rest is already per process: network ports are asked of the system (port 0), serial lines are new
 ptys, and numba writes its kernel cache atomically (a file written beside, then renamed).
 
+Every process of the run (the workers, and the commands and Ray workers they start) has numpy without
+transparent huge pages, as a `robchair` command has (``NUMPY_MADVISE_HUGEPAGE=0``, set here before
+anything imports numpy, unless the environment sets it; :mod:`robchair.cli` says why).
+
 Hypothesis runs without its per-example deadline: a deadline is a wall-clock assertion, and speed lives
 in the benchmarks; on a loaded machine a correct example can take longer than 200 ms.
 ``ROBCHAIR_HYPOTHESIS_PROFILE=mutation`` (set by ``tests/mutation/run_mutmut.sh``) also lifts the
@@ -40,6 +44,8 @@ import os
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
+
+os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")  # before numpy's import (module docstring)
 
 import pytest
 from hypothesis import HealthCheck, settings

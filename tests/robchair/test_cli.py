@@ -1,5 +1,6 @@
 """The CLI turns the project's errors into one stderr line and exit code 2."""
 
+import os
 import subprocess
 import sys
 
@@ -144,3 +145,33 @@ def test_a_command_imports_no_other_commands_module() -> None:
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert res.stdout.strip() == "['robchair.commands.live', 'robchair.commands.sim']"
+
+
+_HUGE_PAGES = (
+    "import os, sys; from robchair import cli; code = cli.main(sys.argv[1:]); import numpy; "
+    "print(numpy._core.multiarray._get_madvise_hugepage(), os.environ['NUMPY_MADVISE_HUGEPAGE'], code)"
+)
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, "False 0 0"), ("1", "True 1 0")])
+def test_a_command_runs_without_numpy_huge_pages_unless_the_environment_asks(
+    given: str | None, expected: str
+) -> None:
+    """`robchair` turns numpy's transparent huge pages off (its module docstring says why) before numpy is
+    imported, and its child processes inherit that; NUMPY_MADVISE_HUGEPAGE set by the caller is kept."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if given is not None:
+        env["NUMPY_MADVISE_HUGEPAGE"] = given
+    res = subprocess.run([sys.executable, "-c", _HUGE_PAGES, "sim", "--list"], env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[-1] == expected
+
+
+def test_this_suite_runs_numpy_as_a_command_does() -> None:
+    """tests/conftest.py sets NUMPY_MADVISE_HUGEPAGE before numpy's import, for the workers and every
+    process they start."""
+    import importlib
+
+    multiarray = importlib.import_module("numpy._core.multiarray")
+    assert multiarray._get_madvise_hugepage() == (os.environ["NUMPY_MADVISE_HUGEPAGE"] != "0")

@@ -134,3 +134,31 @@ def test_root_locus_passes_through_the_design_at_unit_gain_and_starts_at_the_ope
     open_loop = np.sort_complex(np.roots([1.0, d.plant.a1, d.plant.a0, 0.0]))
     np.testing.assert_allclose(np.sort_complex(locus[0]), open_loop, atol=1e-12)
     np.testing.assert_allclose(np.sort_complex(locus[1]), np.sort_complex(d.designed_poles), rtol=1e-9)
+
+
+def test_step_responses_are_simulated_only_for_the_metrics_that_are_read(tmp_path, monkeypatch):
+    """A design's step metrics are simulated on first read: `robchair pid` reads the designed loops'
+    (printed, in pid.json), never the firmware-quantised loops' ones, which it used to simulate too
+    (8 step responses for two motors instead of 4)."""
+    from robchair.platform.control import design as design_module
+    from robchair.platform.control.design import _step_metrics, reference_tf
+
+    simulated = []
+
+    def counted(sys):
+        simulated.append(sys)
+        return _step_metrics(sys)
+
+    monkeypatch.setattr(design_module, "_step_metrics", counted)
+    plant = identify_from_step_metrics(0.1365, 0.3975, 0.10).plant
+    d = design_pid(plant)
+    rq = roboteq_gains(d, 1)
+    assert simulated == []
+    closed = d.closed_loop
+    assert d.closed_loop is closed and len(simulated) == 1
+    assert closed == _step_metrics(reference_tf(d.kp, d.ki, d.kd, plant, 0.0, True))
+    assert d.open_loop == _step_metrics(plant.tf()) and len(simulated) == 2
+    assert rq.quantised.closed_loop == _step_metrics(reference_tf(*rq.effective, plant, 0.0, True))
+    simulated.clear()
+    assert main(["pid", "--no-plots", "--out", str(tmp_path / "pid")]) == 0
+    assert len(simulated) == 4  # motor 1 and 2: closed loop and open loop each

@@ -6,6 +6,7 @@ scipy.signal and matplotlib): :func:`pid_gains`, the gains alone, is what the si
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -61,8 +62,10 @@ class PIDDesign:
         achieved_poles: Poles of python-control's feedback(C G, 1), sorted the same way.
         margins: Gain and phase margins of the loop C G.
         closed_loop: Step metrics of the closed loop from reference to speed, for the structure
-            ``derivative_on_measurement`` names.
-        open_loop: Step metrics of the plant alone.
+            ``derivative_on_measurement`` names (NaN when unstable). Simulated on first access and
+            kept: each costs a step response of several thousand samples, and most evaluations (the
+            firmware-quantised gains of :func:`hw.roboteq.gains.roboteq_gains`) never read them.
+        open_loop: Step metrics of the plant alone (first access, as ``closed_loop``).
         derivative_on_measurement: The derivative acts on the measured speed only (set-point weight 0
             on the D term, as :class:`~robchair.platform.control.DiscretePID` runs by default), so the
             reference path is (K_p + K_i / s) G / (1 + C G); False: on the error, C G / (1 + C G). The poles,
@@ -79,9 +82,19 @@ class PIDDesign:
     designed_poles: np.ndarray = field(compare=False)
     achieved_poles: np.ndarray = field(compare=False)
     margins: Margins
-    closed_loop: StepMetrics
-    open_loop: StepMetrics
     derivative_on_measurement: bool = True
+
+    @functools.cached_property
+    def closed_loop(self) -> StepMetrics:
+        if not bool(np.all(self.achieved_poles.real < 0)):
+            return _unstable_metrics()
+        return _step_metrics(
+            reference_tf(self.kp, self.ki, self.kd, self.plant, 0.0, self.derivative_on_measurement)
+        )
+
+    @functools.cached_property
+    def open_loop(self) -> StepMetrics:
+        return _step_metrics(self.plant.tf())
 
     def controller_tf(self, tau_d: float = 0.0) -> ct.TransferFunction:
         """C(s) = K_p + K_i / s + K_d s / (tau_d s + 1) (tau_d = 0: the ideal PID of the design)."""
@@ -248,7 +261,6 @@ def _evaluate(
         phase_crossover=_nan_if_none(wpc),
         gain_crossover=_nan_if_none(wgc),
     )
-    stable = bool(np.all(achieved.real < 0))
     return PIDDesign(
         kp=kp,
         ki=ki,
@@ -260,12 +272,6 @@ def _evaluate(
         designed_poles=designed,
         achieved_poles=achieved,
         margins=margins,
-        closed_loop=(
-            _step_metrics(reference_tf(kp, ki, kd, plant, 0.0, derivative_on_measurement))
-            if stable
-            else _unstable_metrics()
-        ),
-        open_loop=_step_metrics(g),
         derivative_on_measurement=derivative_on_measurement,
     )
 
