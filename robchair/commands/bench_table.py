@@ -74,8 +74,12 @@ def _sim(r: dict[str, Any]) -> tuple[str, str, str]:
                   ("physics", m.get("physics_ms_per_sim_s"))]  # fmt: skip
         stages += [(k[:-5], v) for k, v in sorted(m.items()) if k.startswith("map ") and k.endswith(" ms/s")]
         loop = 1e3 * m.get("loop_wall_s", 0.0) / sim_s
-        stages.append(("rest", loop - sum(v for _, v in stages if isinstance(v, int | float))))
+        rest = loop - sum(v for _, v in stages if isinstance(v, int | float))
+        if rest >= 0.0:
+            stages.append(("rest", rest))
         txt += "; ms per sim s: " + ", ".join(f"{k} {_f(v, '.0f')}" for k, v in stages)
+        if rest < 0.0:  # mapping on its own thread: the stages' sum exceeds the loop's wall time
+            txt += f" (they overlap on threads: their sum exceeds the loop's {loop:.0f} by {-rest:.0f})"
         cores = row.get("cores_needed")
         if cores:
             txt += (f"; {_f(cores.get('cpu_ms_per_sim_s'), '.0f')} ms of CPU per sim s, so its target needs "

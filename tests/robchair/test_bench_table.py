@@ -154,3 +154,18 @@ def test_the_env_row_gives_the_stand_in_envs_async_speedups(tmp_path):
         "a stand-in env doing the light env's CPU per step without RobChair: 2 Async workers 1.80x one, "
         "1.67x with the light env's info"
     ) in readme.read_text()
+
+
+def test_stages_that_overlap_on_threads_give_their_excess_not_a_negative_rest(tmp_path):
+    """Mapping on its own thread: 2 sim s in a 0.5 s loop is 250 ms per sim s, while the stages add
+    up to 100 + 20 + 50 + 180 = 350 (hand sum): no "rest" cell, and the overlap of 100 is said."""
+    d, readme = _setup(tmp_path)
+    sim = json.loads(json.dumps(SIM))
+    sim["rows"][0]["median"].update(sim_time_s=2.0, loop_wall_s=0.5, **{"map odometry ms/s": 180.0})
+    (d / "bench_sim.json").write_text(json.dumps(sim))
+    assert main(["bench", "table", str(d), "--readme", str(readme)]) == 0
+    row = next(line for line in readme.read_text().splitlines() if "bench sim" in line)
+    two_cores = row.split("1 core:")[0]
+    assert "rest -" not in row
+    assert "map odometry 180 (they overlap on threads: their sum exceeds the loop's 250 by 100)" in two_cores
+    assert "map odometry 300, rest 150" in row  # the 1-core row keeps its rest
