@@ -221,22 +221,33 @@ def cores_needed(row: dict[str, Any]) -> dict[str, Any] | None:
 def print_stage_table(rows: list[dict[str, Any]]) -> None:
     """Where a simulated second goes, per configuration: render, sonar, physics, each map, the rest (ms).
 
-    Mapping runs on its own thread in the two-core configurations, so there the stages overlap and
-    the rest (loop wall time minus the stages) can be negative.
+    Mapping runs on its own thread in the two-core configurations, so there the stages overlap: when
+    their sum exceeds the loop's wall time the rest column says ``-`` and a line below gives the excess.
     """
     layers = sorted({k for r in rows for k in r["median"] if k.startswith("map ")})
     cols = [c for c, _ in STAGES] + [k[:-5] for k in layers] + ["rest", "loop"]
     widths = [max(9, len(c)) for c in cols]
     print("stage table: ms of wall time per simulated second (median; 'map X': the inserts into map X)")
     print(f"{'configuration':28s} " + " ".join(f"{c:>{w}s}" for c, w in zip(cols, widths, strict=True)))
+    overlaps = []
     for r in rows:
         m = r["median"]
         vals = [m.get(f, 0.0) for _, f in STAGES] + [m.get(k, 0.0) for k in layers]
         loop = 1e3 * m["loop_wall_s"] / max(m["sim_time_s"], 1e-9)
-        vals += [loop - sum(vals), loop]
-        print(
-            f"{r['config']['name']:28s} " + " ".join(f"{v:{w}.1f}" for v, w in zip(vals, widths, strict=True))
-        )
+        rest = loop - sum(vals)
+        cells = [f"{v:{w}.1f}" for v, w in zip(vals, widths, strict=False)]
+        cells += [
+            f"{rest:{widths[-2]}.1f}" if rest >= 0.0 else f"{'-':>{widths[-2]}s}",
+            f"{loop:{widths[-1]}.1f}",
+        ]
+        print(f"{r['config']['name']:28s} " + " ".join(cells))
+        if rest < 0.0:
+            overlaps.append(
+                f"{r['config']['name']}: the stages overlap on threads; their sum exceeds the loop by "
+                f"{-rest:.1f} ms per sim s"
+            )
+    for line in overlaps:
+        print(line)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -40,6 +40,20 @@ def test_the_stage_table_gives_each_stage_and_the_rest_in_ms_per_simulated_secon
     assert out[2].split()[-6:] == ["400.0", "100.0", "200.0", "300.0", "500.0", "1500.0"]
 
 
+def test_stages_that_overlap_on_threads_show_no_negative_rest_and_say_their_excess(capsys) -> None:
+    """2 sim s in a 0.5 s loop = 250 ms per sim s against stages of 400 + 100 + 200 + 300 = 1000 (hand
+    sum): the rest column says '-' and a line gives the excess of 750."""
+    row = {"config": {"name": "2 cores"}, "median": {
+        "kinect_ms_per_sim_s": 400.0, "sonar_ms_per_sim_s": 100.0, "physics_ms_per_sim_s": 200.0,
+        "map odometry ms/s": 300.0, "loop_wall_s": 0.5, "sim_time_s": 2.0}}  # fmt: skip
+    print_stage_table([row])
+    out = capsys.readouterr().out.splitlines()
+    assert out[2].split()[-6:] == ["400.0", "100.0", "200.0", "300.0", "-", "250.0"]
+    assert (
+        out[3] == "2 cores: the stages overlap on threads; their sum exceeds the loop by 750.0 ms per sim s"
+    )
+
+
 def test_the_ratio_bound_is_the_baseline_s_loop_time_over_the_new_loop_s_simulator_stages() -> None:
     """One core: render 400 + sonar 100 + physics 200 = 700 ms per sim s of simulator; the replaced runner's
     2.8 s loop over 4 sim s = 700 ms per sim s, so the new loop can reach at most 700 / 700 = 1.0x (hand
