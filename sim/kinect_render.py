@@ -219,7 +219,7 @@ def register_depth(
     out = np.full((ic.height, ic.width, 3), np.nan)
     hit = src >= 0
     s = src[hit]
-    rays = _pixel_rays(ic, np.flatnonzero(hit))
+    rays = ic.pixel_rays(np.flatnonzero(hit))  # the covered pixels' rays, not the whole table
     p0 = flat[s] - np.asarray(reg.offset_m)
     n = normals_d.reshape(-1, 3)[s]
     # the point where the colour pixel's ray meets the sample's plane; keep the sample's depth
@@ -231,15 +231,3 @@ def register_depth(
     t = np.where(ok, t, p0[:, 0])
     out[hit] = t[:, None] * rays
     return out, src
-
-
-def _pixel_rays(intr: Intrinsics, pixels: npt.NDArray[np.int64]) -> FloatArray:
-    """``intr.rays().reshape(-1, 3)[pixels]`` (N, 3), bit for bit, for flat pixel indices ``pixels``
-    (N,) (row-major, ``v * width + u``), without the (H, W, 3) table: an HD frame's table is 50 MB
-    allocated and filled again each frame for the ~60 % of its pixels a depth sample covers."""
-    v, u = np.divmod(pixels, intr.width)
-    rays = np.empty((pixels.size, 3))
-    rays[:, 0] = 1.0
-    rays[:, 1] = -((u + 0.5 - intr.cx) / intr.fx)
-    rays[:, 2] = -((v + 0.5 - intr.cy) / intr.fy)
-    return rays

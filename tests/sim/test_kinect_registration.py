@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim.kinect_models import Intrinsics, Registration
-from sim.kinect_render import _pixel_rays, register_depth
+from sim.kinect_render import register_depth
 
 
 @pytest.mark.parametrize("reg", [Registration(1920, 1080), Registration(960, 540), Registration(37, 23)])
@@ -14,10 +14,14 @@ def test_the_rays_of_given_pixels_are_the_ray_table_rows_bit_for_bit(reg: Regist
     ic = reg.intrinsics
     table = ic.rays().reshape(-1, 3)
     every = np.arange(ic.width * ic.height)
-    assert np.array_equal(_pixel_rays(ic, every), table)
+    assert np.array_equal(ic.pixel_rays(every), table)
     some = np.random.default_rng(0).choice(every, size=every.size // 3, replace=False)
     some.sort()
-    assert np.array_equal(_pixel_rays(ic, some), table[some])
+    assert np.array_equal(ic.pixel_rays(some), table[some])
+    # the pinhole model itself, by hand: pixel (u, v) seen at its centre, x forward, y left, z up
+    v, u = 7 % ic.height, 11 % ic.width
+    want = [1.0, -(u + 0.5 - ic.cx) / ic.fx, -(v + 0.5 - ic.cy) / ic.fy]
+    np.testing.assert_allclose(ic.pixel_rays([v * ic.width + u])[0], want, rtol=0, atol=1e-15)
 
 
 def _plane_frame(intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
