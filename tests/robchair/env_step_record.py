@@ -1,15 +1,23 @@
 """Digests of seeded light-environment episodes: every observation, reward, termination and info, and
 the runtime's result (poses, safety stops, distances, the maps), for bit-for-bit comparisons.
 
-``python -m tests.robchair.env_step_record`` writes :data:`DIGESTS` (the reference of
-``test_env_step_bits.py``); regenerate it only for a change that is meant to alter an episode.
+The episodes go through Embree's float32 ray casts, whose last bit depends on the instruction set Embree
+picks on the machine (AVX2 or AVX-512: one laser beam in a few hundred steps lands on the other side of a
+millimetre's rounding), so :data:`DIGESTS` holds one reference per machine it was recorded on, each
+``{"recorded_on", "code", "cases"}``, all of them recorded from the code before the step's fast paths
+(``code``: the commit). A run matches when it equals one reference's case in full.
+
+``python -m tests.robchair.env_step_record`` writes :data:`DIGESTS` anew with this machine's recording
+only (regenerate it only for a change that is meant to alter an episode); ``--add`` keeps the other
+machines' references and adds, or replaces, this machine's (run it from a checkout of the reference code).
 """
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
-import sys
+import os
 from pathlib import Path
 from typing import Any
 
@@ -113,8 +121,53 @@ def record() -> dict[str, Any]:
     return {name: record_case(env_id, kw, seed, a_seed, n) for name, env_id, kw, seed, a_seed, n in CASES}
 
 
+def references() -> list[dict[str, Any]]:
+    """The recorded references of :data:`DIGESTS`, each ``{"recorded_on", "code", "cases"}``."""
+    return list(json.loads(DIGESTS.read_text())["references"])
+
+
+def first_difference(got: dict[str, Any], want: dict[str, Any]) -> str | None:
+    """Where the recorded case ``got`` first departs from ``want`` (None when they are equal)."""
+    if got["reset"] != want["reset"]:
+        return "the first observation or info differs"
+    if len(got["steps"]) != len(want["steps"]):
+        return f"{len(got['steps'])} steps against {len(want['steps'])}"
+    for k, (a, b) in enumerate(zip(got["steps"], want["steps"], strict=True)):
+        if a != b:
+            return f"step {k} differs: {a} != {b}"
+    if got["results"] != want["results"]:
+        return f"the runtime results differ: {got['results']} != {want['results']}"
+    if got["counts"] != want["counts"]:
+        return f"the counts differ: {got['counts']} != {want['counts']}"
+    return None
+
+
+def this_machine() -> str:
+    """The label of this machine's reference: CPU model, core count and Embree's widest vector set."""
+    from robchair.commands.bench_output import cpu_model
+
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        flags = set()
+    isa = "AVX2" if "avx2" in flags else "SSE"
+    if {"avx512f", "avx512vl", "avx512bw", "avx512dq"} <= flags:
+        isa = "AVX-512"
+    return f"{cpu_model()} ({os.cpu_count()} cores, {isa})"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tests.robchair.env_step_record", description=__doc__)
+    parser.add_argument("--add", action="store_true", help="keep the other machines' references")
+    parser.add_argument("--code", default="HEAD", help="the commit whose code is recorded (a label)")
+    args = parser.parse_args(argv)
+    mine = {"recorded_on": this_machine(), "code": args.code, "cases": record()}
+    others = [r for r in references() if r["recorded_on"] != mine["recorded_on"]] if args.add else []
+    DIGESTS.write_text(json.dumps({"references": [*others, mine]}, indent=0) + "\n")
+    for name, case in mine["cases"].items():
+        print(name, len(case["steps"]), "steps", case["counts"])
+    return 0
+
+
 if __name__ == "__main__":
-    doc = record()
-    DIGESTS.write_text(json.dumps(doc, indent=0) + "\n")
-    for name, case in doc.items():
-        print(name, len(case["steps"]), "steps", case["counts"], file=sys.stderr)
+    raise SystemExit(main())
